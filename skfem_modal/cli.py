@@ -1,0 +1,151 @@
+"""The ``skfem-modal`` command.
+
+Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
+file); 3 numerical failure (a simulation that went non-finite); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_NUMERICAL = 3
+EXIT_INTERRUPTED = 130
+
+
+def parse_mesh_spec(spec: str):
+    """A mesh from a command-line spec: a file path, or ``NAME[:key=value,...]``.
+
+    ``caterpillar:nx=280,ny=136`` builds the built-in caterpillar with those
+    parameters; anything that is not a built-in name is read as a file.
+    """
+    from .mesh import BUILTIN_SHAPES, builtin_mesh, load_mesh
+
+    name, _, params = spec.partition(":")
+    if name in BUILTIN_SHAPES:
+        kwargs = {}
+        for item in filter(None, params.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq:
+                raise ValueError(f"mesh parameter {item!r} in {spec!r} must look like key=value")
+            kwargs[key.strip()] = _number(value.strip(), f"mesh parameter {key.strip()!r}")
+        return builtin_mesh(name, **kwargs)
+    return load_mesh(spec)
+
+
+def _number(text: str, what: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    raise ValueError(f"{what} must be a number, got {text!r}")
+
+
+def _material(args) -> tuple[float, float]:
+    from .fem import lame_parameters
+
+    if args.young is not None or args.poisson is not None:
+        if args.young is None or args.poisson is None:
+            raise ValueError("--young and --poisson go together")
+        return lame_parameters(args.young, args.poisson)
+    return args.mu, args.lam
+
+
+def cmd_modes(args) -> int:
+    from .export import export_modes
+    from .mesh import mesh_summary, vertices_where
+    from .modal import actuation_limits, linear_modal_analysis, natural_frequencies, rigid_mode_count
+
+    mesh = parse_mesh_spec(args.mesh)
+    mu, lam = _material(args)
+    fixed = None
+    if args.fix:
+        fixed = np.unique(np.concatenate([vertices_where(mesh, cond) for cond in args.fix]))
+        if fixed.size == 0:
+            raise ValueError(f"--fix {' '.join(args.fix)} selects no vertex")
+    info = mesh_summary(mesh)
+    say = (lambda *a: None) if args.quiet else print
+    say(
+        f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
+        f"{info['dim']}D, {args.element}"
+        + (f", {fixed.size} fixed vertices" if fixed is not None else "")
+    )
+    start = time.perf_counter()
+    values, modes = linear_modal_analysis(
+        mesh, args.k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element
+    )
+    elapsed = time.perf_counter() - start
+    n_rigid = rigid_mode_count(mesh, fixed)
+    freqs = natural_frequencies(values)
+    ceilings = actuation_limits(mesh, modes, max_s=args.max_s, element=args.element)
+    say(f"{args.k} modes in {elapsed:.3f} s; {n_rigid} rigid motions ({info['parts']} connected part(s))")
+    say(f"{'mode':>5}  {'eigenvalue':>16}  {'frequency [Hz]':>15}  {'ceiling':>10}  kind")
+    for i, (val, f, c) in enumerate(zip(values, freqs, ceilings)):
+        kind = "rigid" if i < n_rigid else "elastic"
+        ceiling = "-" if not np.isfinite(c) else f"{c:10.6g}"
+        say(f"{i:5d}  {val:16.9e}  {f:15.6g}  {ceiling:>10}  {kind}")
+    export_modes(args.out, mesh, modes, values, element=args.element)
+    say(f"wrote {args.out} (ParaView: Warp By Vector on mode_NN)")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="skfem-modal",
+        description="Linear modal analysis and modal-muscle soft-body simulation on scikit-fem.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("modes", help="linear vibration modes of a mesh, written for ParaView")
+    p.add_argument(
+        "mesh",
+        nargs="?",
+        default="caterpillar",
+        help="mesh file (any format meshio reads) or built-in NAME[:key=value,...] "
+        "(caterpillar, beam2d, beam3d, box3d, creature); default: caterpillar",
+    )
+    p.add_argument("-k", type=int, default=7, help="number of modes, rigid ones included (default 7)")
+    p.add_argument("--mu", type=float, default=1.0, help="Lame shear modulus (default 1)")
+    p.add_argument("--lam", type=float, default=1.0, help="Lame first parameter (default 1)")
+    p.add_argument("--young", type=float, help="Young's modulus (with --poisson, instead of --mu/--lam)")
+    p.add_argument("--poisson", type=float, help="Poisson's ratio")
+    p.add_argument("--rho", type=float, default=1.0, help="density (default 1)")
+    p.add_argument("--element", choices=["P1", "P2"], default="P1")
+    p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped")
+    p.add_argument(
+        "--fix",
+        action="append",
+        metavar="COND",
+        help="pin the vertices where COND holds, e.g. 'x <= 0' or 'x == min' (repeatable)",
+    )
+    p.add_argument("--max-s", type=float, default=2.0, help="gradient change defining the ceilings")
+    p.add_argument("--out", default="modes.vtu", help="output .vtu file (default modes.vtu)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_modes)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``skfem-modal`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, TypeError, FileNotFoundError) as err:
+        print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"skfem-modal {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

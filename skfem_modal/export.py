@@ -1,0 +1,199 @@
+"""ParaView / VTK output through meshio.
+
+Points are always written in 3D (a 2D mesh gets z = 0) and vector fields as
+3-component arrays, which is what ParaView's *Warp By Vector* expects. Every
+file is written to a temporary name beside its target and renamed into place,
+so an interrupted write never leaves a half-written file behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+from .fem import scalar_basis
+from .mesh import check_mesh
+
+__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path"]
+
+
+def pad3(x: np.ndarray) -> np.ndarray:
+    """Pad positions or vectors of shape (n, 2) to (n, 3) with zeros.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, 2) or (n, 3)
+
+    Returns
+    -------
+    x3 : ndarray, shape (n, 3)
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[1] == 3:
+        return x
+    return np.hstack([x, np.zeros((x.shape[0], 3 - x.shape[1]))])
+
+
+# VTK's quadratic cells list the corners, then these corner pairs' midpoints
+_VTK_QUADRATIC_EDGES = {
+    2: [(0, 1), (1, 2), (2, 0)],
+    3: [(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)],
+}
+
+
+def vtk_cells(mesh, element: str = "P1"):
+    """Cells of ``mesh`` in meshio/VTK form.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    element : {"P1", "P2"}
+        P2 gives quadratic cells (``triangle6`` / ``tetra10``) over the P2
+        nodes, with the node order VTK expects.
+
+    Returns
+    -------
+    cell_type : str
+    cells : ndarray of int, shape (nT, nodes_per_cell)
+    """
+    dim = mesh.p.shape[0]
+    if element == "P1":
+        return ("triangle" if dim == 2 else "tetra"), np.ascontiguousarray(mesh.t.T)
+    basis = scalar_basis(mesh, element)
+    dofs = basis.element_dofs  # (nloc, nT): corners first, then edge nodes
+    locs = basis.doflocs[:, dofs]  # (dim, nloc, nT)
+    corners = dofs[: dim + 1]
+    edge_nodes = dofs[dim + 1 :]
+    columns = [c for c in corners]
+    for a, b in _VTK_QUADRATIC_EDGES[dim]:
+        mid = (locs[:, a] + locs[:, b]) / 2.0  # (dim, nT)
+        dist = ((locs[:, dim + 1 :] - mid[:, None, :]) ** 2).sum(axis=0)  # (n_edge_nodes, nT)
+        pick = np.argmin(dist, axis=0)
+        columns.append(edge_nodes[pick, np.arange(dofs.shape[1])])
+    return ("triangle6" if dim == 2 else "tetra10"), np.stack(columns, axis=1)
+
+
+def atomic_path(path: str | os.PathLike):
+    """A temporary path beside ``path``; rename it onto ``path`` when complete.
+
+    Returns
+    -------
+    tmp : str
+        Same directory and extension as ``path``.
+    """
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    stem, ext = os.path.splitext(os.path.basename(path))
+    fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=ext, dir=directory)
+    os.close(fd)
+    return tmp
+
+
+def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=None, field_data=None):
+    """Write one ``.vtu`` file atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+    points : ndarray, shape (n, 2) or (n, 3)
+        Padded to 3D.
+    cell_type : str
+        A meshio cell type (``"triangle"``, ``"tetra"``, ...).
+    cells : ndarray of int, shape (nT, k)
+    point_data : dict of str to ndarray of shape (n,) or (n, c), optional
+        Vectors with 2 components are padded to 3.
+    cell_data : dict of str to ndarray of shape (nT,) or (nT, c), optional
+    field_data : dict of str to ndarray, optional
+    """
+    import meshio
+
+    pdata = {}
+    for name, value in (point_data or {}).items():
+        value = np.asarray(value)
+        pdata[name] = pad3(value) if value.ndim == 2 and value.shape[1] == 2 else value
+    cdata = {name: [np.asarray(value)] for name, value in (cell_data or {}).items()}
+    mesh = meshio.Mesh(
+        pad3(points), [(cell_type, np.asarray(cells, dtype=np.int64))], point_data=pdata, cell_data=cdata
+    )
+    tmp = atomic_path(path)
+    try:
+        meshio.write(tmp, mesh, file_format="vtu")
+        if field_data:
+            _insert_field_data(tmp, field_data)
+        os.replace(tmp, os.fspath(path))
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _insert_field_data(path: str, field_data: dict) -> None:
+    """Add a VTK ``<FieldData>`` block (meshio's VTU writer drops field data).
+
+    Values are written in ASCII with ``repr``, so they read back exactly.
+    """
+    arrays = []
+    for name, value in field_data.items():
+        value = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
+        text = " ".join(repr(float(v)) for v in value)
+        arrays.append(
+            f'<DataArray type="Float64" Name="{name}" NumberOfTuples="{value.size}" '
+            f'format="ascii">\n{text}\n</DataArray>\n'
+        )
+    with open(path, encoding="ascii") as f:
+        xml = f.read()
+    xml = xml.replace("<Piece", "<FieldData>\n" + "".join(arrays) + "</FieldData>\n<Piece", 1)
+    with open(path, "w", encoding="ascii") as f:
+        f.write(xml)
+
+
+def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None) -> None:
+    """Write modes to a ``.vtu`` file, each as a 3-component point vector.
+
+    In ParaView, open the file, apply *Warp By Vector* and pick a mode
+    (``mode_00``, ``mode_01``, ...). P2 modes are written on quadratic cells.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Output ``.vtu`` file; its directory is created if needed.
+    mesh : skfem.MeshTri or skfem.MeshTet
+    modes : ndarray, shape (n_nodes * dim, k)
+        Interleaved modes, e.g. from :func:`~skfem_modal.linear_modal_analysis`.
+    eigenvalues : array_like, shape (k,), optional
+        Stored as field data ``eigenvalues`` and ``frequency_hz``.
+    element : {"P1", "P2"}, optional
+        Inferred from the number of rows when omitted.
+    """
+    from .modal import natural_frequencies
+
+    check_mesh(mesh)
+    modes = np.asarray(modes, dtype=np.float64)
+    if modes.ndim == 1:
+        modes = modes[:, None]
+    dim, n = mesh.p.shape
+    if element is None:
+        element = "P1" if modes.shape[0] == n * dim else "P2"
+    cell_type, cells = vtk_cells(mesh, element)
+    points = mesh.p.T if element == "P1" else scalar_basis(mesh, element).doflocs.T
+    if modes.ndim != 2 or modes.shape[0] != points.shape[0] * dim:
+        raise ValueError(
+            f"modes must have shape ({points.shape[0] * dim}, k) for {element} on this mesh, "
+            f"got {modes.shape}"
+        )
+    if not np.all(np.isfinite(modes)):
+        raise ValueError("modes contain non-finite values")
+    width = max(2, len(str(modes.shape[1] - 1)))
+    point_data = {
+        f"mode_{i:0{width}d}": modes[:, i].reshape(-1, dim) for i in range(modes.shape[1])
+    }
+    field_data = {}
+    if eigenvalues is not None:
+        ev = np.asarray(eigenvalues, dtype=np.float64).ravel()
+        if ev.size != modes.shape[1]:
+            raise ValueError(f"got {ev.size} eigenvalues for {modes.shape[1]} modes")
+        field_data = {"eigenvalues": ev, "frequency_hz": natural_frequencies(ev)}
+    write_vtu(path, points, cell_type, cells, point_data=point_data, field_data=field_data)

@@ -1,0 +1,726 @@
+"""Meshes: build, load, validate; built-in shapes; boundary and sampling.
+
+Every function here takes or returns scikit-fem meshes: :class:`skfem.MeshTri`
+(linear triangles, 2D) or :class:`skfem.MeshTet` (linear tetrahedra, 3D).
+``mesh.p`` has shape ``(dim, n)`` and ``mesh.t`` has shape ``(dim + 1, nT)``;
+arrays handed back to users hold positions as ``(n, dim)``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from typing import Sequence
+
+import numpy as np
+from skfem import MeshTet, MeshTri
+from skfem.element import ElementTetP1, ElementTriP1
+
+__all__ = [
+    "MeshError",
+    "make_mesh",
+    "check_mesh",
+    "load_mesh",
+    "caterpillar",
+    "beam2d",
+    "beam3d",
+    "box3d",
+    "creature",
+    "normalize_and_center",
+    "boundary_vertices",
+    "farthest_point_sampling",
+    "connected_parts",
+    "mesh_summary",
+    "BUILTIN_SHAPES",
+    "builtin_mesh",
+    "vertices_where",
+]
+
+#: An element whose measure is below this fraction of (longest edge)**dim is
+#: degenerate. Slivers of aspect ratio 1e4 are still far above it.
+DEGENERATE_RTOL = 1e-12
+
+_MAX_LISTED = 10
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be used: the message names the elements or vertices."""
+
+
+def _listing(indices: np.ndarray) -> str:
+    shown = ", ".join(str(int(i)) for i in indices[:_MAX_LISTED])
+    more = f", ... ({len(indices)} in all)" if len(indices) > _MAX_LISTED else ""
+    return f"[{shown}{more}]"
+
+
+def _element_name(dim: int, plural: bool = True) -> str:
+    name = "triangle" if dim == 2 else "tetrahedron"
+    if plural:
+        return "triangles" if dim == 2 else "tetrahedra"
+    return name
+
+
+def _signed_measures(p: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Signed area/volume of each simplex; ``p`` (dim, n), ``t`` (dim+1, nT)."""
+    dim = p.shape[0]
+    e = p[:, t[1:]] - p[:, t[0]][:, None, :]  # (dim, dim, nT): edge vectors from vertex 0
+    if dim == 2:
+        det = e[0, 0] * e[1, 1] - e[0, 1] * e[1, 0]
+        return det / 2.0
+    det = (
+        e[0, 0] * (e[1, 1] * e[2, 2] - e[1, 2] * e[2, 1])
+        - e[0, 1] * (e[1, 0] * e[2, 2] - e[1, 2] * e[2, 0])
+        + e[0, 2] * (e[1, 0] * e[2, 1] - e[1, 1] * e[2, 0])
+    )
+    return det / 6.0
+
+
+def _longest_edges(p: np.ndarray, t: np.ndarray) -> np.ndarray:
+    corners = p[:, t]  # (dim, nv, nT)
+    nv = t.shape[0]
+    longest = np.zeros(t.shape[1])
+    for a in range(nv):
+        for b in range(a + 1, nv):
+            d = corners[:, a] - corners[:, b]
+            np.maximum(longest, np.einsum("ie,ie->e", d, d), out=longest)
+    return np.sqrt(longest)
+
+
+def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
+    """Validate raw mesh arrays ``p`` (dim, n) and ``t`` (dim+1, nT)."""
+    if not isinstance(p, np.ndarray) or not isinstance(t, np.ndarray):
+        raise TypeError(f"{what}: points and elements must be numpy arrays")
+    if p.ndim != 2 or p.shape[0] not in (2, 3):
+        raise MeshError(f"{what}: points must have shape (dim, n) with dim 2 or 3, got {p.shape}")
+    dim, n = p.shape
+    if not np.issubdtype(p.dtype, np.floating):
+        raise TypeError(f"{what}: point coordinates must be floating point, got dtype {p.dtype}")
+    if t.ndim != 2 or t.shape[0] != dim + 1:
+        raise MeshError(
+            f"{what}: a {dim}D mesh needs elements of shape ({dim + 1}, nT) "
+            f"({_element_name(dim)}), got {t.shape}"
+        )
+    if not np.issubdtype(t.dtype, np.integer):
+        raise TypeError(f"{what}: element indices must be integers, got dtype {t.dtype}")
+    if n == 0 or t.shape[1] == 0:
+        raise MeshError(f"{what}: needs at least one element, got {n} points and {t.shape[1]} elements")
+    bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
+    if bad.size:
+        raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
+    out = np.nonzero(((t < 0) | (t >= n)).any(axis=0))[0]
+    if out.size:
+        raise MeshError(
+            f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}"
+        )
+    repeated = np.nonzero((np.diff(np.sort(t, axis=0), axis=0) == 0).any(axis=0))[0]
+    if repeated.size:
+        raise MeshError(
+            f"{what}: {repeated.size} elements use the same vertex twice: {_listing(repeated)}"
+        )
+    measure = np.abs(_signed_measures(p, t))
+    scale = _longest_edges(p, t) ** dim
+    degenerate = np.nonzero(~(measure > DEGENERATE_RTOL * scale))[0]
+    if degenerate.size:
+        kind = "area" if dim == 2 else "volume"
+        raise MeshError(
+            f"{what}: {degenerate.size} degenerate (zero-{kind}) {_element_name(dim)}: "
+            f"{_listing(degenerate)}; every element needs a positive {kind}"
+        )
+    used = np.zeros(n, dtype=bool)
+    used[t.ravel()] = True
+    unused = np.nonzero(~used)[0]
+    if unused.size:
+        raise MeshError(
+            f"{what}: {unused.size} vertices belong to no element: {_listing(unused)}; "
+            "remove them (load_mesh does this for files)"
+        )
+
+
+def check_mesh(mesh, *, what: str = "mesh") -> None:
+    """Raise a clear error if ``mesh`` cannot be used.
+
+    Checks, before any work is done: the mesh type (linear ``MeshTri`` or
+    ``MeshTet``), array shapes and dtypes, finite coordinates, element indices
+    in range, no element using a vertex twice, no degenerate (zero-measure)
+    element, and no unused vertex. Offending elements and vertices are listed
+    by index.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        The mesh to check.
+    what : str
+        How to name the mesh in messages (e.g. ``"scene.mesh"``).
+
+    Raises
+    ------
+    TypeError
+        Not a linear triangle or tetrahedron mesh, or wrong dtypes.
+    MeshError
+        (a ``ValueError``) for everything else, naming the problem.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skfem import MeshTri
+    >>> p = np.array([[0.0, 1.0, 2.0], [0.0, 0.0, 0.0]])
+    >>> check_mesh(MeshTri(p, np.array([[0], [1], [2]])))
+    Traceback (most recent call last):
+    ...
+    skfem_modal.mesh.MeshError: mesh: 1 degenerate (zero-area) triangles: [0]; every element needs a positive area
+    """
+    if not isinstance(mesh, (MeshTri, MeshTet)) or mesh.elem not in (ElementTriP1, ElementTetP1):
+        raise TypeError(
+            f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}"
+        )
+    _check_arrays(mesh.p, mesh.t, what=what)
+
+
+def make_mesh(points, elements, *, what: str = "mesh"):
+    """Build a validated scikit-fem mesh from plain arrays.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, dim)
+        Vertex positions, dim 2 (triangles) or 3 (tetrahedra).
+    elements : array_like of int, shape (nT, dim + 1)
+        Vertex indices of each element.
+    what : str
+        How to name the mesh in error messages.
+
+    Returns
+    -------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Vertex and element order are kept (scikit-fem sorts the indices
+        *within* each element; read ``mesh.t`` back).
+
+    Examples
+    --------
+    >>> m = make_mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]])
+    >>> m.p.shape, m.t.shape
+    ((2, 3), (3, 1))
+    """
+    p = np.asarray(points)
+    t = np.asarray(elements)
+    if p.ndim != 2 or t.ndim != 2:
+        raise MeshError(
+            f"{what}: points must be (n, dim) and elements (nT, dim + 1); got {p.shape} and {t.shape}"
+        )
+    if np.issubdtype(p.dtype, np.integer):
+        p = p.astype(np.float64)
+    if np.issubdtype(t.dtype, np.floating):
+        if not np.all(t == np.round(t)):
+            raise TypeError(f"{what}: element indices must be integers")
+        t = t.astype(np.int64)
+    p = np.ascontiguousarray(p.T)
+    t = np.ascontiguousarray(t.T)
+    _check_arrays(p, t, what=what)
+    cls = MeshTri if p.shape[0] == 2 else MeshTet
+    return cls(np.ascontiguousarray(p, dtype=np.float64), np.ascontiguousarray(t))
+
+
+def _compact(p: np.ndarray, t: np.ndarray):
+    """Drop vertices no element uses, keeping the order of the rest.
+
+    ``p`` (dim, n), ``t`` (dim+1, nT) -> (p', t') with t' renumbered.
+    """
+    used = np.unique(t)
+    renumber = np.full(p.shape[1], -1, dtype=np.int64)
+    renumber[used] = np.arange(used.size)
+    return p[:, used], renumber[t]
+
+
+def load_mesh(path: str | os.PathLike):
+    """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
+
+    Tetrahedra make a 3D ``MeshTet``. Otherwise triangles make a 2D ``MeshTri``;
+    a z column is dropped when it is constant (a flat mesh), and refused
+    otherwise (a curved surface is not a planar body). Quadratic cells
+    (``triangle6``, ``tetra10``) keep their corner vertices. Vertices no
+    element uses (e.g. gmsh's geometry points) are removed.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The mesh file (``.msh``, ``.vtu``, ``.vtk``, ``.obj``, ``.off``,
+        ``.xdmf``, ``.mesh``, ``.stl`` and everything else meshio reads).
+
+    Returns
+    -------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Unknown format, no usable cells, a non-flat triangle surface, or an
+        invalid mesh (see :func:`check_mesh`).
+    """
+    import meshio
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"mesh file not found: {path!r}")
+    try:
+        raw = meshio.read(path)
+    except meshio.ReadError as err:
+        raise ValueError(f"cannot read mesh {path!r}: {err}") from err
+    except Exception as err:  # meshio raises many kinds for broken files
+        raise ValueError(f"cannot read mesh {path!r}: {type(err).__name__}: {err}") from err
+
+    blocks = {}
+    for block in raw.cells:
+        kind = {"tetra10": "tetra", "triangle6": "triangle"}.get(block.type, block.type)
+        ncorner = {"tetra": 4, "triangle": 3}.get(kind)
+        if ncorner is None:
+            continue
+        blocks.setdefault(kind, []).append(np.asarray(block.data)[:, :ncorner])
+    points = np.asarray(raw.points, dtype=np.float64)
+    if "tetra" in blocks:
+        if points.shape[1] != 3:
+            raise ValueError(f"{path!r}: tetrahedra need 3D points, got {points.shape[1]} columns")
+        cells = np.vstack(blocks["tetra"])
+    elif "triangle" in blocks:
+        cells = np.vstack(blocks["triangle"])
+        if points.shape[1] == 3:
+            z = points[:, 2]
+            extent = np.ptp(points[:, :2], axis=0).max() if len(points) else 0.0
+            if np.ptp(z) > 1e-12 * max(extent, 1.0):
+                raise ValueError(
+                    f"{path!r}: triangles are not in a plane of constant z "
+                    f"(z spans {np.ptp(z):.3g}); a 2D mesh must be flat, a 3D body needs tetrahedra"
+                )
+            points = points[:, :2]
+    else:
+        found = sorted({b.type for b in raw.cells}) or ["none"]
+        raise ValueError(
+            f"{path!r}: no triangle or tetrahedron cells (found: {', '.join(found)})"
+        )
+    p, t = _compact(points.T, cells.T.astype(np.int64))
+    return make_mesh(p.T, t.T, what=f"mesh {os.path.basename(path)!r}")
+
+
+def normalize_and_center(mesh):
+    """Translate the vertex mean to the origin and scale the largest extent to 2.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
+    Returns
+    -------
+    mesh : same type
+        A new mesh; vertex and element order unchanged.
+
+    Examples
+    --------
+    >>> m = normalize_and_center(beam2d(length=10.0, height=1.0, nx=10, ny=2))
+    >>> float(np.ptp(m.p, axis=1).max())
+    2.0
+    """
+    # work on (n, dim) rows: the same summation order as the usual
+    # ``X -= X.mean(0)`` on vertex rows, so results agree to the last bit
+    x = np.array(mesh.p.T, order="C")
+    x -= x.mean(axis=0)
+    x *= 2.0 / (x.max(axis=0) - x.min(axis=0)).max()
+    return type(mesh)(np.ascontiguousarray(x.T), mesh.t.copy(), sort_t=False)
+
+
+def caterpillar(
+    nx: int = 70,
+    ny: int = 34,
+    width: float = 4.0,
+    height: float = 2.0,
+    body_fraction: float = 0.34,
+    n_legs: int = 4,
+    leg_fraction: float = 0.5,
+    normalize: bool = True,
+):
+    """The tutorial's 2D caterpillar: a body bar over ``n_legs`` stubby legs.
+
+    A regular grid of ``nx`` by ``ny`` vertices over ``width`` x ``height`` is
+    split into two triangles per cell; triangles whose centroid lies in the top
+    bar (the upper ``body_fraction`` of the height) or in one of the legs
+    (centred in ``n_legs`` equal spans, together ``leg_fraction`` of the width)
+    are kept, and unused vertices dropped. With the defaults and
+    ``normalize=True`` (vertex mean at the origin, largest extent 2) this is
+    the reference mesh: 1719 vertices, 3058 triangles, area 1.3429951690821.
+
+    Parameters
+    ----------
+    nx, ny : int
+        Grid vertices along x and y (``nx=280, ny=136`` gives 25975 vertices).
+    width, height : float
+        Size of the grid before normalisation.
+    body_fraction : float
+        Fraction of the height taken by the top bar, in (0, 1).
+    n_legs : int
+        Number of legs.
+    leg_fraction : float
+        Fraction of the width covered by legs, in (0, 1].
+    normalize : bool
+        Centre and scale as :func:`normalize_and_center`.
+
+    Returns
+    -------
+    mesh : skfem.MeshTri
+
+    Examples
+    --------
+    >>> m = caterpillar()
+    >>> m.p.shape, m.t.shape
+    ((2, 1719), (3, 3058))
+    """
+    if nx < 2 or ny < 2:
+        raise ValueError(f"caterpillar: nx and ny must be at least 2, got nx={nx}, ny={ny}")
+    if not 0 < body_fraction < 1:
+        raise ValueError(f"caterpillar: body_fraction must be in (0, 1), got {body_fraction}")
+    if not 0 < leg_fraction <= 1 or n_legs < 1:
+        raise ValueError(
+            f"caterpillar: need n_legs >= 1 and leg_fraction in (0, 1], got {n_legs}, {leg_fraction}"
+        )
+    xs = np.linspace(0.0, width, nx)
+    ys = np.linspace(0.0, height, ny)
+    px, py = np.meshgrid(xs, ys, indexing="xy")
+    points = np.vstack([px.ravel(), py.ravel()])  # vertex j*nx + i sits at (xs[i], ys[j])
+
+    col, row = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="xy")
+    lower_left = (row * nx + col).ravel()
+    lower_right = lower_left + 1
+    upper_left = lower_left + nx
+    upper_right = upper_left + 1
+    # two triangles per grid cell, the cell's pair stored consecutively
+    tri = np.stack(
+        [
+            np.stack([lower_left, lower_right, upper_right]),
+            np.stack([lower_left, upper_right, upper_left]),
+        ],
+        axis=2,
+    ).reshape(3, -1)
+
+    centroid = points[:, tri].mean(axis=1)
+    bar_bottom = height * (1.0 - body_fraction)
+    in_body = centroid[1] >= bar_bottom
+    leg_width = width * leg_fraction / n_legs
+    span = width / n_legs
+    in_leg = np.zeros(tri.shape[1], dtype=bool)
+    for k in range(n_legs):
+        centre = span * (k + 0.5)
+        in_leg |= (np.abs(centroid[0] - centre) <= leg_width / 2) & (centroid[1] < bar_bottom)
+    p, t = _compact(points, tri[:, in_body | in_leg])
+    mesh = MeshTri(np.ascontiguousarray(p), np.ascontiguousarray(t))
+    return normalize_and_center(mesh) if normalize else mesh
+
+
+def beam2d(length: float = 10.0, height: float = 1.0, nx: int = 80, ny: int = 8):
+    """A rectangular 2D beam ``[0, length] x [0, height]`` of triangles.
+
+    Parameters
+    ----------
+    length, height : float
+        Beam size (x along the beam).
+    nx, ny : int
+        Cells along x and y (each split into two triangles).
+
+    Returns
+    -------
+    mesh : skfem.MeshTri
+        ``(nx + 1) * (ny + 1)`` vertices, ``2 * nx * ny`` triangles.
+    """
+    if nx < 1 or ny < 1 or not (length > 0 and height > 0):
+        raise ValueError(f"beam2d: need positive sizes and cell counts, got {length}, {height}, {nx}, {ny}")
+    return MeshTri.init_tensor(np.linspace(0.0, length, nx + 1), np.linspace(0.0, height, ny + 1))
+
+
+def box3d(nx: int, ny: int, nz: int, size: Sequence[float] = (1.0, 1.0, 1.0)):
+    """A box ``[0, size[0]] x [0, size[1]] x [0, size[2]]`` of tetrahedra.
+
+    Each of the ``nx * ny * nz`` cells is split into 6 tetrahedra; ``box3d(40, 10,
+    10, (4, 1, 1))`` is the 24000-tetrahedron benchmark box.
+
+    Returns
+    -------
+    mesh : skfem.MeshTet
+    """
+    if min(nx, ny, nz) < 1 or min(size) <= 0:
+        raise ValueError(f"box3d: need positive sizes and cell counts, got {(nx, ny, nz)}, {tuple(size)}")
+    return MeshTet.init_tensor(
+        np.linspace(0.0, size[0], nx + 1),
+        np.linspace(0.0, size[1], ny + 1),
+        np.linspace(0.0, size[2], nz + 1),
+    )
+
+
+def beam3d(
+    length: float = 10.0, width: float = 1.0, height: float = 1.0, nx: int = 40, ny: int = 4, nz: int = 4
+):
+    """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra.
+
+    Returns
+    -------
+    mesh : skfem.MeshTet
+        ``(nx+1)(ny+1)(nz+1)`` vertices and ``6 nx ny nz`` tetrahedra.
+    """
+    return box3d(nx, ny, nz, (length, width, height))
+
+
+def _axis_breaks(extent: float, cell: float, cuts: Sequence[float]) -> np.ndarray:
+    """Grid lines over [0, extent] at spacing about ``cell`` that include ``cuts``."""
+    fixed = np.unique(np.clip(np.concatenate([[0.0, extent], np.asarray(cuts, float)]), 0.0, extent))
+    lines = [fixed[:1]]
+    for a, b in zip(fixed[:-1], fixed[1:]):
+        if b - a <= 1e-12:
+            continue
+        count = max(1, int(round((b - a) / cell)))
+        lines.append(np.linspace(a, b, count + 1)[1:])
+    return np.concatenate(lines)
+
+
+def creature(
+    length: float = 2.0,
+    width: float = 1.0,
+    body_height: float = 0.3,
+    leg_height: float = 0.4,
+    leg_size: float = 0.3,
+    cell: float = 0.1,
+):
+    """A 3D four-legged creature of tetrahedra: a body slab on four square legs.
+
+    The slab spans ``[0, length] x [0, width]`` in x and y and
+    ``[leg_height, leg_height + body_height]`` in z (z is up). Four legs of
+    cross-section ``leg_size`` x ``leg_size`` stand under its corners, feet at
+    z = 0. Grid lines pass through every face of the shape, so each hexahedral
+    cell (split in 6 tetrahedra) is wholly inside or outside.
+
+    Parameters
+    ----------
+    length, width, body_height, leg_height, leg_size : float
+        Shape dimensions; ``2 * leg_size`` must fit in both length and width.
+    cell : float
+        Target grid spacing.
+
+    Returns
+    -------
+    mesh : skfem.MeshTet
+
+    Examples
+    --------
+    >>> m = creature()
+    >>> m.p.shape, m.t.shape
+    ((3, 1180), (4, 4464))
+    """
+    if min(length, width, body_height, leg_height, leg_size, cell) <= 0:
+        raise ValueError("creature: every size and the cell must be positive")
+    if 2 * leg_size >= min(length, width):
+        raise ValueError(
+            f"creature: two legs of size {leg_size} do not fit in length {length} and width {width}"
+        )
+    xs = _axis_breaks(length, cell, [leg_size, length - leg_size])
+    ys = _axis_breaks(width, cell, [leg_size, width - leg_size])
+    zs = _axis_breaks(leg_height + body_height, cell, [leg_height])
+    box = MeshTet.init_tensor(xs, ys, zs)
+    c = box.p[:, box.t].mean(axis=1)
+    in_body = c[2] > leg_height
+    near_x = (c[0] < leg_size) | (c[0] > length - leg_size)
+    near_y = (c[1] < leg_size) | (c[1] > width - leg_size)
+    in_leg = (c[2] < leg_height) & near_x & near_y
+    p, t = _compact(box.p, box.t[:, in_body | in_leg])
+    return MeshTet(np.ascontiguousarray(p), np.ascontiguousarray(t))
+
+
+def boundary_vertices(mesh) -> np.ndarray:
+    """Indices of the vertices on the boundary, ascending.
+
+    A boundary vertex lies on a facet (edge in 2D, triangle in 3D) that belongs
+    to exactly one element.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
+    Returns
+    -------
+    indices : ndarray of int, shape (nb,)
+    """
+    facets = mesh.facets[:, mesh.f2t[1] == -1]
+    return np.unique(facets).astype(np.int64)
+
+
+def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndarray:
+    """Pick ``k`` well-spread points, deterministically.
+
+    Starts at ``start`` (default: the point with the smallest first coordinate,
+    the first such on ties) and repeatedly adds the point farthest from the
+    chosen set (the first such on ties).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, d)
+    k : int
+        Number of points to pick, ``1 <= k <= n``.
+    start : int, optional
+        Index of the first point.
+
+    Returns
+    -------
+    indices : ndarray of int, shape (k,)
+        Row indices into ``points`` in the order they were picked.
+
+    Examples
+    --------
+    >>> farthest_point_sampling([[0.0], [1.0], [0.4], [0.9]], 3).tolist()
+    [0, 1, 2]
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2:
+        raise ValueError(f"farthest_point_sampling: points must be (n, d), got shape {pts.shape}")
+    n = pts.shape[0]
+    if not 1 <= k <= n:
+        raise ValueError(f"farthest_point_sampling: k must be in 1..{n}, got {k}")
+    first = int(np.argmin(pts[:, 0])) if start is None else int(start)
+    if not 0 <= first < n:
+        raise ValueError(f"farthest_point_sampling: start must be in 0..{n - 1}, got {start}")
+    chosen = np.empty(k, dtype=np.int64)
+    chosen[0] = first
+    distance = np.sqrt(((pts - pts[first]) ** 2).sum(axis=1))
+    for i in range(1, k):
+        nxt = int(np.argmax(distance))
+        chosen[i] = nxt
+        distance = np.minimum(distance, np.sqrt(((pts - pts[nxt]) ** 2).sum(axis=1)))
+    return chosen
+
+
+def connected_parts(mesh) -> np.ndarray:
+    """Label each vertex with the connected part of the mesh it belongs to.
+
+    Two elements are connected when they share a vertex.
+
+    Returns
+    -------
+    labels : ndarray of int, shape (n,)
+        Part index of each vertex, numbered 0.. in order of first vertex.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    t = mesh.t
+    n = mesh.p.shape[1]
+    rows = np.repeat(t[:1], t.shape[0] - 1, axis=0).ravel()
+    cols = t[1:].ravel()
+    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    # renumber parts by their first vertex so labels do not depend on the solver
+    _, first = np.unique(labels, return_index=True)
+    order = np.argsort(first)
+    renumber = np.empty_like(order)
+    renumber[order] = np.arange(order.size)
+    return renumber[labels]
+
+
+def mesh_summary(mesh) -> dict:
+    """Sizes and extents of a mesh, for printing and for ``summary.json``.
+
+    Returns
+    -------
+    info : dict
+        ``dim``, ``vertices``, ``elements``, ``element`` name, ``measure``
+        (total area/volume), ``bounds`` (min and max per axis), ``parts``.
+    """
+    dim = mesh.p.shape[0]
+    return {
+        "dim": dim,
+        "vertices": int(mesh.p.shape[1]),
+        "elements": int(mesh.t.shape[1]),
+        "element": _element_name(dim, plural=False),
+        "measure": float(np.abs(_signed_measures(mesh.p, mesh.t)).sum()),
+        "bounds": [mesh.p.min(axis=1).tolist(), mesh.p.max(axis=1).tolist()],
+        "parts": int(connected_parts(mesh).max() + 1),
+    }
+
+
+#: Built-in shapes by name, for the command line and scene files.
+BUILTIN_SHAPES = {
+    "caterpillar": caterpillar,
+    "beam2d": beam2d,
+    "beam3d": beam3d,
+    "box3d": box3d,
+    "creature": creature,
+}
+
+
+def builtin_mesh(name: str, **params):
+    """A built-in shape by name, with keyword parameters.
+
+    Parameters
+    ----------
+    name : {"caterpillar", "beam2d", "beam3d", "box3d", "creature"}
+    **params
+        Passed to the shape's function (e.g. ``nx=280``).
+
+    Returns
+    -------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    """
+    import inspect
+
+    if name not in BUILTIN_SHAPES:
+        raise ValueError(f"unknown built-in shape {name!r}; expected one of {sorted(BUILTIN_SHAPES)}")
+    func = BUILTIN_SHAPES[name]
+    accepted = inspect.signature(func).parameters
+    unknown = sorted(set(params) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"shape {name!r} has no parameter {', '.join(unknown)}; it takes {', '.join(accepted)}"
+        )
+    return func(**params)
+
+
+_CONDITION = re.compile(
+    r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s*$"
+)
+
+
+def vertices_where(mesh, condition: str) -> np.ndarray:
+    """Vertices satisfying a coordinate condition such as ``"x <= 0.01"``.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    condition : str
+        ``AXIS OP VALUE`` with AXIS one of x, y, z; OP one of <, <=, >, >=, ==
+        (``==`` within 1e-9 of the mesh size); VALUE a number, or ``min`` /
+        ``max`` for the mesh's extreme along that axis.
+
+    Returns
+    -------
+    indices : ndarray of int, ascending
+
+    Examples
+    --------
+    >>> m = beam2d(2.0, 1.0, 2, 1)
+    >>> m.p[:, vertices_where(m, "x == min")].T.tolist()
+    [[0.0, 0.0], [0.0, 1.0]]
+    """
+    match = _CONDITION.match(condition)
+    if match is None:
+        raise ValueError(
+            f"cannot read vertex condition {condition!r}; expected e.g. 'x <= 0.01' or 'y == min'"
+        )
+    axis = "xyz".index(match.group(1))
+    dim = mesh.p.shape[0]
+    if axis >= dim:
+        raise ValueError(f"condition {condition!r} uses axis {match.group(1)} but the mesh is {dim}D")
+    coord = mesh.p[axis]
+    value = match.group(3)
+    value = coord.min() if value == "min" else coord.max() if value == "max" else float(value)
+    tol = 1e-9 * float(np.ptp(mesh.p, axis=1).max())
+    op = match.group(2)
+    chosen = {
+        "<": coord < value - tol,
+        "<=": coord <= value + tol,
+        ">": coord > value + tol,
+        ">=": coord >= value - tol,
+        "==": np.abs(coord - value) <= tol,
+    }[op]
+    return np.nonzero(chosen)[0]

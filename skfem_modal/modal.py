@@ -1,0 +1,480 @@
+"""Linear modal analysis: modes, rigid motions, sign convention, frequencies, ceilings.
+
+The modes solve ``K d = lambda M d`` for the linear elasticity stiffness ``K``
+and the mass ``M`` of :mod:`skfem_modal.fem`, with
+:func:`scipy.sparse.linalg.eigsh` in shift-invert mode about a small negative
+shift: a free body's ``K`` is singular, so a zero shift factors a singular
+matrix, while any shift below zero keeps ``K - sigma M`` positive definite and
+still targets the lowest eigenvalues.
+
+Results are made deterministic, so they are the same on every machine and do
+not depend on the element order:
+
+* the rigid modes of a free body are the canonical rigid motions (translations
+  along each axis, then rotations about the part's centroid, per connected
+  part), mass-orthonormalised in that order;
+* within a group of repeated eigenvalues (symmetric shapes) the basis is fixed
+  by diagonalising a generic, position-dependent weight on the group;
+* each mode's sign makes its largest entry positive (the lowest DOF index
+  among entries within 1e-6 of the largest magnitude).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from .fem import ELEMENTS, _jacobian, _mass, _stiffness, node_positions, scalar_basis, vector_dofs
+from .mesh import check_mesh, connected_parts
+
+__all__ = [
+    "linear_modal_analysis",
+    "rigid_motions",
+    "rigid_mode_count",
+    "fixed_nodes",
+    "natural_frequencies",
+    "actuation_limits",
+    "mode_sign_convention",
+]
+
+# Eigenvalues closer than this (relative) form one repeated group.
+_REPEATED_RTOL = 1e-8
+# Entries within this fraction of a mode's largest magnitude tie for its sign.
+_SIGN_TIE_RTOL = 1e-6
+# Below this many free DOFs, a dense solve is both faster and exact.
+_DENSE_LIMIT = 600
+# Extra modes solved beyond k, so a repeated group at the end is not cut.
+_EXTRA_MODES = 1
+# Use a banded Cholesky when its band holds at most this many entries.
+_BANDED_ENTRIES = 12_000_000
+
+
+def _node_parts(mesh, element: str) -> np.ndarray:
+    parts = connected_parts(mesh)
+    if element == "P1":
+        return parts
+    basis = scalar_basis(mesh, element)
+    node_part = np.empty(basis.N, dtype=np.int64)
+    node_part[basis.element_dofs] = parts[mesh.t[0]][None, :]
+    return node_part
+
+
+def fixed_nodes(mesh, fixed, element: str = "P1") -> np.ndarray:
+    """The nodes pinned by a set of fixed vertices.
+
+    For P1 these are the vertices themselves; for P2 also every edge node whose
+    two end vertices are fixed (so a clamped face is clamped along its edges).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    fixed : array_like of int (vertex indices) or of bool, shape (n,)
+    element : {"P1", "P2"}
+
+    Returns
+    -------
+    nodes : ndarray of int, shape (nf,), ascending
+    """
+    n = mesh.p.shape[1]
+    arr = np.asarray(fixed)
+    if arr.dtype == bool:
+        if arr.shape != (n,):
+            raise ValueError(f"fixed: a boolean mask must have shape ({n},), got {arr.shape}")
+        verts = np.nonzero(arr)[0]
+    else:
+        if arr.size and not np.issubdtype(arr.dtype, np.integer):
+            raise TypeError(f"fixed: vertex indices must be integers, got dtype {arr.dtype}")
+        verts = np.unique(arr.astype(np.int64).ravel())
+        bad = verts[(verts < 0) | (verts >= n)]
+        if bad.size:
+            raise ValueError(f"fixed: vertex indices must be in 0..{n - 1}, got {bad[:10].tolist()}")
+    if element == "P1":
+        return verts
+    basis = scalar_basis(mesh, element)
+    is_fixed = np.zeros(n, dtype=bool)
+    is_fixed[verts] = True
+    if mesh.p.shape[0] == 2:
+        ends, nodes = mesh.facets, basis.dofs.facet_dofs[0]
+    else:
+        ends, nodes = mesh.edges, basis.dofs.edge_dofs[0]
+    pinned_edges = is_fixed[ends].all(axis=0)
+    return np.concatenate([verts, np.sort(nodes[pinned_edges])]).astype(np.int64)
+
+
+def rigid_motions(mesh, fixed=None, element: str = "P1") -> np.ndarray:
+    """Canonical basis of the infinitesimal rigid motions that respect ``fixed``.
+
+    Per connected part, in this order: translation along each axis, then
+    rotation about the part's centroid (about z in 2D; about x, y, z in 3D).
+    With fixed vertices, only the motions of each part that vanish at its fixed
+    nodes remain (a part pinned at two points in 2D has none).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    fixed : array_like of int or bool, optional
+        Fixed vertices.
+    element : {"P1", "P2"}
+
+    Returns
+    -------
+    R : ndarray, shape (n_nodes * dim, r)
+        ``r = 3`` (2D) or ``6`` (3D) per free part. Not orthonormalised.
+    """
+    check_mesh(mesh)
+    return _rigid_motions(mesh, fixed, element)
+
+
+def _rigid_motions(mesh, fixed, element: str) -> np.ndarray:
+    x = node_positions(mesh, element)
+    n, dim = x.shape
+    parts = _node_parts(mesh, element)
+    pinned = np.zeros(n, dtype=bool)
+    if fixed is not None:
+        pinned[fixed_nodes(mesh, fixed, element)] = True
+    columns = []
+    for part in range(parts.max() + 1):
+        inside = parts == part
+        c = x[inside] - x[inside].mean(axis=0)
+        fields = []
+        for axis in range(dim):
+            u = np.zeros((n, dim))
+            u[inside, axis] = 1.0
+            fields.append(u)
+        axes = [2] if dim == 2 else [0, 1, 2]
+        for axis in axes:
+            w = np.zeros(3)
+            w[axis] = 1.0
+            u = np.zeros((n, dim))
+            c3 = np.zeros((c.shape[0], 3))
+            c3[:, :dim] = c
+            u[inside] = np.cross(w, c3)[:, :dim]
+            fields.append(u)
+        block = np.stack([f.ravel() for f in fields], axis=1)
+        at_pins = block[vector_dofs(np.nonzero(pinned & inside)[0], dim)]
+        if at_pins.shape[0]:
+            # keep the combinations that vanish at this part's fixed nodes
+            _, s, vt = np.linalg.svd(at_pins)
+            rank = int((s > 1e-10 * max(1.0, s.max())).sum())
+            block = block @ vt[rank:].T
+        columns.append(block)
+    return np.hstack(columns) if columns else np.zeros((n * dim, 0))
+
+
+def rigid_mode_count(mesh, fixed=None) -> int:
+    """Number of rigid (zero-stiffness) motions: 3 in 2D and 6 in 3D per free part.
+
+    Parts are vertex-connected; fixed vertices remove the motions that move
+    them (one pinned vertex in 2D leaves the rotation about it).
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import caterpillar
+    >>> rigid_mode_count(caterpillar())
+    3
+    """
+    return rigid_motions(mesh, fixed).shape[1]
+
+
+def _m_orthonormalize(V: np.ndarray, M) -> np.ndarray:
+    """Gram-Schmidt (in column order) in the M inner product."""
+    G = V.T @ (M @ V)
+    L = np.linalg.cholesky(G)
+    return sla.solve_triangular(L, V.T, lower=True).T
+
+
+def _generic_weight(x: np.ndarray) -> np.ndarray:
+    """A smooth, generic positive weight per DOF, shape (n * dim,).
+
+    Used to split repeated eigenvalues deterministically: it has no symmetry a
+    mesh can share (different along each axis and for each component).
+    """
+    n, dim = x.shape
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    xi = (x - (lo + hi) / 2) / np.maximum((hi - lo) / 2, 1e-300)
+    lin = np.array([0.31, 0.17, 0.11])[:dim]
+    quad = np.array([0.23, 0.37, 0.29])[:dim]
+    f = 1.0 + 0.1 * xi @ lin + 0.05 * (xi**2) @ quad
+    if dim >= 2:
+        f += 0.013 * xi[:, 0] * xi[:, 1]
+    if dim == 3:
+        f += 0.007 * xi[:, 1] * xi[:, 2] + 0.019 * xi[:, 0] * xi[:, 2]
+    comp = 1.0 + 0.03 * np.arange(dim)
+    return (f[:, None] * comp[None, :]).ravel()
+
+
+def mode_sign_convention(modes: np.ndarray) -> np.ndarray:
+    """Flip each column so its largest entry is positive (deterministic sign).
+
+    Among the entries whose magnitude is within 1e-6 (relative) of the largest,
+    the one with the lowest index decides; ties from symmetric meshes are thus
+    resolved by DOF order, not by round-off.
+
+    Parameters
+    ----------
+    modes : ndarray, shape (n_dofs, k)
+
+    Returns
+    -------
+    modes : ndarray, shape (n_dofs, k)
+        A copy with signs fixed.
+    """
+    out = np.array(modes, dtype=np.float64, copy=True)
+    mag = np.abs(out)
+    top = mag.max(axis=0)
+    for col in range(out.shape[1]):
+        if top[col] == 0:
+            continue
+        first = np.argmax(mag[:, col] >= (1.0 - _SIGN_TIE_RTOL) * top[col])
+        if out[first, col] < 0:
+            out[:, col] *= -1.0
+    return out
+
+
+def _canonical_groups(values, vectors, M, weight):
+    """Fix the basis inside every group of repeated eigenvalues."""
+    k = values.size
+    start = 0
+    scale = max(np.abs(values).max(), 1e-300)
+    while start < k:
+        stop = start + 1
+        while stop < k and abs(values[stop] - values[stop - 1]) <= _REPEATED_RTOL * max(
+            abs(values[stop]), 1e-3 * scale
+        ):
+            stop += 1
+        if stop - start > 1:
+            V = vectors[:, start:stop]
+            S = V.T @ (M @ (weight[:, None] * V))
+            _, Q = np.linalg.eigh((S + S.T) / 2)
+            vectors[:, start:stop] = V @ Q
+            values[start:stop] = values[start:stop].mean()
+        start = stop
+    return values, vectors
+
+
+def _shift_invert_solver(A: sps.spmatrix, node_dim: int):
+    """A solver for the symmetric positive definite ``A``: ``b -> A^{-1} b``.
+
+    Elongated meshes (beams, slabs) have a narrow band after reverse
+    Cuthill-McKee ordering; LAPACK's banded Cholesky is then several times
+    faster than a general sparse LU. Otherwise SuperLU with a symmetric
+    minimum-degree ordering and diagonal pivots (``A`` is SPD, so no pivoting
+    is needed).
+    """
+    n = A.shape[0]
+    coo = A.tocoo()
+    nodes = n // node_dim
+    node_graph = sps.csr_matrix(
+        (np.ones(coo.nnz, dtype=np.int8), (coo.row // node_dim, coo.col // node_dim)),
+        shape=(nodes, nodes),
+    )
+    order = reverse_cuthill_mckee(node_graph, symmetric_mode=True)
+    rank = np.empty(nodes, dtype=np.int64)
+    rank[order] = np.arange(nodes)
+    # position of every DOF in the reordered matrix
+    new_index = (rank[:, None] * node_dim + np.arange(node_dim)).ravel()
+    i, j = new_index[coo.row], new_index[coo.col]
+    lower = i >= j
+    band = int((i - j)[lower].max())
+    if (band + 1) * n <= _BANDED_ENTRIES:
+        ab = np.zeros((band + 1, n))
+        ab[(i - j)[lower], j[lower]] = coo.data[lower]
+        factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
+        perm = np.empty(n, dtype=np.int64)
+        perm[new_index] = np.arange(n)
+
+        def solve(b):
+            return sla.cho_solve_banded((factor, True), b[perm], check_finite=False)[new_index]
+
+        return solve
+    lu = spla.splu(
+        A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+    )
+    return lu.solve
+
+
+def _lowest_eigenpairs(K, M, k: int, node_dim: int):
+    """The ``k`` lowest eigenpairs of ``K v = lambda M v`` (unsorted).
+
+    ``node_dim`` DOFs per node, interleaved, so orderings can work on nodes.
+    """
+    n = K.shape[0]
+    if n <= _DENSE_LIMIT or k >= n - 1:
+        values, vectors = sla.eigh(K.toarray(), M.toarray())
+        return values[:k], vectors[:, :k]
+    # a shift just below zero: K - sigma M is positive definite even for a
+    # free body, and the modes nearest sigma are the lowest ones
+    sigma = -1e-6 * float(np.median(K.diagonal() / M.diagonal()))
+    solve = _shift_invert_solver(K - sigma * M, node_dim)
+    op = spla.LinearOperator(K.shape, matvec=solve, dtype=np.float64)
+    v0 = np.random.default_rng(20261121).standard_normal(n)
+    # a slightly larger Krylov space than ARPACK's default saves restarts
+    ncv = min(n, max(2 * k + 1, 24))
+    return spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
+
+
+def linear_modal_analysis(
+    mesh,
+    k: int,
+    *,
+    mu=1.0,
+    lam=1.0,
+    rho=1.0,
+    fixed=None,
+    mass: str = "lumped",
+    element: str = "P1",
+):
+    """Lowest ``k`` linear vibration modes, ``K d = lambda M d``.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    k : int
+        Number of modes, including rigid ones.
+    mu, lam : float or ndarray of shape (nT,)
+        Lame parameters of the stiffness.
+    rho : float or ndarray of shape (nT,)
+        Density of the mass matrix.
+    fixed : array_like of int or bool, optional
+        Pinned vertices: their DOFs are eliminated and the modes are zero there
+        (with P2, also the edge nodes between two pinned vertices).
+    mass : {"lumped", "consistent"}
+    element : {"P1", "P2"}
+
+    Returns
+    -------
+    eigenvalues : ndarray, shape (k,)
+        Ascending squared angular frequencies; rigid modes come first, with
+        eigenvalues at round-off level.
+    modes : ndarray, shape (n_nodes * dim, k)
+        Mass-orthonormal (``modes.T @ M @ modes = I``), interleaved vertex-major,
+        with the deterministic signs and bases described in the module docs.
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import caterpillar
+    >>> vals, modes = linear_modal_analysis(caterpillar(), 7)
+    >>> modes.shape
+    (3438, 7)
+    >>> [round(float(v), 6) for v in vals[3:]]
+    [0.12494, 0.304251, 0.374627, 0.853441]
+    """
+    check_mesh(mesh)
+    if element not in ELEMENTS:
+        raise ValueError(f"element must be one of {ELEMENTS}, got {element!r}")
+    if mass not in ("lumped", "consistent"):
+        raise ValueError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise TypeError(f"k must be an integer, got {type(k).__name__}")
+    dim = mesh.p.shape[0]
+    K = _stiffness(mesh, mu, lam, element)
+    M = _mass(mesh, rho, mass == "lumped", element, True)
+    n_dofs = K.shape[0]
+    pinned = fixed_nodes(mesh, fixed, element) if fixed is not None else np.zeros(0, np.int64)
+    free = np.setdiff1d(np.arange(n_dofs), vector_dofs(pinned, dim))
+    if not 1 <= k <= free.size:
+        raise ValueError(f"k must be in 1..{free.size} (the number of free DOFs), got {k}")
+    if free.size < n_dofs:
+        K = K[free][:, free]
+        M = M[free][:, free]
+    Kf, Mf = K, M
+
+    R = _rigid_motions(mesh, fixed, element)[free]
+    n_rigid = R.shape[1]
+    k_solve = min(k + _EXTRA_MODES, free.size)
+    values, vectors = _lowest_eigenpairs(Kf, Mf, k_solve, dim)
+    order = np.argsort(values)
+    values, vectors = values[order].copy(), vectors[:, order].copy()
+
+    if n_rigid:
+        rigid = _m_orthonormalize(R, Mf)
+        stop = min(n_rigid, k_solve)
+        vectors[:, :stop] = rigid[:, :stop]
+        values[:stop] = np.einsum("ij,ij->j", rigid[:, :stop], Kf @ rigid[:, :stop])
+        scale = float(np.abs(values).max()) if values.size else 1.0
+        n_zero = int((np.abs(values) <= 1e-8 * max(scale, 1e-300)).sum())
+        if n_zero > n_rigid and k_solve > n_rigid:
+            warnings.warn(
+                f"{n_zero} modes have zero stiffness but the mesh has only {n_rigid} rigid "
+                "motions: parts joined at a single vertex or edge act as hinges",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    elastic = slice(min(n_rigid, k_solve), k_solve)
+    weight = _generic_weight(node_positions(mesh, element)).reshape(-1)[free]
+    values[elastic], vectors[:, elastic] = _canonical_groups(
+        values[elastic].copy(), vectors[:, elastic].copy(), Mf, weight
+    )
+    vectors = mode_sign_convention(vectors[:, :k])
+    modes = np.zeros((n_dofs, k))
+    modes[free] = vectors
+    return values[:k], modes
+
+
+def natural_frequencies(eigenvalues) -> np.ndarray:
+    """Natural frequencies in Hz, ``sqrt(lambda) / (2 pi)``.
+
+    Round-off negative eigenvalues of rigid modes give 0.
+
+    Parameters
+    ----------
+    eigenvalues : array_like, shape (k,)
+
+    Returns
+    -------
+    frequencies : ndarray, shape (k,)
+
+    Examples
+    --------
+    >>> natural_frequencies([(2 * np.pi) ** 2, -1e-15]).tolist()
+    [1.0, 0.0]
+    """
+    vals = np.asarray(eigenvalues, dtype=np.float64)
+    return np.sqrt(np.clip(vals, 0.0, None)) / (2.0 * np.pi)
+
+
+def actuation_limits(mesh, modes, max_s: float = 2.0, element: str | None = None) -> np.ndarray:
+    """Per-mode amplitude ceilings for modal muscles.
+
+    Ceiling ``a_k = max_s / max_e |J_e d_k|_F``: scaling mode ``d_k`` by
+    ``a_k`` makes the largest per-element deformation-gradient change have
+    Frobenius norm ``max_s``. Modes with no deformation (rigid translations)
+    have no ceiling (``inf``).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    modes : ndarray, shape (n_nodes * dim, m)
+    max_s : float
+        Largest allowed gradient change, > 0.
+    element : {"P1", "P2"}, optional
+        Inferred from the number of rows when omitted.
+
+    Returns
+    -------
+    ceilings : ndarray, shape (m,)
+    """
+    check_mesh(mesh)
+    if not (np.isfinite(max_s) and max_s > 0):
+        raise ValueError(f"max_s must be positive and finite, got {max_s}")
+    D = np.asarray(modes, dtype=np.float64)
+    if D.ndim == 1:
+        D = D[:, None]
+    dim, n = mesh.p.shape
+    if element is None:
+        element = "P1" if D.shape[0] == n * dim else "P2"
+    n_rows = node_positions(mesh, element).size
+    if D.ndim != 2 or D.shape[0] != n_rows:
+        raise ValueError(
+            f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}"
+        )
+    J = _jacobian(mesh, element)
+    JD = (J @ D).reshape(-1, dim * dim, D.shape[1])
+    largest = np.sqrt((JD**2).sum(axis=1)).max(axis=0)
+    with np.errstate(divide="ignore"):
+        return np.where(largest > 0, max_s / np.where(largest > 0, largest, 1.0), np.inf)

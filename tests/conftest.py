@@ -1,0 +1,32 @@
+"""Shared fixtures: the tutorial's caterpillar and the reference numbers."""
+
+import numpy as np
+import pytest
+
+from skfem_modal import caterpillar
+
+# ../shared/reference/README.md: numbers SimKit 0.1.8 produces on the tutorial's scene
+REFERENCE = {
+    "vertices": 1719,
+    "triangles": 3058,
+    "area": 1.3429951690821,
+    "eigenvalues_3_6": np.array([0.124939824, 0.304251026, 0.374627004, 0.853441268]),
+    "skinning_eigenvalues": np.array(
+        [0.0, 1.12203495, 2.88155382, 3.64628783, 7.7777972, 8.9861157, 13.812334, 23.088929]
+    ),
+    "ceilings_3_6": np.array([0.4804847, 0.3935627, 0.2975196, 0.2482976]),
+    # x-displacement of vertex 0 in the tutorial's modes 3-6
+    "mode_signs_3_6": np.array([1.0, -1.0, -1.0, 1.0]),
+    "crawl_com_dx": -4.438,
+    "crawl_com_y_range": (-0.130, 0.244),
+}
+
+
+@pytest.fixture(scope="session")
+def reference():
+    return REFERENCE
+
+
+@pytest.fixture(scope="session")
+def cat_mesh():
+    return caterpillar()

@@ -1,0 +1,231 @@
+import meshio
+import numpy as np
+import pytest
+from skfem import MeshTet, MeshTri
+
+from skfem_modal import (
+    MeshError,
+    beam2d,
+    beam3d,
+    boundary_vertices,
+    box3d,
+    caterpillar,
+    check_mesh,
+    creature,
+    farthest_point_sampling,
+    load_mesh,
+    make_mesh,
+    normalize_and_center,
+    vertices_where,
+)
+from skfem_modal.fem import element_volumes
+from skfem_modal.mesh import builtin_mesh, connected_parts, mesh_summary
+
+
+def test_caterpillar_matches_the_tutorial(cat_mesh, reference):
+    assert cat_mesh.p.shape == (2, reference["vertices"])
+    assert cat_mesh.t.shape == (3, reference["triangles"])
+    assert element_volumes(cat_mesh).sum() == pytest.approx(reference["area"], rel=1e-13)
+    extent = np.ptp(cat_mesh.p, axis=1)
+    assert extent.max() == pytest.approx(2.0, rel=1e-15)
+    np.testing.assert_allclose(cat_mesh.p.mean(axis=1), 0.0, atol=1e-14)
+    # vertex 0 is the bottom-left corner of the left leg
+    assert cat_mesh.p[1, 0] == cat_mesh.p[1].min()
+    assert cat_mesh.p[0, 0] == cat_mesh.p[0, cat_mesh.p[1] == cat_mesh.p[1].min()].min()
+
+
+def test_caterpillar_refined_size():
+    m = caterpillar(nx=280, ny=136)
+    assert m.p.shape[1] == 25975
+
+
+def test_beams_and_box_sizes():
+    b2 = beam2d(10.0, 1.0, 20, 4)
+    assert isinstance(b2, MeshTri) and b2.p.shape[1] == 21 * 5 and b2.t.shape[1] == 2 * 20 * 4
+    b3 = beam3d(10.0, 1.0, 1.0, 10, 2, 2)
+    assert isinstance(b3, MeshTet) and b3.t.shape[1] == 6 * 10 * 2 * 2
+    box = box3d(40, 10, 10, (4.0, 1.0, 1.0))
+    assert box.p.shape[1] == 4961 and box.t.shape[1] == 24000
+    assert element_volumes(box).sum() == pytest.approx(4.0, rel=1e-12)
+
+
+def test_creature_is_a_slab_on_four_legs():
+    m = creature(length=2.0, width=1.0, body_height=0.3, leg_height=0.4, leg_size=0.3, cell=0.1)
+    info = mesh_summary(m)
+    assert info["parts"] == 1
+    # volume: slab plus four legs, exactly (grid lines pass through every face)
+    assert info["measure"] == pytest.approx(2.0 * 1.0 * 0.3 + 4 * 0.3 * 0.3 * 0.4, rel=1e-12)
+    feet = m.p[:, m.p[2] == 0.0]
+    assert feet.shape[1] > 0
+    # feet only under the four corners
+    near_x = (feet[0] <= 0.3 + 1e-12) | (feet[0] >= 1.7 - 1e-12)
+    near_y = (feet[1] <= 0.3 + 1e-12) | (feet[1] >= 0.7 - 1e-12)
+    assert np.all(near_x & near_y)
+    # the region under the belly between the legs is empty
+    c = m.p[:, m.t].mean(axis=1)
+    belly = (c[2] < 0.4) & (c[0] > 0.3) & (c[0] < 1.7)
+    assert not belly.any()
+
+
+def test_normalize_and_center_keeps_order_and_shape():
+    m = beam2d(10.0, 2.0, 10, 2)
+    n = normalize_and_center(m)
+    np.testing.assert_array_equal(n.t, m.t)
+    assert np.ptp(n.p, axis=1).max() == pytest.approx(2.0)
+    np.testing.assert_allclose(n.p.mean(axis=1), 0.0, atol=1e-15)
+    # a similarity: ratios of distances are kept
+    d0 = np.linalg.norm(m.p[:, 5] - m.p[:, 0]) / np.linalg.norm(m.p[:, 7] - m.p[:, 0])
+    d1 = np.linalg.norm(n.p[:, 5] - n.p[:, 0]) / np.linalg.norm(n.p[:, 7] - n.p[:, 0])
+    assert d1 == pytest.approx(d0, rel=1e-14)
+
+
+def test_boundary_vertices_match_scikit_fem():
+    m = beam2d(4.0, 1.0, 8, 2)
+    b = boundary_vertices(m)
+    np.testing.assert_array_equal(b, np.sort(m.boundary_nodes()))
+    assert b.size == 2 * (8 + 2)  # the perimeter of a 9 x 3 grid
+    t = box3d(3, 3, 3)
+    assert boundary_vertices(t).size == 4**3 - 2**3
+
+
+def test_farthest_point_sampling_is_deterministic_and_spread():
+    rng = np.random.default_rng(1)
+    pts = rng.random((300, 2))
+    a = farthest_point_sampling(pts, 20)
+    b = farthest_point_sampling(pts.copy(), 20)
+    np.testing.assert_array_equal(a, b)
+    assert a[0] == np.argmin(pts[:, 0])
+    assert len(set(a.tolist())) == 20
+    # each added point is the farthest from those before it
+    for i in range(1, 20):
+        d = np.min(np.linalg.norm(pts[:, None] - pts[a[:i]][None], axis=2), axis=1)
+        assert d[a[i]] == pytest.approx(d.max())
+    # ties go to the first index
+    line = np.array([[0.0], [1.0], [-1.0], [2.0]])
+    assert farthest_point_sampling(line[[1, 0, 2, 3]], 2).tolist() == [2, 3]
+    with pytest.raises(ValueError, match="k must be in 1..4"):
+        farthest_point_sampling(line, 5)
+
+
+def test_vertices_where():
+    m = beam2d(2.0, 1.0, 2, 1)
+    x, y = m.p
+    assert vertices_where(m, "x == min").tolist() == np.nonzero(x == 0)[0].tolist()
+    assert len(vertices_where(m, "x == min")) == 2
+    assert vertices_where(m, "x >= 1").tolist() == np.nonzero(x >= 1)[0].tolist()
+    assert len(vertices_where(m, "x >= 1")) == 4
+    assert vertices_where(m, "y < 0.5").tolist() == np.nonzero(y == 0)[0].tolist()
+    assert vertices_where(m, "y <= 1e-12").tolist() == np.nonzero(y == 0)[0].tolist()
+    with pytest.raises(ValueError, match="axis z but the mesh is 2D"):
+        vertices_where(m, "z < 1")
+    with pytest.raises(ValueError, match="cannot read vertex condition"):
+        vertices_where(m, "x ~ 1")
+
+
+def test_builtin_mesh_by_name():
+    assert builtin_mesh("beam2d", nx=3, ny=1).t.shape[1] == 6
+    with pytest.raises(ValueError, match="unknown built-in shape 'blob'"):
+        builtin_mesh("blob")
+    with pytest.raises(ValueError, match="has no parameter width2"):
+        builtin_mesh("beam2d", width2=3)
+
+
+# --- validation -------------------------------------------------------------
+
+P = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]
+T = [[0, 1, 2], [1, 3, 2]]
+
+
+def test_make_mesh_accepts_good_arrays():
+    m = make_mesh(P, T)
+    assert isinstance(m, MeshTri) and m.t.shape == (3, 2)
+    m3 = make_mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 1, 2, 3]])
+    assert isinstance(m3, MeshTet)
+
+
+def test_non_finite_coordinates_are_named():
+    p = np.array(P)
+    p[2, 1] = np.nan
+    with pytest.raises(MeshError, match=r"1 vertices have non-finite coordinates: \[2\]"):
+        make_mesh(p, T)
+
+
+def test_degenerate_elements_are_listed():
+    p = np.array(P + [[2.0, 0.0], [3.0, 0.0]])
+    t = T + [[1, 4, 5]]
+    with pytest.raises(MeshError, match=r"1 degenerate \(zero-area\) triangles: \[2\]"):
+        make_mesh(p, t)
+    tet_p = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1]]
+    with pytest.raises(MeshError, match=r"degenerate \(zero-volume\) tetrahedra: \[1\]"):
+        make_mesh(np.array(tet_p, float), [[0, 1, 2, 4], [0, 1, 2, 3]])
+
+
+def test_slivers_are_not_degenerate():
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 1e-4]])
+    check_mesh(make_mesh(p, [[0, 1, 2]]))  # aspect ratio 1e4 is still a triangle
+
+
+def test_unused_vertices_are_listed():
+    with pytest.raises(MeshError, match=r"1 vertices belong to no element: \[4\]"):
+        make_mesh(P + [[5.0, 5.0]], T)
+
+
+def test_wrong_shapes_and_dtypes():
+    with pytest.raises(MeshError, match=r"elements of shape \(3, nT\)"):
+        make_mesh(P, [[0, 1, 2, 3]])
+    with pytest.raises(TypeError, match="must be integers"):
+        make_mesh(P, [[0.5, 1, 2]])
+    with pytest.raises(MeshError, match="reference vertices outside 0..3"):
+        make_mesh(P, [[0, 1, 7]])
+    with pytest.raises(MeshError, match="use the same vertex twice"):
+        make_mesh(P, [[0, 1, 1], [1, 3, 2]])
+    with pytest.raises(TypeError, match="expected a linear skfem.MeshTri or skfem.MeshTet"):
+        check_mesh(np.zeros((2, 3)))
+
+
+# --- files --------------------------------------------------------------------
+
+
+def test_load_flat_triangles_drops_z(tmp_path):
+    m = beam2d(2.0, 1.0, 4, 2)
+    pts = np.hstack([m.p.T, np.full((m.p.shape[1], 1), 3.5)])
+    extra = np.vstack([pts, [[9.0, 9.0, 3.5]]])  # a geometry point no cell uses
+    path = tmp_path / "beam.vtu"
+    meshio.write(path, meshio.Mesh(extra, [("triangle", m.t.T), ("vertex", [[extra.shape[0] - 1]])]))
+    loaded = load_mesh(path)
+    assert isinstance(loaded, MeshTri)
+    np.testing.assert_allclose(loaded.p, m.p)
+    np.testing.assert_array_equal(loaded.t, m.t)
+
+
+def test_load_tetrahedra_and_quadratic_cells(tmp_path):
+    m = box3d(2, 2, 2)
+    path = tmp_path / "box.msh"
+    meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]), file_format="gmsh22")
+    loaded = load_mesh(path)
+    assert isinstance(loaded, MeshTet) and loaded.t.shape == m.t.shape
+    np.testing.assert_allclose(element_volumes(loaded).sum(), 1.0)
+
+
+def test_load_refuses_curved_surfaces_and_unknown_formats(tmp_path):
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.3]], float)
+    path = tmp_path / "surface.vtu"
+    meshio.write(path, meshio.Mesh(pts, [("triangle", [[0, 1, 2]])]))
+    with pytest.raises(ValueError, match="not in a plane of constant z"):
+        load_mesh(path)
+    bad = tmp_path / "mesh.unknownext"
+    bad.write_text("hello")
+    with pytest.raises(ValueError, match="cannot read mesh"):
+        load_mesh(bad)
+    with pytest.raises(FileNotFoundError, match="mesh file not found"):
+        load_mesh(tmp_path / "missing.msh")
+    lines = tmp_path / "lines.vtu"
+    meshio.write(lines, meshio.Mesh(pts, [("line", [[0, 1]])]))
+    with pytest.raises(ValueError, match="no triangle or tetrahedron cells"):
+        load_mesh(lines)
+
+
+def test_connected_parts():
+    p = [[0, 0], [1, 0], [0, 1], [5, 5], [6, 5], [5, 6]]
+    m = make_mesh(np.array(p, float), [[3, 4, 5], [0, 1, 2]])
+    np.testing.assert_array_equal(connected_parts(m), [0, 0, 0, 1, 1, 1])

@@ -1,0 +1,204 @@
+import numpy as np
+import pytest
+import scipy.linalg
+from skfem import MeshTri
+
+from skfem_modal import (
+    actuation_limits,
+    beam2d,
+    beam3d,
+    box3d,
+    linear_modal_analysis,
+    make_mesh,
+    mass_matrix,
+    natural_frequencies,
+    rigid_mode_count,
+    rigid_motions,
+    stiffness_matrix,
+    vertices_where,
+)
+from skfem_modal.modal import mode_sign_convention
+
+BETA_L = np.array([1.8751040687119611, 4.6940911329739180])  # cantilever roots
+
+
+@pytest.fixture(scope="module")
+def tutorial_modes(cat_mesh):
+    return linear_modal_analysis(cat_mesh, 7)
+
+
+def test_tutorial_eigenvalues(tutorial_modes, reference):
+    values, _ = tutorial_modes
+    np.testing.assert_allclose(values[3:7], reference["eigenvalues_3_6"], rtol=1e-6)
+    assert np.all(np.abs(values[:3]) < 1e-8)
+    assert np.all(np.diff(values) >= -1e-12)
+
+
+def test_tutorial_amplitude_ceilings(cat_mesh, tutorial_modes, reference):
+    _, modes = tutorial_modes
+    ceilings = actuation_limits(cat_mesh, modes, max_s=2.0)
+    np.testing.assert_allclose(ceilings[3:7], reference["ceilings_3_6"], rtol=1e-6)
+    # translations do not deform: no ceiling
+    assert np.isinf(ceilings[0]) and np.isinf(ceilings[1])
+    # scaling max_s scales the ceiling
+    np.testing.assert_allclose(actuation_limits(cat_mesh, modes[:, 3:], max_s=1.0), ceilings[3:] / 2)
+
+
+def test_modes_are_mass_orthonormal_eigenvectors(cat_mesh, tutorial_modes):
+    values, modes = tutorial_modes
+    M = mass_matrix(cat_mesh)
+    K = stiffness_matrix(cat_mesh)
+    np.testing.assert_allclose(modes.T @ M @ modes, np.eye(7), atol=1e-10)
+    residual = K @ modes - (M @ modes) * values
+    assert abs(residual).max() < 1e-9 * abs(K).max()
+
+
+def test_rigid_modes_are_the_canonical_rigid_motions(cat_mesh, tutorial_modes):
+    _, modes = tutorial_modes
+    x, y = cat_mesh.p
+    # first rigid mode: a pure x translation, the second a pure y translation
+    np.testing.assert_allclose(modes[1::2, 0], 0.0, atol=1e-14)
+    np.testing.assert_allclose(modes[0::2, 0], modes[0, 0], rtol=1e-12)
+    np.testing.assert_allclose(modes[0::2, 1], 0.0, atol=1e-14)
+    # the third: a rotation about the centre of mass (u = w x (X - c))
+    u = modes[:, 2].reshape(-1, 2)
+    m = mass_matrix(cat_mesh, vector=False).diagonal()
+    c = (m[:, None] * cat_mesh.p.T).sum(0) / m.sum()
+    w = u[:, 1] / (x - c[0])
+    ok = np.abs(x - c[0]) > 0.1
+    np.testing.assert_allclose(w[ok], w[ok][0], rtol=1e-9)
+
+
+def test_rigid_mode_count():
+    assert rigid_mode_count(beam2d(2.0, 1.0, 4, 2)) == 3
+    assert rigid_mode_count(box3d(2, 2, 2)) == 6
+    two = make_mesh(
+        [[0, 0], [1, 0], [0, 1], [3, 0], [4, 0], [3, 1]], [[0, 1, 2], [3, 4, 5]]
+    )
+    assert rigid_mode_count(two) == 6
+    values, _ = linear_modal_analysis(two, 7)
+    assert np.all(np.abs(values[:6]) < 1e-10) and values[6] > 1e-3
+    beam = beam2d(2.0, 1.0, 4, 2)
+    assert rigid_mode_count(beam, fixed=[0]) == 1  # rotation about the pin
+    assert rigid_mode_count(beam, fixed=vertices_where(beam, "x == min")) == 0
+    assert rigid_mode_count(box3d(2, 2, 2), fixed=[0]) == 3
+
+
+def test_rigid_motions_have_no_strain():
+    for mesh in (beam2d(3.0, 1.0, 3, 2), box3d(2, 2, 2)):
+        R = rigid_motions(mesh)
+        K = stiffness_matrix(mesh)
+        assert abs(K @ R).max() < 1e-12
+
+
+def test_two_element_meshes_solve():
+    tri = make_mesh([[0, 0], [1, 0], [0, 1], [1, 1]], [[0, 1, 2], [1, 3, 2]])
+    values, modes = linear_modal_analysis(tri, 8)
+    assert modes.shape == (8, 8)
+    assert np.all(np.abs(values[:3]) < 1e-12) and np.all(values[3:] > 1e-2)
+    tet = make_mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 1, 2, 3], [1, 2, 3, 4]])
+    values, modes = linear_modal_analysis(tet, 15)
+    assert modes.shape == (15, 15)
+    assert np.all(np.abs(values[:6]) < 1e-12) and np.all(values[6:] > 1e-2)
+    with pytest.raises(ValueError, match=r"k must be in 1..15"):
+        linear_modal_analysis(tet, 16)
+
+
+def test_cantilever_2d_p2_matches_euler_bernoulli():
+    # slender (L/h = 40) so shear deformation is below 0.3 % in mode 2
+    L, h, E, rho = 40.0, 1.0, 3.0, 2.0
+    mesh = beam2d(L, h, 160, 2)
+    values, modes = linear_modal_analysis(
+        mesh, 2, mu=E / 2, lam=0.0, rho=rho, fixed=vertices_where(mesh, "x == min"), element="P2"
+    )
+    omega_eb = BETA_L**2 * np.sqrt(E * h**2 / (12 * rho * L**4))
+    np.testing.assert_allclose(np.sqrt(values), omega_eb, rtol=0.01)
+    np.testing.assert_allclose(natural_frequencies(values), omega_eb / (2 * np.pi), rtol=0.01)
+
+
+def test_cantilever_3d_p2_matches_euler_bernoulli():
+    L, h, E, rho = 20.0, 1.0, 1.0, 1.0
+    mesh = beam3d(L, h, h, 20, 2, 2)
+    values, modes = linear_modal_analysis(
+        mesh, 4, mu=E / 2, lam=0.0, rho=rho, fixed=vertices_where(mesh, "x == min"), element="P2"
+    )
+    omega_eb = BETA_L**2 * np.sqrt(E * h**2 / (12 * rho * L**4))
+    # square section: each bending frequency twice (bending in y and in z)
+    np.testing.assert_allclose(np.sqrt(values), np.repeat(omega_eb, 2), rtol=0.02)
+    # clamped: modes vanish on the clamped face, edge nodes included
+    assert modes.shape[0] % 3 == 0 and modes.shape[0] > 3 * mesh.p.shape[1]
+
+
+def test_p1_frequencies_converge_under_refinement():
+    L, h = 40.0, 1.0
+    omega_eb = BETA_L[0] ** 2 * np.sqrt(h**2 / (12 * L**4))
+    errors = []
+    for nx, ny in [(40, 1), (80, 2), (160, 4), (320, 8)]:
+        mesh = beam2d(L, h, nx, ny)
+        values, _ = linear_modal_analysis(mesh, 1, mu=0.5, lam=0.0, fixed=vertices_where(mesh, "x == min"))
+        errors.append(abs(np.sqrt(values[0]) / omega_eb - 1))
+    errors = np.array(errors)
+    assert np.all(np.diff(errors) < 0)
+    rates = np.log2(errors[:-1] / errors[1:])
+    assert rates[-1] > 1.8  # P1 eigenvalues converge at second order
+    assert errors[-1] < 0.03
+
+
+def test_fixed_vertices_have_zero_modes():
+    mesh = beam2d(4.0, 1.0, 8, 2)
+    fixed = vertices_where(mesh, "x == min")
+    _, modes = linear_modal_analysis(mesh, 3, fixed=fixed)
+    np.testing.assert_array_equal(modes.reshape(-1, 2, 3)[fixed], 0.0)
+    mask = np.zeros(mesh.p.shape[1], bool)
+    mask[fixed] = True
+    _, modes_mask = linear_modal_analysis(mesh, 3, fixed=mask)
+    np.testing.assert_array_equal(modes, modes_mask)
+    with pytest.raises(ValueError, match=r"fixed: vertex indices must be in 0..26"):
+        linear_modal_analysis(mesh, 3, fixed=[100])
+
+
+def test_mode_signs_are_deterministic(cat_mesh, tutorial_modes):
+    values, modes = tutorial_modes
+    values2, modes2 = linear_modal_analysis(cat_mesh, 7)
+    np.testing.assert_array_equal(np.sign(modes[np.abs(modes) > 1e-8]), np.sign(modes2[np.abs(modes) > 1e-8]))
+    perm = np.random.default_rng(7).permutation(cat_mesh.t.shape[1])
+    shuffled = MeshTri(cat_mesh.p.copy(), cat_mesh.t[:, perm].copy())
+    values3, modes3 = linear_modal_analysis(shuffled, 7)
+    np.testing.assert_allclose(values3, values, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(modes3, modes, atol=1e-8 * abs(modes).max())
+    # the largest entry of each mode (the first, among round-off ties) is positive
+    mag = np.abs(modes)
+    top = np.argmax(mag >= (1 - 1e-6) * mag.max(axis=0), axis=0)
+    assert np.all(modes[top, np.arange(7)] > 0)
+
+
+def test_sign_convention_resolves_ties_by_index():
+    v = np.array([[1.0, -1.0], [-1.0 + 1e-9, 1.0], [0.5, 0.2]])
+    out = mode_sign_convention(v)
+    np.testing.assert_array_equal(out[0], [1.0, 1.0])
+
+
+def test_repeated_eigenvalues_give_a_stable_subspace():
+    # a square plate: symmetric, with repeated eigenvalues
+    mesh = MeshTri.init_sqsymmetric().refined(3)
+    values, modes = linear_modal_analysis(mesh, 10)
+    rel_gap = np.diff(values[3:]) / values[4:]
+    assert (rel_gap < 1e-8).any(), "expected a repeated pair on the symmetric square"
+    # the same modes (not just the same subspace) after permuting the elements
+    perm = np.random.default_rng(0).permutation(mesh.t.shape[1])
+    values2, modes2 = linear_modal_analysis(MeshTri(mesh.p.copy(), mesh.t[:, perm].copy()), 10)
+    np.testing.assert_allclose(values2, values, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(modes2[:, :9], modes[:, :9], atol=1e-6 * abs(modes).max())
+
+
+def test_consistent_mass_and_bad_arguments():
+    mesh = beam2d(8.0, 1.0, 40, 4)  # 820 DOFs: the sparse shift-invert path
+    vc, mc = linear_modal_analysis(mesh, 5, mass="consistent")
+    M = mass_matrix(mesh, lumped=False)
+    np.testing.assert_allclose(mc.T @ M @ mc, np.eye(5), atol=1e-10)
+    dense = scipy.linalg.eigh(stiffness_matrix(mesh).toarray(), M.toarray(), eigvals_only=True)
+    np.testing.assert_allclose(vc[3:], dense[3:5], rtol=1e-10)
+    with pytest.raises(ValueError, match="mass must be 'lumped' or 'consistent'"):
+        linear_modal_analysis(mesh, 5, mass="diagonal")
+    with pytest.raises(TypeError, match="k must be an integer"):
+        linear_modal_analysis(mesh, 2.5)
