@@ -16,7 +16,7 @@ import numpy as np
 from .fem import scalar_basis
 from .mesh import check_mesh
 
-__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path"]
+__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path", "FrameWriter"]
 
 
 def pad3(x: np.ndarray) -> np.ndarray:
@@ -197,3 +197,112 @@ def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None
             raise ValueError(f"got {ev.size} eigenvalues for {modes.shape[1]} modes")
         field_data = {"eigenvalues": ev, "frequency_hz": natural_frequencies(ev)}
     write_vtu(path, points, cell_type, cells, point_data=point_data, field_data=field_data)
+
+
+_PVD_HEAD = '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n  <Collection>\n'
+_PVD_FOOT = "  </Collection>\n</VTKFile>\n"
+
+
+class FrameWriter:
+    """Stream simulation frames to disk as a ParaView time series.
+
+    Writes ``DIRECTORY/NAME/frame_00000.vtu, ...`` and the index
+    ``DIRECTORY/NAME.pvd`` with each frame's exact time (``repr`` of the float).
+    Every frame is written when it arrives, never held in memory, and the
+    ``.pvd`` is valid after every frame, so an interrupted run leaves a
+    readable series of the frames so far.
+
+    Parameters
+    ----------
+    directory : str or path-like
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Rest shape (connectivity, and the reference for displacements).
+    name : str
+        Base name of the series.
+    cell_data : dict of str to ndarray of shape (nT,), optional
+        Constant per-element arrays written in every frame (e.g. cluster labels).
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> from skfem_modal.mesh import beam2d
+    >>> m = beam2d(nx=2, ny=1)
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     with FrameWriter(tmp, m) as frames:
+    ...         _ = frames.write(0.0, m.p.T)
+    ...         _ = frames.write(0.1, m.p.T + 0.01)
+    ...     sorted(os.listdir(os.path.join(tmp, "frames")))
+    ['frame_00000.vtu', 'frame_00001.vtu']
+    """
+
+    def __init__(self, directory, mesh, name: str = "frames", cell_data=None):
+        self.directory = os.fspath(directory)
+        self.name = name
+        self.frame_dir = os.path.join(self.directory, name)
+        os.makedirs(self.frame_dir, exist_ok=True)
+        self.rest = np.ascontiguousarray(mesh.p.T)
+        self.cell_type, self.cells = vtk_cells(mesh)
+        nT = mesh.t.shape[1]
+        self.cell_data = {}
+        for key, value in (cell_data or {}).items():
+            value = np.asarray(value)
+            if value.shape[0] != nT:
+                raise ValueError(f"cell data {key!r} needs one value per element ({nT}), got {value.shape}")
+            self.cell_data[key] = value
+        self.count = 0
+        self.times: list[float] = []
+        self.pvd_path = os.path.join(self.directory, f"{name}.pvd")
+        self._pvd = open(self.pvd_path, "w", encoding="ascii")
+        self._pvd.write(_PVD_HEAD)
+        self._body_end = self._pvd.tell()
+        self._pvd.write(_PVD_FOOT)
+        self._pvd.flush()
+
+    def write(self, time: float, positions, point_data=None, field_data=None) -> str:
+        """Write one frame.
+
+        Parameters
+        ----------
+        time : float
+        positions : ndarray, shape (n, dim)
+        point_data : dict of str to ndarray of shape (n,) or (n, c), optional
+            Extra per-vertex arrays (``displacement`` is always written).
+        field_data : dict of str to array_like, optional
+            Per-frame values (e.g. muscle activations), written exactly.
+
+        Returns
+        -------
+        path : str
+            The frame's ``.vtu`` file.
+        """
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.shape != self.rest.shape:
+            raise ValueError(f"positions must have shape {self.rest.shape}, got {positions.shape}")
+        data = {"displacement": positions - self.rest}
+        data.update(point_data or {})
+        filename = f"frame_{self.count:05d}.vtu"
+        path = os.path.join(self.frame_dir, filename)
+        fields = {"time": float(time), **(field_data or {})}
+        write_vtu(path, positions, self.cell_type, self.cells, data, self.cell_data, fields)
+        self._pvd.seek(self._body_end)
+        self._pvd.write(
+            f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n'
+        )
+        self._body_end = self._pvd.tell()
+        self._pvd.write(_PVD_FOOT)
+        self._pvd.flush()
+        self.times.append(float(time))
+        self.count += 1
+        return path
+
+    def close(self) -> None:
+        """Close the ``.pvd`` index (it is complete after every frame already)."""
+        if not self._pvd.closed:
+            self._pvd.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

@@ -25,9 +25,8 @@ import warnings
 
 import numpy as np
 import scipy.linalg as sla
-import scipy.sparse as sps
-import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from .eigen import canonical_repeated, generic_weight, lowest_eigenpairs, sign_convention
 
 from .fem import ELEMENTS, _jacobian, _mass, _stiffness, node_positions, scalar_basis, vector_dofs
 from .mesh import check_mesh, connected_parts
@@ -42,16 +41,11 @@ __all__ = [
     "mode_sign_convention",
 ]
 
-# Eigenvalues closer than this (relative) form one repeated group.
-_REPEATED_RTOL = 1e-8
-# Entries within this fraction of a mode's largest magnitude tie for its sign.
-_SIGN_TIE_RTOL = 1e-6
-# Below this many free DOFs, a dense solve is both faster and exact.
-_DENSE_LIMIT = 600
+#: Deterministic sign of each mode (see :func:`skfem_modal.eigen.sign_convention`).
+mode_sign_convention = sign_convention
+
 # Extra modes solved beyond k, so a repeated group at the end is not cut.
 _EXTRA_MODES = 1
-# Use a banded Cholesky when its band holds at most this many entries.
-_BANDED_ENTRIES = 12_000_000
 
 
 def _node_parts(mesh, element: str) -> np.ndarray:
@@ -188,136 +182,6 @@ def _m_orthonormalize(V: np.ndarray, M) -> np.ndarray:
     return sla.solve_triangular(L, V.T, lower=True).T
 
 
-def _generic_weight(x: np.ndarray) -> np.ndarray:
-    """A smooth, generic positive weight per DOF, shape (n * dim,).
-
-    Used to split repeated eigenvalues deterministically: it has no symmetry a
-    mesh can share (different along each axis and for each component).
-    """
-    n, dim = x.shape
-    lo, hi = x.min(axis=0), x.max(axis=0)
-    xi = (x - (lo + hi) / 2) / np.maximum((hi - lo) / 2, 1e-300)
-    lin = np.array([0.31, 0.17, 0.11])[:dim]
-    quad = np.array([0.23, 0.37, 0.29])[:dim]
-    f = 1.0 + 0.1 * xi @ lin + 0.05 * (xi**2) @ quad
-    if dim >= 2:
-        f += 0.013 * xi[:, 0] * xi[:, 1]
-    if dim == 3:
-        f += 0.007 * xi[:, 1] * xi[:, 2] + 0.019 * xi[:, 0] * xi[:, 2]
-    comp = 1.0 + 0.03 * np.arange(dim)
-    return (f[:, None] * comp[None, :]).ravel()
-
-
-def mode_sign_convention(modes: np.ndarray) -> np.ndarray:
-    """Flip each column so its largest entry is positive (deterministic sign).
-
-    Among the entries whose magnitude is within 1e-6 (relative) of the largest,
-    the one with the lowest index decides; ties from symmetric meshes are thus
-    resolved by DOF order, not by round-off.
-
-    Parameters
-    ----------
-    modes : ndarray, shape (n_dofs, k)
-
-    Returns
-    -------
-    modes : ndarray, shape (n_dofs, k)
-        A copy with signs fixed.
-    """
-    out = np.array(modes, dtype=np.float64, copy=True)
-    mag = np.abs(out)
-    top = mag.max(axis=0)
-    for col in range(out.shape[1]):
-        if top[col] == 0:
-            continue
-        first = np.argmax(mag[:, col] >= (1.0 - _SIGN_TIE_RTOL) * top[col])
-        if out[first, col] < 0:
-            out[:, col] *= -1.0
-    return out
-
-
-def _canonical_groups(values, vectors, M, weight):
-    """Fix the basis inside every group of repeated eigenvalues."""
-    k = values.size
-    start = 0
-    scale = max(np.abs(values).max(), 1e-300)
-    while start < k:
-        stop = start + 1
-        while stop < k and abs(values[stop] - values[stop - 1]) <= _REPEATED_RTOL * max(
-            abs(values[stop]), 1e-3 * scale
-        ):
-            stop += 1
-        if stop - start > 1:
-            V = vectors[:, start:stop]
-            S = V.T @ (M @ (weight[:, None] * V))
-            _, Q = np.linalg.eigh((S + S.T) / 2)
-            vectors[:, start:stop] = V @ Q
-            values[start:stop] = values[start:stop].mean()
-        start = stop
-    return values, vectors
-
-
-def _shift_invert_solver(A: sps.spmatrix, node_dim: int):
-    """A solver for the symmetric positive definite ``A``: ``b -> A^{-1} b``.
-
-    Elongated meshes (beams, slabs) have a narrow band after reverse
-    Cuthill-McKee ordering; LAPACK's banded Cholesky is then several times
-    faster than a general sparse LU. Otherwise SuperLU with a symmetric
-    minimum-degree ordering and diagonal pivots (``A`` is SPD, so no pivoting
-    is needed).
-    """
-    n = A.shape[0]
-    coo = A.tocoo()
-    nodes = n // node_dim
-    node_graph = sps.csr_matrix(
-        (np.ones(coo.nnz, dtype=np.int8), (coo.row // node_dim, coo.col // node_dim)),
-        shape=(nodes, nodes),
-    )
-    order = reverse_cuthill_mckee(node_graph, symmetric_mode=True)
-    rank = np.empty(nodes, dtype=np.int64)
-    rank[order] = np.arange(nodes)
-    # position of every DOF in the reordered matrix
-    new_index = (rank[:, None] * node_dim + np.arange(node_dim)).ravel()
-    i, j = new_index[coo.row], new_index[coo.col]
-    lower = i >= j
-    band = int((i - j)[lower].max())
-    if (band + 1) * n <= _BANDED_ENTRIES:
-        ab = np.zeros((band + 1, n))
-        ab[(i - j)[lower], j[lower]] = coo.data[lower]
-        factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
-        perm = np.empty(n, dtype=np.int64)
-        perm[new_index] = np.arange(n)
-
-        def solve(b):
-            return sla.cho_solve_banded((factor, True), b[perm], check_finite=False)[new_index]
-
-        return solve
-    lu = spla.splu(
-        A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-    )
-    return lu.solve
-
-
-def _lowest_eigenpairs(K, M, k: int, node_dim: int):
-    """The ``k`` lowest eigenpairs of ``K v = lambda M v`` (unsorted).
-
-    ``node_dim`` DOFs per node, interleaved, so orderings can work on nodes.
-    """
-    n = K.shape[0]
-    if n <= _DENSE_LIMIT or k >= n - 1:
-        values, vectors = sla.eigh(K.toarray(), M.toarray())
-        return values[:k], vectors[:, :k]
-    # a shift just below zero: K - sigma M is positive definite even for a
-    # free body, and the modes nearest sigma are the lowest ones
-    sigma = -1e-6 * float(np.median(K.diagonal() / M.diagonal()))
-    solve = _shift_invert_solver(K - sigma * M, node_dim)
-    op = spla.LinearOperator(K.shape, matvec=solve, dtype=np.float64)
-    v0 = np.random.default_rng(20261121).standard_normal(n)
-    # a slightly larger Krylov space than ARPACK's default saves restarts
-    ncv = min(n, max(2 * k + 1, 24))
-    return spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
-
-
 def linear_modal_analysis(
     mesh,
     k: int,
@@ -387,9 +251,8 @@ def linear_modal_analysis(
     R = _rigid_motions(mesh, fixed, element)[free]
     n_rigid = R.shape[1]
     k_solve = min(k + _EXTRA_MODES, free.size)
-    values, vectors = _lowest_eigenpairs(Kf, Mf, k_solve, dim)
-    order = np.argsort(values)
-    values, vectors = values[order].copy(), vectors[:, order].copy()
+    values, vectors = lowest_eigenpairs(Kf, Mf, k_solve, dim)
+    values, vectors = values.copy(), vectors.copy()
 
     if n_rigid:
         rigid = _m_orthonormalize(R, Mf)
@@ -406,11 +269,11 @@ def linear_modal_analysis(
                 stacklevel=2,
             )
     elastic = slice(min(n_rigid, k_solve), k_solve)
-    weight = _generic_weight(node_positions(mesh, element)).reshape(-1)[free]
-    values[elastic], vectors[:, elastic] = _canonical_groups(
+    weight = generic_weight(node_positions(mesh, element)).reshape(-1)[free]
+    values[elastic], vectors[:, elastic] = canonical_repeated(
         values[elastic].copy(), vectors[:, elastic].copy(), Mf, weight
     )
-    vectors = mode_sign_convention(vectors[:, :k])
+    vectors = sign_convention(vectors[:, :k])
     modes = np.zeros((n_dofs, k))
     modes[free] = vectors
     return values[:k], modes

@@ -1,0 +1,135 @@
+"""Modal muscles: the clustered plastic-stretch target and gait signals.
+
+Activating muscle amplitudes ``a`` asks every element to take the deformation
+gradient of the rest shape pushed along the muscle modes,
+``Y_e(a) = I + sum_m a_m (J D_m)_e``, up to a rotation shared by the element's
+active cluster. The active energy is
+
+    E_a(z, R) = sum_e gamma_e vol_e / 2 |F_e(z) - R_c(e) Y_e(a)|^2 ,
+
+minimised over the rotations by ``R_c = polar(sum_{e in c} w_e F_e Y_e^T)``
+(``w_e = gamma_e vol_e``). Both that cluster sum and the force it produces are
+linear in ``z`` and in ``a``, through one operator per muscle:
+
+    A(a) = A_0 + sum_m a_m A_m ,   (A(a) z)_c = sum_{e in c} w_e F_e(z) Y_e(a)^T ,
+
+and the force on ``z`` is ``A(a)^T vec(R)``. This module builds the ``A_m``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+
+__all__ = ["cluster_sum_operator", "muscle_operators", "muscle_target_constants", "sine_gait"]
+
+
+def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = None) -> sps.csr_matrix:
+    """Weighted sums of per-element deformation gradients over clusters.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (nT,)
+    weights : ndarray, shape (nT,)
+        ``w_e``, e.g. ``mu * vol``.
+    dim : int
+    n_clusters : int, optional
+        Default ``labels.max() + 1``.
+
+    Returns
+    -------
+    S : scipy.sparse.csr_matrix, shape (n_clusters * dim * dim, nT * dim * dim)
+        ``(S @ vecF)`` holds ``sum_{e in c} w_e F_e`` row-major per cluster.
+    """
+    labels = np.asarray(labels)
+    nc = int(labels.max()) + 1 if n_clusters is None else n_clusters
+    P = sps.csr_matrix((np.asarray(weights, float), (labels, np.arange(labels.size))), shape=(nc, labels.size))
+    return sps.kron(P, sps.identity(dim * dim), format="csr")
+
+
+def muscle_operators(J, B, D, labels, weights, dim: int) -> np.ndarray:
+    """The operators ``A_0, A_1, ..., A_m`` of the active target.
+
+    Parameters
+    ----------
+    J : scipy.sparse matrix, shape (nT * dim * dim, N)
+        Deformation Jacobian.
+    B : ndarray, shape (N, r)
+        Subspace.
+    D : ndarray, shape (N, m)
+        Muscle modes (displacements, without the rest pose).
+    labels : ndarray of int, shape (nT,)
+        Active cluster of each element.
+    weights : ndarray, shape (nT,)
+        ``gamma * vol``.
+    dim : int
+
+    Returns
+    -------
+    A : ndarray, shape (m + 1, n_active * dim * dim, r)
+        ``A[0]`` pulls towards the rest shape, ``A[k]`` is muscle ``k``'s part.
+    """
+    labels = np.asarray(labels)
+    nT = labels.size
+    na = int(labels.max()) + 1
+    dd = dim * dim
+    m = D.shape[1]
+    G = (J @ D).reshape(nT, dim, dim, m)  # per element, per muscle: (J D_m)_e
+    # row (c, i, j) <- column (e, i, k) with value w_e G^m_e[j, k]
+    e, i, j, k = np.meshgrid(np.arange(nT), np.arange(dim), np.arange(dim), np.arange(dim), indexing="ij")
+    rows = (labels[e] * dim + i) * dim + j
+    cols = (e * dim + i) * dim + k
+    blocks = [cluster_sum_operator(labels, weights, dim, na)]
+    for mm in range(m):
+        vals = weights[e] * G[e, j, k, mm]
+        blocks.append(sps.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(na * dd, nT * dd)))
+    T = sps.vstack(blocks, format="csr")
+    return np.asarray((T @ J) @ B).reshape(m + 1, na * dd, B.shape[1])
+
+
+def muscle_target_constants(J, D, weights, dim: int):
+    """Constant part of the active energy: ``1/2 sum_e w_e |Y_e(a)|^2``.
+
+    Returns
+    -------
+    c0 : float
+        ``1/2 dim sum_e w_e``.
+    c1 : ndarray, shape (m,)
+        ``sum_e w_e tr((J D_m)_e)``.
+    Q : ndarray, shape (m, m)
+        ``1/2 sum_e w_e (J D_m)_e : (J D_n)_e``; the constant is
+        ``c0 + c1 @ a + a @ Q @ a``.
+    """
+    nT = np.asarray(weights).size
+    m = D.shape[1]
+    G = (J @ D).reshape(nT, dim * dim, m)
+    c0 = 0.5 * dim * float(np.sum(weights))
+    trace = G[:, :: dim + 1, :].sum(axis=1)  # (nT, m)
+    c1 = weights @ trace
+    Q = 0.5 * np.einsum("e,eim,ein->mn", weights, G, G)
+    return c0, c1, Q
+
+
+def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
+    """Sinusoidal muscle activations ``a_m(t) = A_m sin(2 pi (t / T_m + phi_m))``.
+
+    Parameters
+    ----------
+    t : float
+        Time.
+    amplitudes, periods, phases : array_like, shape (m,)
+        Amplitude (in the muscle's units: multiply ceiling fractions by the
+        ceilings first), period (same time unit as ``t``, > 0) and phase (in
+        periods).
+
+    Returns
+    -------
+    a : ndarray, shape (m,)
+
+    Examples
+    --------
+    >>> sine_gait(0.25, [2.0], [1.0], [0.0]).tolist()
+    [2.0]
+    """
+    amplitudes = np.asarray(amplitudes, dtype=np.float64)
+    return amplitudes * np.sin(2.0 * np.pi * (t / np.asarray(periods, float) + np.asarray(phases, float)))

@@ -1,0 +1,569 @@
+"""ModalMuscle: the reduced modal-muscle simulator.
+
+Positions are ``x = B z``. One time step of length ``h`` minimises, over the
+next ``z``, the energy
+
+    E(z) = |z - y|^2_{B^T M B} / (2 h^2)                     inertia (implicit Euler), y = z0 + h v0
+         + sum_e mu vol_e / 2 |F_e(z) - R_c(e)|^2             passive ARAP, one rotation per cluster
+         + sum_e gamma vol_e / 2 |F_e(z) - R_a(e) Y_e(a)|^2   muscles: the clustered plastic-stretch target
+         - z^T B^T f_g                                        gravity
+
+by block-coordinate descent: the *local* step sets every cluster rotation to
+the closest rotation of its weighted gradient sum (a polar decomposition), the
+*global* step solves ``H z = BMB y / h^2 + A(a)^T vec(R) + B^T f_g`` with the
+constant ``H`` (factored once). Ground contact, when present, projects each
+global solution (see :mod:`skfem_modal.contact`); it is the only effect that
+can break the monotone decrease of ``E``.
+
+Only the effects a simulator is given are built and stepped: a floating body
+has no contact or gravity operators and its step never calls contact code.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.linalg as sla
+
+from .contact import GroundContact
+from .fem import _gravity, _jacobian, _mass, _positive, element_volumes, vector_dofs
+from .mesh import boundary_vertices, check_mesh, farthest_point_sampling
+from .muscles import cluster_sum_operator, muscle_operators, muscle_target_constants
+from .rotations import rotations2_flat, rotations3_flat
+from .subspace import com_operator, mass_orthonormalize, project, skinning_eigenmodes
+
+__all__ = ["ModalMuscle", "SimulationError"]
+
+
+class SimulationError(RuntimeError):
+    """The simulation went non-finite; ``step`` is the step number when known."""
+
+    def __init__(self, message: str, step: int | None = None):
+        super().__init__(message if step is None else f"step {step}: {message}")
+        self.step = step
+
+
+def _array(value, shape, name, *, dtype=np.float64):
+    arr = np.asarray(value)
+    if not np.issubdtype(arr.dtype, np.number):
+        raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
+    arr = arr.astype(dtype, copy=False)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return arr
+
+
+def _positive_scalar(value, name, *, allow_zero=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
+        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
+    return v
+
+
+def _labels(value, nT, name):
+    arr = np.asarray(value)
+    if arr.shape != (nT,):
+        raise ValueError(f"{name} must have one label per element, shape ({nT},), got {arr.shape}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be integers, got dtype {arr.dtype}")
+    if arr.min() < 0:
+        raise ValueError(f"{name} must be non-negative, got {arr.min()}")
+    return arr.astype(np.int64)
+
+
+class ModalMuscle:
+    """Reduced modal-muscle dynamics in a subspace, in 2D or 3D.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Rest shape.
+    B : ndarray, shape (n * dim, r)
+        Subspace: positions are ``B @ z``. It must contain the rest pose (a
+        skinning basis does).
+    D : ndarray, shape (n * dim, m), or None
+        Muscle modes (displacements, without the rest pose: the rest pose is
+        added here). ``None`` or ``m = 0``: no muscles.
+    labels : ndarray of int, shape (nT,)
+        Passive rotation cluster of each element.
+    mu : float or ndarray of shape (nT,)
+        Passive (ARAP) stiffness.
+    gamma : float or ndarray of shape (nT,)
+        Muscle stiffness.
+    rho : float or ndarray of shape (nT,)
+        Density (lumped mass).
+    h : float
+        Time step.
+    active_labels : ndarray of int, shape (nT,), optional
+        Muscle rotation cluster of each element; default one cluster.
+    gravity : array_like, shape (dim,), optional
+        Gravitational acceleration; ``None``: no gravity.
+    contact_vertices : array_like of int, optional
+        Vertices that touch the ground (default with a ground: all boundary vertices).
+    ground : float, optional
+        Height of the ground plane along ``up``; ``None``: no ground.
+    up : int, optional
+        Index of the up axis (default: the last).
+    stickiness : float
+        In [0, 1]: 1 removes the tangential velocity of contacting points (the
+        reference behaviour), 0 lets them slide freely.
+    push_out : float
+        In [0, 1]: fraction of a contact point's penetration undone per step (0:
+        none, the reference behaviour).
+    max_iter : int
+        Local/global iterations per step, at most.
+    tol : float
+        Stop when ``|z_k - z_{k-1}| < tol`` (the reference rule); 0 runs
+        exactly ``max_iter`` iterations.
+    rtol : float
+        Also stop when ``|z_k - z_{k-1}| <= rtol |z_k - z_start|``: the last
+        change is small compared with this step's motion. 0 disables.
+
+    Attributes
+    ----------
+    iterations : int
+        Local/global iterations of the last step.
+    effects : tuple of str
+        The effects this simulator holds and steps.
+    timings : dict
+        Seconds spent in each precompute stage.
+    ceilings : ndarray, shape (m,)
+        Amplitude ceilings of the muscles (``max_s = 2``).
+    """
+
+    def __init__(
+        self,
+        mesh,
+        B,
+        D,
+        labels,
+        *,
+        mu,
+        gamma,
+        rho,
+        h,
+        active_labels=None,
+        gravity=None,
+        contact_vertices=None,
+        ground=None,
+        up=None,
+        stickiness=1.0,
+        push_out=0.0,
+        max_iter=10,
+        tol=1e-6,
+        rtol=0.0,
+    ):
+        clock = time.perf_counter()
+        check_mesh(mesh)
+        dim, n = mesh.p.shape
+        nT = mesh.t.shape[1]
+        N = n * dim
+        B = np.asarray(B, dtype=np.float64)
+        if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
+            raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
+        if not np.all(np.isfinite(B)):
+            raise ValueError("B must be finite")
+        r = B.shape[1]
+        if D is None:
+            D = np.zeros((N, 0))
+        D = np.asarray(D, dtype=np.float64)
+        if D.ndim == 1:
+            D = D[:, None]
+        if D.ndim != 2 or D.shape[0] != N:
+            raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
+        if not np.all(np.isfinite(D)):
+            raise ValueError("D must be finite")
+        labels = _labels(labels, nT, "labels")
+        active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
+        self.h = _positive_scalar(h, "h")
+        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+            raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+        self.max_iter = int(max_iter)
+        self.tol = _positive_scalar(tol, "tol", allow_zero=True)
+        self.rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
+        up = dim - 1 if up is None else up
+        if isinstance(up, bool) or not isinstance(up, (int, np.integer)) or not 0 <= up < dim:
+            raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {up!r}")
+        self.up = int(up)
+        stickiness = _positive_scalar(stickiness, "stickiness", allow_zero=True)
+        push_out = _positive_scalar(push_out, "push_out", allow_zero=True)
+        if stickiness > 1 or push_out > 1:
+            raise ValueError(f"stickiness and push_out must be in [0, 1], got {stickiness} and {push_out}")
+        if gravity is not None:
+            gravity = _array(gravity, (dim,), "gravity")
+        if ground is not None:
+            ground = float(_array(ground, (), "ground"))
+        if contact_vertices is not None and ground is None:
+            raise ValueError("contact_vertices need a ground height (ground=...)")
+        vol = element_volumes(mesh)
+        w_mu = _positive(mu, nT, "mu") * vol
+        m = D.shape[1]
+        w_gamma = _positive(gamma, nT, "gamma", allow_zero=True) * vol if m else None
+        rho_e = _positive(rho, nT, "rho")
+        self.mesh, self.B, self.D = mesh, B, D
+        self.dim, self.n_muscles = dim, m
+        self.labels, self.active_labels = labels, active_labels
+        self.timings = {"validate": time.perf_counter() - clock}
+
+        clock = time.perf_counter()
+        J = _jacobian(mesh, "P1")
+        M = _mass(mesh, rho_e, True, "P1", True)
+        MB = M @ B
+        self.BMB = B.T @ MB
+        self.timings["mass"] = time.perf_counter() - clock
+
+        # passive ARAP: cluster sums of mu vol F, and its Hessian B^T J^T (mu vol) J B
+        clock = time.perf_counter()
+        dd = dim * dim
+        Sp = cluster_sum_operator(labels, w_mu, dim)
+        Gp = np.asarray((Sp @ J) @ B)
+        WJ = J.multiply(np.repeat(w_mu, dd)[:, None]).tocsr()
+        H_el = B.T @ np.asarray(J.T @ (WJ @ B))
+        self.timings["passive"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        if m:
+            self._A = muscle_operators(J, B, D, active_labels, w_gamma, dim)
+            WJa = J.multiply(np.repeat(w_gamma, dd)[:, None]).tocsr()
+            self._H_act = B.T @ np.asarray(J.T @ (WJa @ B))
+            self._active_consts = muscle_target_constants(J, D, w_gamma, dim)
+            JD = (J @ D).reshape(nT, dd, m)
+            largest = np.sqrt((JD**2).sum(axis=1)).max(axis=0)
+            with np.errstate(divide="ignore"):
+                self.ceilings = np.where(largest > 0, 2.0 / np.where(largest > 0, largest, 1.0), np.inf)
+            DM = D.T @ M
+            self._amp_scale = 1.0 / np.einsum("mi,im->m", DM, D)
+            self._amp_B = (DM @ B) * self._amp_scale[:, None]
+            self._amp_rest = (DM @ mesh.p.T.ravel()) * self._amp_scale
+        else:
+            self._A = np.zeros((0, 0, r))
+            self._H_act = np.zeros((r, r))
+            self.ceilings = np.zeros(0)
+        self.timings["muscles"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        H = H_el + self._H_act + self.BMB / self.h**2
+        H = (H + H.T) / 2
+        try:
+            chol = sla.cho_factor(H)
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                "the reduced system matrix is not positive definite: check that B has full column rank"
+            ) from None
+        H_inv = sla.cho_solve(chol, np.eye(r))
+        self._H_el = H_el
+        self._H_inv = H_inv
+        self._K_inertia = H_inv @ self.BMB / self.h**2
+        nc = Gp.shape[0] // dd
+        na = self._A.shape[1] // dd if m else 0
+        self.n_clusters, self.n_active_clusters = nc, na
+        # G stacks the passive and active cluster operators; W = H^-1 G^T
+        self._G = np.empty(((nc + na) * dd, r))
+        self._G[: nc * dd] = Gp
+        self._W = np.empty((r, (nc + na) * dd))
+        self._W[:, : nc * dd] = H_inv @ Gp.T
+        if m:
+            self._WA = np.einsum("rs,kcs->krc", H_inv, self._A)
+            self._G[nc * dd :] = self._A[0]
+            self._W[:, nc * dd :] = self._WA[0]
+        self._rest_const = 0.5 * dim * float(w_mu.sum())
+        self.timings["factor"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        effects = ["elasticity", "inertia"]
+        if m:
+            effects.append("muscles")
+        self._f_ext = np.zeros(r)
+        if gravity is not None:
+            self._f_ext = B.T @ _gravity(mesh, gravity, rho_e)
+            effects.append("gravity")
+        self._c_ext = H_inv @ self._f_ext
+        self.gravity = gravity
+        self._contact = None
+        self.ground = ground
+        self.contact_vertices = np.zeros(0, np.int64)
+        if ground is not None:
+            if contact_vertices is None:
+                cv = boundary_vertices(mesh)
+            else:
+                cv = np.asarray(contact_vertices)
+                if cv.size == 0 or not np.issubdtype(cv.dtype, np.integer):
+                    raise ValueError("contact_vertices must be a non-empty array of vertex indices")
+                cv = np.unique(cv)
+                if cv[0] < 0 or cv[-1] >= n:
+                    raise ValueError(f"contact_vertices must be in 0..{n - 1}")
+            self.contact_vertices = cv
+            self._contact = GroundContact(
+                B[vector_dofs(cv, dim)], H_inv, self.h, dim, self.up, ground, stickiness, push_out
+            )
+            effects.append("contact")
+        self.stickiness, self.push_out = stickiness, push_out
+        self.effects = tuple(effects)
+        self._com = com_operator(mesh, B, rho_e)
+        self._M = M
+        self._rotations = rotations2_flat if dim == 2 else rotations3_flat
+        self.iterations = 0
+        self.timings["effects"] = time.perf_counter() - clock
+
+    # ------------------------------------------------------------------ state
+    def rest_state(self):
+        """The rest state: ``(z, z_dot, a)``.
+
+        Returns
+        -------
+        z : ndarray, shape (r,)
+            Mass-weighted projection of the rest positions onto ``B``.
+        z_dot : ndarray, shape (r,)
+            Zeros.
+        a : ndarray, shape (m,)
+            Zero activation, one value per muscle.
+        """
+        z = project(self.mesh.p.T, self.B, self._M)
+        return z, np.zeros_like(z), np.zeros(self.n_muscles)
+
+    def positions(self, z) -> np.ndarray:
+        """Vertex positions of a reduced state, shape (n, dim)."""
+        return (self.B @ np.asarray(z, float)).reshape(-1, self.dim)
+
+    def com(self, z) -> np.ndarray:
+        """Centre of mass of a reduced state, shape (dim,), read straight from ``z``."""
+        return self._com @ np.asarray(z, float)
+
+    def muscle_amplitudes(self, z) -> np.ndarray:
+        """Realised modal amplitudes: the mass-weighted projection of ``B z - X`` on each muscle.
+
+        Returns
+        -------
+        amplitudes : ndarray, shape (m,)
+        """
+        if not self.n_muscles:
+            return np.zeros(0)
+        return self._amp_B @ np.asarray(z, float) - self._amp_rest
+
+    def contact_positions(self, z) -> np.ndarray:
+        """Positions of the contact vertices, shape (p, dim) (empty without a ground)."""
+        if self._contact is None:
+            return np.zeros((0, self.dim))
+        return self._contact.positions(np.asarray(z, float))
+
+    # ------------------------------------------------------------------- step
+    def _activation(self, a) -> np.ndarray:
+        if self.n_muscles == 0:
+            if a is not None and np.size(a):
+                raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
+            return np.zeros(0)
+        a = np.asarray(a, dtype=np.float64).ravel()
+        if a.shape != (self.n_muscles,):
+            raise ValueError(f"activation must have one value per muscle ({self.n_muscles}), got {a.size}")
+        return a
+
+    def _set_activation(self, a: np.ndarray) -> None:
+        if self.n_muscles:
+            nc_rows = self.n_clusters * self.dim * self.dim
+            A, WA = self._A, self._WA
+            self._G[nc_rows:] = A[0] + np.tensordot(a, A[1:], axes=1)
+            self._W[:, nc_rows:] = WA[0] + np.tensordot(a, WA[1:], axes=1)
+
+    def step(self, z, z_dot, a=None) -> np.ndarray:
+        """Advance one time step.
+
+        Parameters
+        ----------
+        z, z_dot : ndarray, shape (r,)
+            Reduced position and velocity at the start of the step.
+        a : ndarray, shape (m,)
+            Muscle activations during the step.
+
+        Returns
+        -------
+        z_next : ndarray, shape (r,)
+
+        Raises
+        ------
+        SimulationError
+            If the state becomes non-finite.
+        """
+        z = np.asarray(z, dtype=np.float64)
+        r = self.B.shape[1]
+        if z.shape != (r,) or np.shape(z_dot) != (r,):
+            raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {np.shape(z_dot)}")
+        self._set_activation(self._activation(a))
+        c = self._K_inertia @ (z + self.h * np.asarray(z_dot, dtype=np.float64)) + self._c_ext
+        G, W, rotations = self._G, self._W, self._rotations
+        width = self.dim * self.dim
+        contact = self._contact
+        if contact is not None:
+            contact.start_step(z)
+        tol, rtol = self.tol, self.rtol
+        z_iter = z
+        for it in range(1, self.max_iter + 1):
+            R = rotations((G @ z_iter).reshape(-1, width))
+            z_next = c + W @ R.ravel()
+            if contact is not None:
+                z_next = contact.correct(z_iter, z_next)
+            diff = z_next - z_iter
+            change = np.sqrt(diff @ diff)
+            z_iter = z_next
+            if not change < tol:
+                if change != change or change == np.inf:
+                    raise SimulationError("the state became non-finite")
+                if rtol and change <= rtol * np.linalg.norm(z_next - z):
+                    break
+                continue
+            break
+        self.iterations = it
+        return z_iter
+
+    # ----------------------------------------------------------------- energy
+    def energy(self, z_next, z, z_dot, a=None, gradient: bool = False):
+        """The energy one step minimises, at ``z_next`` (rotations optimal).
+
+        Contact is not part of it (it is a projection, not an energy).
+
+        Parameters
+        ----------
+        z_next : ndarray, shape (r,)
+            Candidate end-of-step state.
+        z, z_dot : ndarray, shape (r,)
+            Start-of-step state.
+        a : ndarray, shape (m,)
+        gradient : bool
+            Also return the gradient with respect to ``z_next``.
+
+        Returns
+        -------
+        E : float
+        grad : ndarray, shape (r,)
+            Only with ``gradient=True``.
+        """
+        a = self._activation(a)
+        self._set_activation(a)
+        x = np.asarray(z_next, float)
+        y = np.asarray(z, float) + self.h * np.asarray(z_dot, float)
+        S = self._G @ x
+        R = self._rotations(S.reshape(-1, self.dim * self.dim)).ravel()
+        d = x - y
+        H_elastic = self._H_el + self._H_act
+        E = (
+            d @ self.BMB @ d / (2 * self.h**2)
+            + 0.5 * x @ H_elastic @ x
+            - R @ S
+            + self._rest_const
+            - x @ self._f_ext
+        )
+        if self.n_muscles:
+            c0, c1, Q = self._active_consts
+            E += c0 + c1 @ a + a @ Q @ a
+        if not gradient:
+            return float(E)
+        grad = self.BMB @ d / self.h**2 + H_elastic @ x - self._G.T @ R - self._f_ext
+        return float(E), grad
+
+    # ------------------------------------------------------------ convenience
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh,
+        *,
+        n_muscles: int = 4,
+        muscle_signs=None,
+        n_weights: int = 8,
+        n_clusters: int = 20,
+        mu=1e5,
+        gamma=None,
+        lam=None,
+        rho=1e3,
+        h=0.02,
+        gravity=None,
+        ground=None,
+        n_contacts: int = 30,
+        up=None,
+        stickiness=1.0,
+        push_out=0.0,
+        max_iter=10,
+        tol=1e-6,
+        rtol=0.0,
+        seed: int = 0,
+    ):
+        """Build every ingredient from a mesh and a few numbers.
+
+        Muscles are the lowest linear modes without the rigid ones (material
+        ``mu``, ``lam`` (default ``mu``), ``rho``), in the deterministic sign
+        convention of :func:`~skfem_modal.linear_modal_analysis`, each
+        multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
+        ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
+        clusters are spectral clusters of the weights (``seed``); one active
+        cluster; with a ``ground``, ``n_contacts`` boundary vertices by
+        farthest-point sampling.
+
+        Returns
+        -------
+        sim : ModalMuscle
+            With ``sim.timings`` covering these stages too.
+        """
+        from .clusters import spectral_clusters
+        from .modal import linear_modal_analysis, rigid_mode_count
+
+        check_mesh(mesh)
+        timings = {}
+        clock = time.perf_counter()
+        n_rigid = rigid_mode_count(mesh)
+        D = np.zeros((mesh.p.size, 0))
+        if n_muscles:
+            _, modes = linear_modal_analysis(
+                mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho
+            )
+            D = modes[:, n_rigid:]
+            if muscle_signs is not None:
+                signs = np.asarray(muscle_signs, dtype=np.float64)
+                if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
+                    raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
+                D = D * signs
+        timings["modal_analysis"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        _, weights, B = skinning_eigenmodes(mesh, n_weights)
+        timings["skinning_eigenmodes"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        B = mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True))
+        timings["orthonormalize"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+        timings["clusters"] = time.perf_counter() - clock
+        contacts = None
+        if ground is not None:
+            clock = time.perf_counter()
+            boundary = boundary_vertices(mesh)
+            k = min(n_contacts, boundary.size)
+            contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], k)]
+            timings["contacts"] = time.perf_counter() - clock
+        sim = cls(
+            mesh,
+            B,
+            D,
+            labels,
+            mu=mu,
+            gamma=mu if gamma is None else gamma,
+            rho=rho,
+            h=h,
+            gravity=gravity,
+            contact_vertices=contacts,
+            ground=ground,
+            up=up,
+            stickiness=stickiness,
+            push_out=push_out,
+            max_iter=max_iter,
+            tol=tol,
+            rtol=rtol,
+        )
+        sim.timings = {**timings, **sim.timings}
+        sim.weights = weights
+        return sim

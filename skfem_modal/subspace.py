@@ -1,0 +1,230 @@
+"""The reduced subspace: skinning eigenmodes, linear-blend basis, mass orthonormalisation.
+
+Positions live in the span of a basis ``B``: ``x = B z``. The basis is linear
+blend skinning over smooth weights: every weight ``w_k`` carries its own affine
+map, so ``x_i = sum_k w_ik A_k [X_i; 1]`` and the reduced coordinates ``z`` are
+the entries of the ``A_k``. The weights are the lowest eigenfunctions of the
+scalar Laplacian (the constant first, which gives rigid and affine motions);
+they are smooth, so a few of them describe large, rotating deformations.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
+from skfem import asm
+from skfem.models.poisson import laplace
+
+from .eigen import canonical_repeated, generic_weight, lowest_eigenpairs, sign_convention
+from .fem import _mass, scalar_basis
+from .mesh import check_mesh
+
+__all__ = [
+    "laplacian",
+    "skinning_eigenmodes",
+    "lbs_basis",
+    "mass_orthonormalize",
+    "project",
+    "com_operator",
+]
+
+
+def laplacian(mesh) -> sps.csr_matrix:
+    """The scalar cotangent Laplacian: scikit-fem's ``laplace`` form with P1.
+
+    Returns
+    -------
+    L : scipy.sparse.csr_matrix, shape (n, n)
+        Symmetric positive semi-definite; constants are its null space.
+    """
+    check_mesh(mesh)
+    return asm(laplace, scalar_basis(mesh, "P1")).tocsr()
+
+
+def lbs_basis(positions, weights) -> np.ndarray:
+    """Linear-blend-skinning basis of a set of weights.
+
+    ``x_i = sum_k w_ik A_k [X_i; 1]`` is linear in the entries of the affine
+    maps ``A_k`` (dim x (dim + 1) each): ``x = B z``.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n, dim)
+        Rest positions ``X``.
+    weights : ndarray, shape (n, k)
+
+    Returns
+    -------
+    B : ndarray, shape (n * dim, k * (dim + 1) * dim)
+        Interleaved rows (vertex-major); column ``(k * (dim + 1) + j) * dim + b``
+        moves coordinate ``b`` by ``w_k`` times homogeneous coordinate ``j``.
+
+    Examples
+    --------
+    >>> X = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    >>> B = lbs_basis(X, np.ones((3, 1)))  # one constant weight: affine maps
+    >>> B.shape
+    (6, 6)
+    >>> z = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 0.0])  # A = [I | 0]
+    >>> (B @ z).reshape(3, 2).tolist() == X.tolist()
+    True
+    """
+    X = np.asarray(positions, dtype=np.float64)
+    W = np.asarray(weights, dtype=np.float64)
+    n, dim = X.shape
+    if W.ndim != 2 or W.shape[0] != n:
+        raise ValueError(f"weights must have shape ({n}, k), got {W.shape}")
+    X1 = np.hstack([X, np.ones((n, 1))])
+    scalar = (W[:, :, None] * X1[:, None, :]).reshape(n, -1)  # (n, k (dim + 1))
+    B = np.zeros((n, dim, scalar.shape[1], dim))
+    for b in range(dim):
+        B[:, b, :, b] = scalar
+    return B.reshape(n * dim, -1)
+
+
+def skinning_eigenmodes(mesh, k: int, rho=1.0):
+    """Skinning eigenmodes: Laplacian eigenfunctions as weights, and their LBS basis.
+
+    The lowest ``k`` eigenpairs of ``L w = lambda M w`` with ``L`` the scalar
+    cotangent Laplacian (:func:`laplacian`) and ``M`` the lumped scalar mass.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    k : int
+        Number of weights, ``1 <= k < n``.
+    rho : float or ndarray of shape (nT,)
+        Density of the mass matrix (a uniform density only scales weights).
+
+    Returns
+    -------
+    eigenvalues : ndarray, shape (k,)
+        Ascending; the first is 0 (the constant weight).
+    weights : ndarray, shape (n, k)
+        M-orthonormal, deterministic signs (:func:`~skfem_modal.eigen.sign_convention`).
+    B : ndarray, shape (n * dim, k * (dim + 1) * dim)
+        The linear-blend-skinning basis of the weights (:func:`lbs_basis`),
+        not yet mass-orthonormal.
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import caterpillar
+    >>> vals, W, B = skinning_eigenmodes(caterpillar(), 8)
+    >>> B.shape
+    (3438, 48)
+    >>> [round(float(v), 6) for v in vals[1:4]]
+    [1.122035, 2.881554, 3.646288]
+    """
+    check_mesh(mesh)
+    n = mesh.p.shape[1]
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise TypeError(f"k (the number of skinning weights) must be an integer, got {type(k).__name__}")
+    if not 1 <= k < n:
+        raise ValueError(f"k (the number of skinning weights) must be in 1..{n - 1}, got {k}")
+    L = laplacian(mesh)
+    M = _mass(mesh, rho, True, "P1", False)
+    values, W = lowest_eigenpairs(L, M, k)
+    values, W = canonical_repeated(values.copy(), W.copy(), M, generic_weight(mesh.p.T))
+    W = sign_convention(W)
+    return values, W, lbs_basis(mesh.p.T, W)
+
+
+def mass_orthonormalize(B, M) -> np.ndarray:
+    """Make the columns of ``B`` orthonormal in the mass inner product.
+
+    Gram-Schmidt in column order (a QR factorisation of ``M^(1/2) B`` for a
+    diagonal ``M``, a Cholesky factor of ``B^T M B`` otherwise), so
+    ``B'^T M B' = I`` and every leading set of columns spans what it spanned
+    before. Columns that depend linearly on earlier ones are dropped, with a
+    warning.
+
+    Parameters
+    ----------
+    B : ndarray, shape (N, r)
+    M : scipy.sparse matrix or ndarray, shape (N, N)
+        Symmetric positive definite.
+
+    Returns
+    -------
+    B : ndarray, shape (N, r'), r' <= r
+    """
+    B = np.asarray(B, dtype=np.float64)
+    if B.ndim != 2 or M.shape != (B.shape[0], B.shape[0]):
+        raise ValueError(f"B must be (N, r) and M (N, N); got {B.shape} and {M.shape}")
+    diagonal = sps.issparse(M) and (M - sps.diags(M.diagonal())).count_nonzero() == 0
+    if diagonal:
+        m = M.diagonal()
+        if np.any(m <= 0):
+            raise ValueError("mass_orthonormalize: the mass matrix must be positive definite")
+        root = np.sqrt(m)
+        Q, R = np.linalg.qr(root[:, None] * B)
+        keep = np.abs(np.diag(R)) > 1e-10 * np.abs(np.diag(R)).max()
+        if not keep.all():
+            warnings.warn(
+                f"mass_orthonormalize: dropped {int((~keep).sum())} linearly dependent columns",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            Q, R, piv = sla.qr(root[:, None] * B, mode="economic", pivoting=True)
+            Q = Q[:, : int(keep.sum())]
+        return Q / root[:, None]
+    G = B.T @ (M @ B)
+    G = (G + G.T) / 2
+    try:
+        Lc = np.linalg.cholesky(G)
+        return sla.solve_triangular(Lc, B.T, lower=True).T
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(G)
+        keep = vals > 1e-10 * vals.max()
+        warnings.warn(
+            f"mass_orthonormalize: dropped {int((~keep).sum())} linearly dependent columns",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return B @ (vecs[:, keep] / np.sqrt(vals[keep]))
+
+
+def project(x, B, M) -> np.ndarray:
+    """Mass-weighted least-squares coordinates of ``x`` in the span of ``B``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N,) or (n, dim)
+        A full field (positions or displacements).
+    B : ndarray, shape (N, r)
+    M : scipy.sparse matrix, shape (N, N)
+
+    Returns
+    -------
+    z : ndarray, shape (r,)
+        ``argmin_z (B z - x)^T M (B z - x)``.
+    """
+    x = np.asarray(x, dtype=np.float64).ravel()
+    if x.size != B.shape[0]:
+        raise ValueError(f"x has {x.size} values, the basis has {B.shape[0]} rows")
+    MB = M @ B
+    return np.linalg.solve(B.T @ MB, MB.T @ x)
+
+
+def com_operator(mesh, B, rho=1.0) -> np.ndarray:
+    """The centre of mass as a linear map of the reduced coordinates.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    B : ndarray, shape (n * dim, r)
+    rho : float or ndarray of shape (nT,)
+
+    Returns
+    -------
+    C : ndarray, shape (dim, r)
+        ``C @ z`` is the centre of mass of ``B @ z`` with the lumped masses.
+    """
+    check_mesh(mesh)
+    dim, n = mesh.p.shape
+    m = _mass(mesh, rho, True, "P1", False).diagonal()
+    weights = m / m.sum()
+    return np.einsum("i,iar->ar", weights, np.asarray(B).reshape(n, dim, -1))

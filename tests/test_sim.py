@@ -1,0 +1,278 @@
+"""The modal-muscle simulator against the tutorial's numbers, physics and a direct minimiser."""
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+from skfem_modal import (
+    actuation_limits,
+    boundary_vertices,
+    caterpillar,
+    creature,
+    farthest_point_sampling,
+    linear_modal_analysis,
+    mass_matrix,
+)
+from skfem_modal.clusters import spectral_clusters
+from skfem_modal.muscles import sine_gait
+from skfem_modal.sim import ModalMuscle, SimulationError
+from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes
+
+FLOAT_GAIT = dict(amplitudes=[0.9, 0.6, 0.0, 0.0], periods=[1.0, 0.7, 1.0, 1.0], phases=[0.0, 0.25, 0.0, 0.0])
+CRAWL_GAIT = dict(amplitudes=[0.45, 0.35, 0.25, 0.15], periods=[1.2, 0.8, 1.0, 0.6], phases=[0.0, 0.25, 0.5, 0.1])
+
+
+@pytest.fixture(scope="module")
+def tutorial(cat_mesh, reference):
+    """The tutorial's inputs built with our functions, with its mode signs."""
+    mesh = cat_mesh
+    _, modes = linear_modal_analysis(mesh, 7)
+    D = modes[:, 3:7] * (reference["mode_signs_3_6"] * np.sign(modes[0, 3:7]))
+    ceilings = actuation_limits(mesh, D)
+    skin_values, W, B = skinning_eigenmodes(mesh, 8)
+    B = mass_orthonormalize(B, mass_matrix(mesh))
+    labels = spectral_clusters(mesh, W, 20, seed=0)
+    return dict(mesh=mesh, D=D, ceilings=ceilings, skin_values=skin_values, W=W, B=B, labels=labels)
+
+
+def run(sim, gait, steps, ceilings):
+    z, z_dot, _ = sim.rest_state()
+    amplitudes = np.asarray(gait["amplitudes"]) * ceilings
+    coms, zs = [sim.com(z)], [z]
+    for i in range(steps):
+        a = sine_gait(i * sim.h, amplitudes, gait["periods"], gait["phases"])
+        z_next = sim.step(z, z_dot, a)
+        z_dot = (z_next - z) / sim.h
+        z = z_next
+        coms.append(sim.com(z))
+        zs.append(z)
+    return np.array(coms), np.array(zs)
+
+
+def test_skinning_eigenvalues_match_the_tutorial(tutorial, reference):
+    values = tutorial["skin_values"]
+    assert abs(values[0]) < 1e-9
+    np.testing.assert_allclose(values[1:], reference["skinning_eigenvalues"][1:], rtol=1e-6)
+
+
+def test_subspace_is_mass_orthonormal(tutorial):
+    B = tutorial["B"]
+    assert B.shape == (3438, 48)
+    M = mass_matrix(tutorial["mesh"], rho=1e3)
+    np.testing.assert_allclose(B.T @ M @ B, 1000.0 * np.eye(48), atol=1e-9)
+
+
+def test_clusters_are_reproducible_and_complete(tutorial):
+    labels = tutorial["labels"]
+    assert labels.shape == (3058,)
+    assert set(np.unique(labels).tolist()) == set(range(20))
+    again = spectral_clusters(tutorial["mesh"], tutorial["W"], 20, seed=0)
+    np.testing.assert_array_equal(labels, again)
+    other = spectral_clusters(tutorial["mesh"], tutorial["W"], 20, seed=1)
+    assert not np.array_equal(labels, other)
+    # sign flips of the weights do not change k-means distances, hence labels
+    flipped = spectral_clusters(tutorial["mesh"], -tutorial["W"], 20, seed=0)
+    np.testing.assert_array_equal(labels, flipped)
+
+
+def test_no_empty_cluster_even_with_many_clusters():
+    mesh = caterpillar(nx=12, ny=6)
+    _, W, _ = skinning_eigenmodes(mesh, 6)
+    k = mesh.t.shape[1] - 3
+    labels = spectral_clusters(mesh, W, k, seed=0)
+    assert np.bincount(labels, minlength=k).min() >= 1
+    np.testing.assert_array_equal(spectral_clusters(mesh, W, mesh.t.shape[1]), np.arange(mesh.t.shape[1]))
+
+
+def floating(tutorial, **kw):
+    return ModalMuscle(
+        tutorial["mesh"], tutorial["B"], tutorial["D"], tutorial["labels"], mu=1e5, gamma=1e5, rho=1e3, h=0.02, **kw
+    )
+
+
+def test_rest_stays_at_rest(tutorial):
+    sim = floating(tutorial)
+    z, z_dot, a = sim.rest_state()
+    assert a.shape == (4,) and not a.any()
+    np.testing.assert_allclose(sim.positions(z), tutorial["mesh"].p.T, atol=1e-12)
+    z_next = sim.step(z, z_dot, a)
+    assert np.abs(z_next - z).max() <= 1e-12
+    assert sim.iterations == 1
+
+
+def test_floating_conserves_the_centre_of_mass(tutorial):
+    sim = floating(tutorial)
+    assert sim.effects == ("elasticity", "inertia", "muscles")
+    assert sim._contact is None
+    coms, zs = run(sim, FLOAT_GAIT, 180, tutorial["ceilings"])
+    assert np.abs(coms - coms[0]).max() <= 1e-8
+    # ... while the shape really moves
+    moved = np.abs(sim.positions(zs[-1]) - sim.positions(zs[0])).max()
+    assert moved > 0.05
+
+
+def test_tutorial_crawl(tutorial, reference):
+    mesh = tutorial["mesh"]
+    X = mesh.p.T
+    boundary = boundary_vertices(mesh)
+    contacts = boundary[farthest_point_sampling(X[boundary], 30)]
+    ground = float(X[:, 1].min()) - 0.15
+    sim = ModalMuscle(
+        mesh, tutorial["B"], tutorial["D"], tutorial["labels"], mu=1e6, gamma=1e6, rho=1e3, h=0.01,
+        gravity=[0.0, -9.8], contact_vertices=contacts, ground=ground,
+    )
+    assert sim.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
+    coms, _ = run(sim, CRAWL_GAIT, 450, tutorial["ceilings"])
+    coms = coms[1:]
+    assert coms[-1, 0] - coms[0, 0] == pytest.approx(reference["crawl_com_dx"], abs=0.01)
+    lo, hi = reference["crawl_com_y_range"]
+    assert coms[:, 1].min() == pytest.approx(lo, abs=0.005)
+    assert coms[:, 1].max() == pytest.approx(hi, abs=0.005)
+
+
+def test_stopping_rules(tutorial):
+    sim = floating(tutorial, tol=0.0, max_iter=7)
+    z, z_dot, _ = sim.rest_state()
+    a = 0.5 * tutorial["ceilings"]
+    sim.step(z, z_dot, a)
+    assert sim.iterations == 7
+    loose = floating(tutorial, tol=0.0, rtol=1e-2, max_iter=50)
+    loose.step(z, z_dot, a)
+    assert 1 < loose.iterations < 50
+
+
+def test_energy_never_increases_across_iterations(tutorial):
+    sim = floating(tutorial, tol=0.0)
+    z, z_dot, _ = sim.rest_state()
+    # start from a moving, deformed state
+    for i in range(20):
+        a = sine_gait(i * sim.h, np.array([0.9, 0.6, 0.3, 0.2]) * tutorial["ceilings"], [1.0, 0.7, 0.5, 0.4], [0, 0.25, 0.1, 0.3])
+        z_next = sim.step(z, z_dot, a)
+        z_dot, z = (z_next - z) / sim.h, z_next
+    energies = []
+    for k in range(1, 16):
+        sim.max_iter = k
+        energies.append(sim.energy(sim.step(z, z_dot, a), z, z_dot, a))
+    energies = np.array(energies)
+    assert np.all(np.diff(energies) <= 1e-12 * np.abs(energies).max())
+    assert energies[0] - energies[-1] > 0
+
+
+def test_converged_step_is_the_energy_minimum():
+    mesh = caterpillar(nx=16, ny=8)
+    _, modes = linear_modal_analysis(mesh, 5)
+    D = modes[:, 3:5]
+    _, W, B = skinning_eigenmodes(mesh, 3)
+    B = mass_orthonormalize(B, mass_matrix(mesh))
+    labels = spectral_clusters(mesh, W, 4)
+    sim = ModalMuscle(mesh, B, D, labels, mu=1e3, gamma=2e3, rho=1.0, h=0.05, gravity=[0.3, -1.0], tol=1e-13, max_iter=5000)
+    z, _, _ = sim.rest_state()
+    z_dot = np.random.default_rng(0).standard_normal(z.size) * 0.1
+    a = 0.4 * actuation_limits(mesh, D)
+    z_step = sim.step(z, z_dot, a)
+    assert sim.iterations < 5000
+    fun = lambda x: sim.energy(x, z, z_dot, a, gradient=True)  # noqa: E731
+    best = scipy.optimize.minimize(fun, z, jac=True, method="BFGS", options={"gtol": 1e-11, "maxiter": 10000})
+    assert np.linalg.norm(best.x - z_step) <= 1e-6 * np.linalg.norm(z_step)
+    assert np.linalg.norm(fun(z_step)[1]) <= 1e-6 * np.linalg.norm(fun(z)[1])
+
+
+def test_energy_gradient_matches_finite_differences(tutorial):
+    sim = floating(tutorial)
+    z, z_dot, _ = sim.rest_state()
+    rng = np.random.default_rng(2)
+    x = z + 1e-2 * rng.standard_normal(z.size)
+    a = 0.3 * tutorial["ceilings"]
+    E, g = sim.energy(x, z, z_dot, a, gradient=True)
+    d = rng.standard_normal(z.size)
+    eps = 1e-6
+    fd = (sim.energy(x + eps * d, z, z_dot, a) - sim.energy(x - eps * d, z, z_dot, a)) / (2 * eps)
+    assert fd == pytest.approx(g @ d, rel=1e-5)
+
+
+def test_stickiness_zero_slides_and_one_sticks():
+    mesh = caterpillar(nx=20, ny=10)
+    results = {}
+    for stickiness in (0.0, 1.0):
+        sim = ModalMuscle.from_mesh(
+            mesh, n_muscles=0, n_weights=4, n_clusters=6, mu=1e5, rho=1e3, h=0.01,
+            gravity=[0.0, -9.8], ground=float(mesh.p[1].min()), stickiness=stickiness,
+        )
+        z, z_dot, _ = sim.rest_state()
+        # slide sideways at 1 unit/s: the translation part of z
+        shift = sim.B.T @ sim._M @ np.tile([1.0, 0.0], mesh.p.shape[1])
+        z_dot = np.linalg.solve(sim.BMB, shift)
+        start = sim.com(z)[0]
+        for _ in range(50):
+            z_next = sim.step(z, z_dot, None)
+            z_dot, z = (z_next - z) / sim.h, z_next
+        results[stickiness] = sim.com(z)[0] - start
+    assert results[0.0] > 0.4  # keeps most of its 0.5 of free travel
+    assert results[1.0] < 0.5 * results[0.0]
+
+
+def test_creature_floats_with_its_centre_of_mass_fixed():
+    mesh = creature()
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=4, mu=1e5, rho=1e3, h=0.01)
+    assert sim.B.shape[1] == 8 * 4 * 3
+    coms, zs = run(sim, dict(amplitudes=[0.4] * 4, periods=[1.0, 0.8, 0.6, 0.9], phases=[0, 0.25, 0.5, 0.75]), 100, sim.ceilings)
+    assert np.abs(coms - coms[0]).max() <= 1e-8
+    assert np.abs(sim.positions(zs[-1]) - sim.positions(zs[0])).max() > 0.01
+
+
+def test_creature_lands_and_moves_on_the_ground():
+    mesh = creature()
+    ground = float(mesh.p[2].min()) - 0.05
+    sim = ModalMuscle.from_mesh(
+        mesh, n_muscles=4, mu=1e5, rho=1e3, h=0.01, gravity=[0.0, 0.0, -9.8], ground=ground, n_contacts=40
+    )
+    gait = dict(amplitudes=[0.2] * 4, periods=[1.0, 0.8, 0.6, 0.9], phases=[0, 0.25, 0.5, 0.75])
+    z, z_dot, _ = sim.rest_state()
+    amplitudes = np.asarray(gait["amplitudes"]) * sim.ceilings
+    start = sim.com(z)
+    assert sim.contact_positions(z)[:, 2].min() == pytest.approx(ground + 0.05)
+    heights = []
+    for i in range(300):
+        a = sine_gait(i * sim.h, amplitudes, gait["periods"], gait["phases"])
+        z_next = sim.step(z, z_dot, a)
+        z_dot, z = (z_next - z) / sim.h, z_next
+        heights.append(sim.contact_positions(z)[:, 2].min() - ground)
+    heights = np.array(heights)
+    lowest = heights.min() + ground
+    # it fell onto the ground (free fall over 0.05 takes 0.1 s) and walks on it
+    assert heights[:20].min() < 0.005
+    assert np.mean(heights[20:] < 0.01) > 0.8
+    # ... its contact vertices stay at or above the ground within 0.01 (1.4 % of its height)
+    assert lowest >= ground - 0.01
+    # ... and it moves
+    assert np.linalg.norm((sim.com(z) - start)[:2]) > 0.05
+
+
+def test_bad_inputs_are_named(tutorial):
+    mesh, B, D, labels = tutorial["mesh"], tutorial["B"], tutorial["D"], tutorial["labels"]
+    kw = dict(mu=1e5, gamma=1e5, rho=1e3, h=0.02)
+    with pytest.raises(ValueError, match=r"B must have shape \(3438, r\)"):
+        ModalMuscle(mesh, B[:-1], D, labels, **kw)
+    with pytest.raises(ValueError, match=r"labels must have one label per element"):
+        ModalMuscle(mesh, B, D, labels[:-1], **kw)
+    with pytest.raises(ValueError, match="h must be positive"):
+        ModalMuscle(mesh, B, D, labels, **{**kw, "h": 0.0})
+    with pytest.raises(ValueError, match="rho must be positive"):
+        ModalMuscle(mesh, B, D, labels, **{**kw, "rho": -1.0})
+    with pytest.raises(ValueError, match=r"gravity must have shape \(2,\)"):
+        ModalMuscle(mesh, B, D, labels, gravity=[0, 0, -9.8], **kw)
+    with pytest.raises(ValueError, match="contact_vertices need a ground"):
+        ModalMuscle(mesh, B, D, labels, contact_vertices=[0, 1], **kw)
+    sim = ModalMuscle(mesh, B, D, labels, **kw)
+    z, z_dot, a = sim.rest_state()
+    with pytest.raises(ValueError, match=r"one value per muscle \(4\), got 3"):
+        sim.step(z, z_dot, a[:3])
+
+
+def test_non_finite_state_raises(tutorial):
+    sim = floating(tutorial)
+    z, z_dot, a = sim.rest_state()
+    z_dot = z_dot.copy()
+    z_dot[0] = np.nan
+    with pytest.raises(SimulationError, match="non-finite"):
+        sim.step(z, z_dot, a)
