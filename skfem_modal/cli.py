@@ -7,6 +7,7 @@ file); 3 numerical failure (a simulation that went non-finite); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -97,6 +98,95 @@ def cmd_modes(args) -> int:
     return EXIT_OK
 
 
+def _load_scene(path):
+    from .scene import Scene
+
+    return Scene.default() if path is None else Scene.from_toml(path)
+
+
+def cmd_run(args) -> int:
+    from .run import run_scene
+    from .sim import SimulationError
+
+    scene = _load_scene(args.scene)
+    say = (lambda *a: None) if args.quiet else print
+    say(f"scene: {scene.config['name']} ({scene.source}); effects: {', '.join(scene.effects)}")
+    say(f"{scene.n_steps} steps of {scene.h:g}; writing to {args.out}")
+    try:
+        summary = run_scene(scene, args.out, every=args.every, progress=not args.quiet)
+    except SimulationError as err:
+        print(f"skfem-modal run: simulation failed: {err}", file=sys.stderr)
+        return EXIT_NUMERICAL
+    step = summary["timings"]["step_ms"]
+    travel = np.round(summary["com"]["travel"], 4).tolist()
+    say(f"precompute {summary['timings']['precompute_total_s']:.3f} s; step median {step['median']:.3f} ms, "
+        f"p90 {step['p90']:.3f} ms; iterations per step {summary['iterations']['mean']:.2f}")
+    say(f"centre of mass travel {travel}")
+    if summary["ground"]:
+        say(f"worst penetration of the contact points: {summary['ground']['worst_penetration_contacts']:.3g}")
+    if args.render:
+        return _render(args.out, args, say)
+    say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")
+    return EXIT_OK
+
+
+def _render(run_dir, args, say) -> int:
+    try:
+        from .plot import render_run
+    except ImportError as err:  # pragma: no cover - needs the plot extra missing
+        print(f"skfem-modal render: needs the plot extra (pip install 'skfem_modal[plot]'): {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    written = render_run(run_dir, backend=args.backend, fmt=args.format, max_frames=args.max_frames)
+    backend = written.pop("backend")
+    say(f"rendered with {backend}: " + ", ".join(os.path.basename(p) for p in written.values()))
+    return EXIT_OK
+
+
+def cmd_render(args) -> int:
+    say = (lambda *a: None) if args.quiet else print
+    return _render(args.run_dir, args, say)
+
+
+def cmd_info(args) -> int:
+    from .mesh import mesh_summary
+    from .scene import Scene, schema_markdown
+
+    if args.scene_reference:
+        print(schema_markdown())
+        return EXIT_OK
+    target = args.target
+    if target is None or target.endswith(".toml"):
+        scene = _load_scene(target)
+        mesh = scene.mesh
+        info = mesh_summary(mesh)
+        c = scene.config
+        dim = info["dim"]
+        r = c["subspace"]["weights"] * (dim + 1) * dim
+        print(f"scene: {c['name']} ({scene.source})")
+        print(f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {dim}D, "
+              f"measure {info['measure']:.6g}, {info['parts']} part(s)")
+        print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
+        print(f"effects: {', '.join(scene.effects)}")
+        mat = scene.material()
+        print("material: " + ", ".join(f"{k} = {v:g}" for k, v in mat.items()))
+        print(f"sizes: {mesh.p.size} DOFs, subspace {r}, {c['subspace']['clusters']} clusters, "
+              f"{c['muscles']['count']} muscles")
+        print(f"time: {scene.n_steps} steps of {scene.h:g} ({scene.n_steps * scene.h:g} in all), "
+              f"at most {c['time']['iterations']} iterations per step")
+        if c["ground"] is not None:
+            print(f"ground: height {scene.ground_height():.6g} along axis {scene.up}, contacts "
+                  f"{c['ground']['contacts']}, stickiness {c['ground']['stickiness']:g}")
+        if c["pinned"] is not None:
+            print(f"pinned: {scene.pinned_vertices().size} vertices")
+        return EXIT_OK
+    mesh = parse_mesh_spec(target)
+    info = mesh_summary(mesh)
+    print(f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {info['dim']}D, "
+          f"measure {info['measure']:.6g}, {info['parts']} part(s)")
+    print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skfem-modal",
@@ -130,6 +220,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="modes.vtu", help="output .vtu file (default modes.vtu)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_modes)
+
+    def render_options(p):
+        p.add_argument("--backend", choices=["auto", "pyvista", "matplotlib"], default="auto",
+                       help="auto: pyvista where off-screen OpenGL works, else matplotlib")
+        p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (default gif)")
+        p.add_argument("--max-frames", type=int, default=120, help="frames in the animation, at most")
+
+    p = sub.add_parser("run", help="run a scene (default: the tutorial's caterpillar crawl)")
+    p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
+    p.add_argument("--out", default="out", help="output directory (default: out)")
+    p.add_argument("--every", type=int, help="write every k-th frame (default: the scene's output.every)")
+    p.add_argument("--render", action="store_true", help="also draw pictures and an animation (plot extra)")
+    render_options(p)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress, no messages")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("info", help="what a scene or mesh holds: sizes, effects, material")
+    p.add_argument("target", nargs="?", help="scene .toml, mesh file or built-in NAME (default: the built-in scene)")
+    p.add_argument("--scene-reference", action="store_true", help="print the scene file reference (markdown)")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("render", help="pictures and an animation of a finished run")
+    p.add_argument("run_dir", help="directory written by 'skfem-modal run'")
+    render_options(p)
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_render)
     return parser
 
 

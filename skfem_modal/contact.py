@@ -103,6 +103,11 @@ class GroundContact:
             # fewest-force change that meets every constraint exactly
             lam = np.linalg.solve(self.EEt[np.ix_(rows, rows)], residual)
             return z_tent + self.HinvEt[:, rows] @ lam
+        # more constraints than coordinates: least squares (normal equations,
+        # as the reference; an SVD only if they are singular)
         L = self.E[rows]
-        df = np.linalg.lstsq(L, residual, rcond=None)[0]
+        try:
+            df = np.linalg.solve(L.T @ L, L.T @ residual)
+        except np.linalg.LinAlgError:
+            df = np.linalg.lstsq(L, residual, rcond=None)[0]
         return z_tent + self.H_inv @ df

@@ -119,6 +119,18 @@ class ModalMuscle:
     push_out : float
         In [0, 1]: fraction of a contact point's penetration undone per step (0:
         none, the reference behaviour).
+    pinned : array_like of int, optional
+        Vertices held at their rest positions by stiff springs
+        ``pin_stiffness / 2 |x_i - X_i|^2`` (in the subspace a pin is as exact
+        as the basis allows).
+    pin_stiffness : float, optional
+        Spring stiffness; default 1e3 times the larger of the mean passive
+        stiffness and the mean vertex mass over ``h^2`` per DOF.
+    damping_mass, damping_stiffness : float
+        Rayleigh damping: the dissipation ``(z - z0)^T (alpha BMB + beta H) (z - z0) / 2h``
+        with ``alpha = damping_mass`` (1/time, damps all motion, like drag)
+        and ``beta = damping_stiffness`` (time, damps deformation; ``H`` the
+        passive Hessian at rest).
     max_iter : int
         Local/global iterations per step, at most.
     tol : float
@@ -158,6 +170,10 @@ class ModalMuscle:
         up=None,
         stickiness=1.0,
         push_out=0.0,
+        pinned=None,
+        pin_stiffness=None,
+        damping_mass=0.0,
+        damping_stiffness=0.0,
         max_iter=10,
         tol=1e-6,
         rtol=0.0,
@@ -198,6 +214,16 @@ class ModalMuscle:
         push_out = _positive_scalar(push_out, "push_out", allow_zero=True)
         if stickiness > 1 or push_out > 1:
             raise ValueError(f"stickiness and push_out must be in [0, 1], got {stickiness} and {push_out}")
+        damping_mass = _positive_scalar(damping_mass, "damping_mass", allow_zero=True)
+        damping_stiffness = _positive_scalar(damping_stiffness, "damping_stiffness", allow_zero=True)
+        if pinned is not None:
+            pinned = np.unique(np.asarray(pinned))
+            if pinned.size == 0 or not np.issubdtype(pinned.dtype, np.integer):
+                raise ValueError("pinned must be a non-empty array of vertex indices")
+            if pinned[0] < 0 or pinned[-1] >= n:
+                raise ValueError(f"pinned vertex indices must be in 0..{n - 1}")
+        if pin_stiffness is not None:
+            pin_stiffness = _positive_scalar(pin_stiffness, "pin_stiffness")
         if gravity is not None:
             gravity = _array(gravity, (dim,), "gravity")
         if ground is not None:
@@ -251,7 +277,29 @@ class ModalMuscle:
         self.timings["muscles"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        H = H_el + self._H_act + self.BMB / self.h**2
+        h = self.h
+        H = H_el + self._H_act + self.BMB / h**2
+        # constant extra terms: pins (springs to rest) and Rayleigh damping
+        self._pin_rhs = np.zeros(r)
+        self._pin_H = np.zeros((r, r))
+        self.pinned = np.zeros(0, np.int64) if pinned is None else pinned
+        if pinned is not None:
+            if pin_stiffness is None:
+                # mean diagonal of the passive Hessian J^T W J, per DOF
+                passive_diag = float(np.asarray(WJ.multiply(J).sum(axis=0)).mean())
+                mass_diag = float(M.diagonal().mean()) / h**2
+                pin_stiffness = 1e3 * max(passive_diag, mass_diag)
+            Bs = B[vector_dofs(pinned, dim)]
+            self._pin_H = pin_stiffness * (Bs.T @ Bs)
+            self._pin_rhs = pin_stiffness * (Bs.T @ mesh.p.T[pinned].ravel())
+            self._pin_const = 0.5 * pin_stiffness * float((mesh.p.T[pinned] ** 2).sum())
+            H = H + self._pin_H
+        self.pin_stiffness = pin_stiffness
+        self._damping = damping_mass * self.BMB + damping_stiffness * H_el
+        self.damping_mass, self.damping_stiffness = damping_mass, damping_stiffness
+        damped = bool(damping_mass or damping_stiffness)
+        if damped:
+            H = H + self._damping / h
         H = (H + H.T) / 2
         try:
             chol = sla.cho_factor(H)
@@ -262,7 +310,10 @@ class ModalMuscle:
         H_inv = sla.cho_solve(chol, np.eye(r))
         self._H_el = H_el
         self._H_inv = H_inv
-        self._K_inertia = H_inv @ self.BMB / self.h**2
+        # the start-of-step part of the right-hand side: c = P_z z + P_v z_dot + c_ext
+        self._K_inertia = H_inv @ self.BMB / h**2
+        self._P_z = H_inv @ (self.BMB / h**2 + self._damping / h) if damped else None
+        self._P_v = H_inv @ self.BMB / h if damped else None
         nc = Gp.shape[0] // dd
         na = self._A.shape[1] // dd if m else 0
         self.n_clusters, self.n_active_clusters = nc, na
@@ -286,7 +337,11 @@ class ModalMuscle:
         if gravity is not None:
             self._f_ext = B.T @ _gravity(mesh, gravity, rho_e)
             effects.append("gravity")
-        self._c_ext = H_inv @ self._f_ext
+        if pinned is not None:
+            effects.append("pinned")
+        if damped:
+            effects.append("damping")
+        self._c_ext = H_inv @ (self._f_ext + self._pin_rhs)
         self.gravity = gravity
         self._contact = None
         self.ground = ground
@@ -397,7 +452,11 @@ class ModalMuscle:
         if z.shape != (r,) or np.shape(z_dot) != (r,):
             raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {np.shape(z_dot)}")
         self._set_activation(self._activation(a))
-        c = self._K_inertia @ (z + self.h * np.asarray(z_dot, dtype=np.float64)) + self._c_ext
+        z_dot = np.asarray(z_dot, dtype=np.float64)
+        if self._P_z is None:
+            c = self._K_inertia @ (z + self.h * z_dot) + self._c_ext
+        else:
+            c = self._P_z @ z + self._P_v @ z_dot + self._c_ext
         G, W, rotations = self._G, self._W, self._rotations
         width = self.dim * self.dim
         contact = self._contact
@@ -452,20 +511,31 @@ class ModalMuscle:
         S = self._G @ x
         R = self._rotations(S.reshape(-1, self.dim * self.dim)).ravel()
         d = x - y
-        H_elastic = self._H_el + self._H_act
+        H_elastic = self._H_el + self._H_act + self._pin_H
+        v = x - np.asarray(z, float)
         E = (
             d @ self.BMB @ d / (2 * self.h**2)
+            + v @ self._damping @ v / (2 * self.h)
             + 0.5 * x @ H_elastic @ x
             - R @ S
             + self._rest_const
-            - x @ self._f_ext
+            - x @ (self._f_ext + self._pin_rhs)
         )
+        if self.pinned.size:
+            E += self._pin_const
         if self.n_muscles:
             c0, c1, Q = self._active_consts
             E += c0 + c1 @ a + a @ Q @ a
         if not gradient:
             return float(E)
-        grad = self.BMB @ d / self.h**2 + H_elastic @ x - self._G.T @ R - self._f_ext
+        grad = (
+            self.BMB @ d / self.h**2
+            + self._damping @ v / self.h
+            + H_elastic @ x
+            - self._G.T @ R
+            - self._f_ext
+            - self._pin_rhs
+        )
         return float(E), grad
 
     # ------------------------------------------------------------ convenience
@@ -485,14 +555,20 @@ class ModalMuscle:
         h=0.02,
         gravity=None,
         ground=None,
-        n_contacts: int = 30,
+        n_contacts: int | None = 30,
         up=None,
         stickiness=1.0,
         push_out=0.0,
+        pinned=None,
+        pin_stiffness=None,
+        damping_mass=0.0,
+        damping_stiffness=0.0,
+        n_active_clusters: int = 1,
         max_iter=10,
         tol=1e-6,
         rtol=0.0,
         seed: int = 0,
+        progress=None,
     ):
         """Build every ingredient from a mesh and a few numbers.
 
@@ -502,8 +578,11 @@ class ModalMuscle:
         multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
         ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
         clusters are spectral clusters of the weights (``seed``); one active
-        cluster; with a ``ground``, ``n_contacts`` boundary vertices by
-        farthest-point sampling.
+        cluster (or ``n_active_clusters`` spectral clusters); with a
+        ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
+        (all boundary vertices if ``n_contacts`` is None). With ``pinned``
+        vertices the muscles are the modes of the body clamped there.
+        ``progress(stage)``, if given, is called before each stage.
 
         Returns
         -------
@@ -514,13 +593,15 @@ class ModalMuscle:
         from .modal import linear_modal_analysis, rigid_mode_count
 
         check_mesh(mesh)
+        say = progress or (lambda stage: None)
         timings = {}
         clock = time.perf_counter()
-        n_rigid = rigid_mode_count(mesh)
+        say("modal analysis")
+        n_rigid = rigid_mode_count(mesh, pinned)
         D = np.zeros((mesh.p.size, 0))
         if n_muscles:
             _, modes = linear_modal_analysis(
-                mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho
+                mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
             )
             D = modes[:, n_rigid:]
             if muscle_signs is not None:
@@ -530,21 +611,30 @@ class ModalMuscle:
                 D = D * signs
         timings["modal_analysis"] = time.perf_counter() - clock
         clock = time.perf_counter()
+        say("skinning eigenmodes")
         _, weights, B = skinning_eigenmodes(mesh, n_weights)
         timings["skinning_eigenmodes"] = time.perf_counter() - clock
         clock = time.perf_counter()
+        say("orthonormalise")
         B = mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True))
         timings["orthonormalize"] = time.perf_counter() - clock
         clock = time.perf_counter()
+        say("clusters")
         labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+        active = None
+        if n_active_clusters > 1:
+            active = spectral_clusters(mesh, weights, n_active_clusters, seed=seed)
         timings["clusters"] = time.perf_counter() - clock
         contacts = None
         if ground is not None:
             clock = time.perf_counter()
             boundary = boundary_vertices(mesh)
-            k = min(n_contacts, boundary.size)
-            contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], k)]
+            if n_contacts is None or n_contacts >= boundary.size:
+                contacts = boundary
+            else:
+                contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], n_contacts)]
             timings["contacts"] = time.perf_counter() - clock
+        say("simulator set-up")
         sim = cls(
             mesh,
             B,
@@ -554,12 +644,17 @@ class ModalMuscle:
             gamma=mu if gamma is None else gamma,
             rho=rho,
             h=h,
+            active_labels=active,
             gravity=gravity,
             contact_vertices=contacts,
             ground=ground,
             up=up,
             stickiness=stickiness,
             push_out=push_out,
+            pinned=pinned,
+            pin_stiffness=pin_stiffness,
+            damping_mass=damping_mass,
+            damping_stiffness=damping_stiffness,
             max_iter=max_iter,
             tol=tol,
             rtol=rtol,

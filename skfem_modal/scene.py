@@ -1,0 +1,649 @@
+"""Scenes: a TOML file (or a dict) that names a mesh, a material, muscles and effects.
+
+A scene is validated completely before any computation: every key is checked
+for spelling, type and range, and an error names the key, the value and what
+was expected. Sections ``gravity``, ``ground``, ``pinned`` and ``damping`` are
+*effects*: present, they are built into the simulator; absent, they cost
+nothing. ``docs/scenes.md`` lists every key (it is generated from
+:data:`SCHEMA`; see :func:`schema_markdown`).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from .mesh import BUILTIN_SHAPES, _CONDITION, builtin_mesh, load_mesh, normalize_and_center, vertices_where
+
+__all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
+
+
+class SceneError(ValueError):
+    """A scene that cannot be run; the message lists every problem found, by key."""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One scene key: its type, default, meaning and units."""
+
+    kind: str  # float, int, bool, str, floats, ints, strs, table, float|str
+    default: Any
+    doc: str
+    units: str = ""
+    check: Callable[[Any], str | None] | None = None
+    required: bool = False
+
+
+def _positive(v):
+    return None if v > 0 else "a positive number"
+
+
+def _non_negative(v):
+    return None if v >= 0 else "a number >= 0"
+
+
+def _unit_interval(v):
+    return None if 0 <= v <= 1 else "a number in [0, 1]"
+
+
+def _at_least_one(v):
+    return None if v >= 1 else "an integer >= 1"
+
+
+def _shape_name(v):
+    return None if v in BUILTIN_SHAPES else f"one of {sorted(BUILTIN_SHAPES)}"
+
+
+def _signs(v):
+    return None if all(s in (-1, 1) for s in v) else "a list of +1 and -1"
+
+
+def _positive_list(v):
+    return None if all(x > 0 for x in v) else "a list of positive numbers"
+
+
+def _contacts(v):
+    if v == "all" or (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+        return None
+    return "an integer >= 1 or \"all\""
+
+
+#: Every key a scene may hold, by section. Sections marked as effects are
+#: optional tables; their presence switches the effect on.
+SCHEMA: dict[str, Any] = {
+    "name": Key("str", "scene", "A name for the scene, copied to summary.json."),
+    "mesh": {
+        "shape": Key("str", None, "Built-in shape: caterpillar, beam2d, beam3d, box3d or creature "
+                     "(default caterpillar when no file is given).", check=_shape_name),
+        "file": Key("str", None, "Mesh file (any format meshio reads), relative to the scene file. "
+                    "Triangles make a 2D body, tetrahedra a 3D one."),
+        "params": Key("table", {}, "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }` "
+                      "(see the shape functions in `skfem_modal.mesh`)."),
+        "normalize": Key("bool", False, "Centre the mesh at its vertex mean and scale its largest extent to 2."),
+        "scale": Key("float", 1.0, "Multiply every coordinate by this factor (after normalising).",
+                     "length", _positive),
+    },
+    "material": {
+        "mu": Key("float", None, "Passive (ARAP) stiffness, the shear modulus. Default 1e5, or from "
+                  "young and poisson.", "stress", _positive),
+        "gamma": Key("float", None, "Muscle stiffness (default: mu).", "stress", _non_negative),
+        "lam": Key("float", None, "First Lame parameter, used for the linear modes only (default: mu, "
+                   "or from young and poisson).", "stress", _non_negative),
+        "young": Key("float", None, "Young's modulus (with poisson, instead of mu and lam).", "stress", _positive),
+        "poisson": Key("float", None, "Poisson's ratio, in (-1, 0.5).", "",
+                       lambda v: None if -1 < v < 0.5 else "a number in (-1, 0.5)"),
+        "rho": Key("float", 1e3, "Density.", "mass / volume", _positive),
+    },
+    "subspace": {
+        "weights": Key("int", 8, "Skinning eigenmodes; the subspace has weights x (dim + 1) x dim coordinates.",
+                       check=_at_least_one),
+        "clusters": Key("int", 20, "Rotation clusters of elements for the passive energy.", check=_at_least_one),
+        "active_clusters": Key("int", 1, "Rotation clusters for the muscle energy.", check=_at_least_one),
+        "seed": Key("int", 0, "Seed of the k-means clustering (same seed, same clusters)."),
+    },
+    "muscles": {
+        "count": Key("int", 4, "Muscles: the lowest linear modes after the rigid ones (with pinned "
+                     "vertices, the modes of the clamped body). 0 for none.",
+                     check=lambda v: None if v >= 0 else "an integer >= 0"),
+        "signs": Key("ints", None, "Flip muscles: +1 or -1 each (modes have a deterministic sign; "
+                     "the caterpillar tutorial's gait uses [1, -1, -1, 1]).", check=_signs),
+        "max_s": Key("float", 2.0, "Amplitude ceilings: a mode scaled by its ceiling changes some "
+                     "element's deformation gradient by max_s (Frobenius norm).", "", _positive),
+        "table": Key("str", None, "CSV file of activations over time (instead of gait): a header, then "
+                     "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling; "
+                     "linearly interpolated, held after the last row."),
+        "gait": {
+            "_optional": True,
+            "amplitude": Key("floats", None, "Per muscle: amplitude as a fraction of its ceiling.", "",
+                             required=True),
+            "period": Key("floats", None, "Per muscle: period.", "time", _positive_list, required=True),
+            "phase": Key("floats", None, "Per muscle: phase, as a fraction of the period (default 0).", "periods"),
+        },
+    },
+    "time": {
+        "step": Key("float", 0.01, "Time step h.", "time", _positive),
+        "duration": Key("float", None, "Simulated time (default 4.5, or from steps).", "time", _positive),
+        "steps": Key("int", None, "Number of steps (instead of duration).", check=_at_least_one),
+        "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
+        "tol": Key("float", 1e-6, "Stop a step's iterations when the change of z is below tol (0: always "
+                   "run all iterations).", "", _non_negative),
+        "rtol": Key("float", 0.0, "Also stop when the change of z is below rtol times the step's motion "
+                    "(0: off).", "", _non_negative),
+    },
+    "gravity": {
+        "_effect": True,
+        "acceleration": Key("floats", None, "Gravitational acceleration vector, one value per axis.",
+                            "length / time^2", required=True),
+    },
+    "ground": {
+        "_effect": True,
+        "height": Key("float", None, "Height of the ground plane along the up axis.", "length"),
+        "offset": Key("float", None, "Instead of height: put the ground this far below the mesh's lowest "
+                      "point (default 0).", "length", _non_negative),
+        "up": Key("int", None, "Index of the up axis (default: the last, y in 2D, z in 3D)."),
+        "stickiness": Key("float", 1.0, "1 removes the tangential velocity of contacting points (the "
+                          "reference behaviour), 0 lets them slide freely.", "", _unit_interval),
+        "contacts": Key("int|all", 30, "Contact points: that many boundary vertices by farthest-point "
+                        "sampling, or \"all\" boundary vertices.", check=_contacts),
+        "push_out": Key("float", 0.0, "Fraction of a contact point's penetration undone per step (0: none, "
+                        "the reference behaviour; 1: back on the ground in one step).", "", _unit_interval),
+    },
+    "pinned": {
+        "_effect": True,
+        "where": Key("strs", None, "Conditions selecting the pinned vertices, e.g. [\"x <= 0.01\"] or "
+                     "[\"x == min\"] (a vertex satisfying any one is pinned)."),
+        "box": Key("table", None, "Instead of where: `{ min = [...], max = [...] }`, pin the vertices inside."),
+        "stiffness": Key("float", None, "Pin spring stiffness (default: 1e3 x the system's own stiffness "
+                         "scale).", "force / length", _positive),
+    },
+    "damping": {
+        "_effect": True,
+        "mass": Key("float", 0.0, "Mass-proportional Rayleigh damping alpha (damps all motion, like drag).",
+                    "1 / time", _non_negative),
+        "stiffness": Key("float", 0.0, "Stiffness-proportional Rayleigh damping beta (damps deformation).",
+                         "time", _non_negative),
+    },
+    "output": {
+        "every": Key("int", 1, "Write every k-th frame (the command's --every overrides).", check=_at_least_one),
+    },
+}
+
+#: The built-in scene: the tutorial's caterpillar crawling on the ground.
+DEFAULT_SCENE: dict[str, Any] = {
+    "name": "caterpillar crawl (the tutorial's scene)",
+    "mesh": {"shape": "caterpillar", "params": {}},
+    "material": {"mu": 1e6, "gamma": 1e6, "rho": 1e3},
+    "subspace": {"weights": 8, "clusters": 20, "seed": 0},
+    "muscles": {
+        "count": 4,
+        "signs": [1, -1, -1, 1],
+        "gait": {"amplitude": [0.45, 0.35, 0.25, 0.15], "period": [1.2, 0.8, 1.0, 0.6], "phase": [0.0, 0.25, 0.5, 0.1]},
+    },
+    "time": {"step": 0.01, "steps": 450},
+    "gravity": {"acceleration": [0.0, -9.8]},
+    "ground": {"offset": 0.15, "stickiness": 1.0, "contacts": 30},
+    "output": {"every": 5},
+}
+
+_DIM_OF_SHAPE = {"caterpillar": 2, "beam2d": 2, "beam3d": 3, "box3d": 3, "creature": 3}
+
+
+def _type_name(value) -> str:
+    return type(value).__name__
+
+
+def _coerce(kind: str, value, path: str, errors: list[str]):
+    """The value as the key's kind, or record an error."""
+
+    def bad(expected):
+        errors.append(f"{path}: expected {expected}, got {value!r} ({_type_name(value)})")
+        return None
+
+    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind == "float":
+        if not is_number or not math.isfinite(value):
+            return bad("a finite number")
+        return float(value)
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            return bad("an integer")
+        return value
+    if kind == "bool":
+        return value if isinstance(value, bool) else bad("true or false")
+    if kind == "str":
+        return value if isinstance(value, str) else bad("a string")
+    if kind == "int|all":
+        return value if (value == "all" or (isinstance(value, int) and not isinstance(value, bool))) else bad(
+            'an integer or "all"'
+        )
+    if kind in ("floats", "ints", "strs"):
+        items = value if isinstance(value, list) else None
+        if items is None:
+            return bad("a list")
+        if kind == "floats":
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in items):
+                return bad("a list of finite numbers")
+            return [float(v) for v in items]
+        if kind == "ints":
+            if not all(isinstance(v, int) and not isinstance(v, bool) for v in items):
+                return bad("a list of integers")
+            return list(items)
+        if not all(isinstance(v, str) for v in items):
+            return bad("a list of strings")
+        return list(items)
+    if kind == "table":
+        return value if isinstance(value, dict) else bad("a table")
+    raise AssertionError(kind)
+
+
+def _validate_table(schema: dict, data, path: str, errors: list[str]) -> dict:
+    if not isinstance(data, dict):
+        errors.append(f"{path or 'scene'}: expected a table, got {data!r}")
+        return {}
+    out = {}
+    known = [k for k in schema if not k.startswith("_")]
+    for key in data:
+        if key not in known:
+            where = f"{path}.{key}" if path else key
+            errors.append(f"{where}: unknown key; expected one of {', '.join(known)}")
+    for key in known:
+        spec = schema[key]
+        where = f"{path}.{key}" if path else key
+        if isinstance(spec, dict):
+            if key in data:
+                out[key] = _validate_table(spec, data[key], where, errors)
+            elif spec.get("_effect") or spec.get("_optional"):
+                out[key] = None
+            else:
+                out[key] = _validate_table(spec, {}, where, errors)
+            continue
+        if key not in data:
+            if spec.required:
+                errors.append(f"{where}: required")
+            out[key] = spec.default
+            continue
+        value = _coerce(spec.kind, data[key], where, errors)
+        if value is not None and spec.check is not None:
+            problem = spec.check(value)
+            if problem:
+                errors.append(f"{where}: expected {problem}, got {data[key]!r}")
+                value = None
+        out[key] = value
+    return out
+
+
+def _read_table(path: str, count: int, errors: list[str]):
+    """Activation table: (times (k,), values (k, count)), or None with an error recorded."""
+    where = "muscles.table"
+    if not os.path.isfile(path):
+        errors.append(f"{where}: no such file {path!r}")
+        return None
+    rows = []
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header is None:
+            errors.append(f"{where}: {path!r} is empty")
+            return None
+        for line, row in enumerate(reader, start=2):
+            if not any(cell.strip() for cell in row):
+                continue
+            if len(row) != count + 1:
+                errors.append(f"{where}: {path!r} line {line} has {len(row)} columns, expected {count + 1} "
+                              f"(time and one per muscle)")
+                return None
+            try:
+                rows.append([float(cell) for cell in row])
+            except ValueError:
+                errors.append(f"{where}: {path!r} line {line} holds a value that is not a number: {row}")
+                return None
+    if not rows:
+        errors.append(f"{where}: {path!r} has no rows after its header")
+        return None
+    data = np.array(rows)
+    if not np.all(np.isfinite(data)):
+        errors.append(f"{where}: {path!r} holds non-finite values")
+        return None
+    if np.any(np.diff(data[:, 0]) <= 0):
+        errors.append(f"{where}: {path!r} times must increase strictly")
+        return None
+    return data[:, 0], data[:, 1:]
+
+
+@dataclass
+class Scene:
+    """A validated scene and the mesh it names.
+
+    Build with :meth:`from_toml`, :meth:`from_dict` or :meth:`default`; the
+    constructor checks everything (types, ranges, files, the mesh itself,
+    lengths that depend on the mesh's dimension) and raises one
+    :class:`SceneError` listing every problem.
+
+    Attributes
+    ----------
+    config : dict
+        Every key, defaults filled in (effects absent are ``None``).
+    mesh : skfem.MeshTri or skfem.MeshTet
+    source : str
+        Where the scene came from (a path, or "built-in").
+    """
+
+    config: dict
+    mesh: Any = field(repr=False)
+    source: str = "dict"
+    _table: Any = field(default=None, repr=False)
+
+    # ------------------------------------------------------------ loading
+    @classmethod
+    def from_toml(cls, path) -> "Scene":
+        """Load and validate a scene file."""
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"scene file not found: {path!r}")
+        with open(path, "rb") as f:
+            try:
+                data = tomllib.load(f)
+            except tomllib.TOMLDecodeError as err:
+                raise SceneError(f"{path}: not valid TOML: {err}") from None
+        return cls.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)), source=path)
+
+    @classmethod
+    def default(cls) -> "Scene":
+        """The built-in scene: the tutorial's caterpillar crawl."""
+        return cls.from_dict(DEFAULT_SCENE, source="built-in")
+
+    @classmethod
+    def from_dict(cls, data: dict, base_dir: str | None = None, source: str = "dict") -> "Scene":
+        """Validate a scene given as nested dicts (the same keys as the TOML file)."""
+        errors: list[str] = []
+        config = _validate_table(SCHEMA, data, "", errors)
+        base_dir = base_dir or os.getcwd()
+        mesh = None
+        table = None
+        if not errors:
+            mesh = _build_mesh(config["mesh"], base_dir, errors)
+        if mesh is not None:
+            _check_cross(config, mesh, errors)
+            muscles = config["muscles"]
+            if muscles["table"] is not None and not errors:
+                path = muscles["table"]
+                path = path if os.path.isabs(path) else os.path.join(base_dir, path)
+                table = _read_table(path, muscles["count"], errors)
+        if errors:
+            head = f"{source}: " if source not in ("dict", "built-in") else ""
+            raise SceneError(f"{head}{len(errors)} problem(s) in the scene:\n  " + "\n  ".join(errors))
+        return cls(config=config, mesh=mesh, source=source, _table=table)
+
+    # ---------------------------------------------------------- properties
+    @property
+    def dim(self) -> int:
+        return self.mesh.p.shape[0]
+
+    @property
+    def h(self) -> float:
+        return self.config["time"]["step"]
+
+    @property
+    def n_steps(self) -> int:
+        t = self.config["time"]
+        if t["steps"] is not None:
+            return t["steps"]
+        return max(1, int(round((4.5 if t["duration"] is None else t["duration"]) / t["step"])))
+
+    @property
+    def effects(self) -> tuple:
+        """The effects the scene names, in the simulator's order."""
+        names = ["elasticity", "inertia"]
+        if self.config["muscles"]["count"]:
+            names.append("muscles")
+        for key in ("gravity", "ground", "pinned", "damping"):
+            if self.config[key] is not None:
+                names.append("contact" if key == "ground" else key)
+        damping = self.config["damping"]
+        if damping is not None and not (damping["mass"] or damping["stiffness"]):
+            names.remove("damping")
+        return tuple(names)
+
+    def material(self) -> dict:
+        """``mu``, ``gamma``, ``lam``, ``rho`` with defaults resolved."""
+        m = self.config["material"]
+        if m["young"] is not None:
+            from .fem import lame_parameters
+
+            mu, lam = lame_parameters(m["young"], m["poisson"])
+        else:
+            mu = 1e5 if m["mu"] is None else m["mu"]
+            lam = mu if m["lam"] is None else m["lam"]
+        gamma = mu if m["gamma"] is None else m["gamma"]
+        return {"mu": mu, "gamma": gamma, "lam": lam, "rho": m["rho"]}
+
+    def ground_height(self) -> float | None:
+        g = self.config["ground"]
+        if g is None:
+            return None
+        if g["height"] is not None:
+            return g["height"]
+        return float(self.mesh.p[self.up].min()) - (g["offset"] or 0.0)
+
+    @property
+    def up(self) -> int:
+        g = self.config["ground"]
+        return self.dim - 1 if g is None or g["up"] is None else g["up"]
+
+    def pinned_vertices(self) -> np.ndarray | None:
+        p = self.config["pinned"]
+        if p is None:
+            return None
+        return _pinned(p, self.mesh)
+
+    # ------------------------------------------------------------ building
+    def build(self, progress=None):
+        """The simulator holding exactly the effects this scene names.
+
+        Parameters
+        ----------
+        progress : callable, optional
+            Called with the name of each precompute stage.
+
+        Returns
+        -------
+        sim : skfem_modal.sim.ModalMuscle
+        """
+        from .sim import ModalMuscle
+
+        c = self.config
+        mat = self.material()
+        ground = c["ground"]
+        damping = c["damping"] or {"mass": 0.0, "stiffness": 0.0}
+        contacts = None if ground is None or ground["contacts"] == "all" else ground["contacts"]
+        return ModalMuscle.from_mesh(
+            self.mesh,
+            n_muscles=c["muscles"]["count"],
+            muscle_signs=c["muscles"]["signs"],
+            n_weights=c["subspace"]["weights"],
+            n_clusters=c["subspace"]["clusters"],
+            n_active_clusters=c["subspace"]["active_clusters"],
+            seed=c["subspace"]["seed"],
+            mu=mat["mu"],
+            gamma=mat["gamma"],
+            lam=mat["lam"],
+            rho=mat["rho"],
+            h=self.h,
+            gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
+            ground=self.ground_height(),
+            n_contacts=contacts,
+            up=self.up,
+            stickiness=1.0 if ground is None else ground["stickiness"],
+            push_out=0.0 if ground is None else ground["push_out"],
+            pinned=self.pinned_vertices(),
+            pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
+            damping_mass=damping["mass"],
+            damping_stiffness=damping["stiffness"],
+            max_iter=c["time"]["iterations"],
+            tol=c["time"]["tol"],
+            rtol=c["time"]["rtol"],
+            progress=progress,
+        )
+
+    def activation_fractions(self, t: float) -> np.ndarray:
+        """Muscle activations at time ``t`` as fractions of the ceilings, shape (count,)."""
+        muscles = self.config["muscles"]
+        m = muscles["count"]
+        if self._table is not None:
+            times, values = self._table
+            return np.array([np.interp(t, times, values[:, k]) for k in range(m)])
+        gait = muscles["gait"]
+        if gait is None or m == 0:
+            return np.zeros(m)
+        amp = np.asarray(gait["amplitude"])
+        period = np.asarray(gait["period"])
+        phase = np.zeros(m) if gait["phase"] is None else np.asarray(gait["phase"])
+        return amp * np.sin(2.0 * np.pi * (t / period + phase))
+
+    def to_dict(self) -> dict:
+        """The validated configuration, JSON-ready (for summary.json)."""
+        return {"source": self.source, **self.config}
+
+
+def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
+    if spec["shape"] is not None and spec["file"] is not None:
+        errors.append("mesh: give either shape or file, not both")
+        return None
+    try:
+        if spec["file"] is not None:
+            if spec["params"]:
+                errors.append("mesh.params: only for built-in shapes, not with mesh.file")
+                return None
+            path = spec["file"] if os.path.isabs(spec["file"]) else os.path.join(base_dir, spec["file"])
+            if not os.path.isfile(path):
+                errors.append(f"mesh.file: no such file {path!r}")
+                return None
+            mesh = load_mesh(path)
+        else:
+            mesh = builtin_mesh(spec["shape"] or "caterpillar", **spec["params"])
+    except (ValueError, TypeError) as err:
+        errors.append(f"mesh: {err}")
+        return None
+    if spec["normalize"]:
+        mesh = normalize_and_center(mesh)
+    if spec["scale"] != 1.0:
+        mesh = type(mesh)(mesh.p * spec["scale"], mesh.t.copy(), sort_t=False)
+    return mesh
+
+
+def _pinned(spec: dict, mesh) -> np.ndarray:
+    if spec["where"] is not None:
+        return np.unique(np.concatenate([vertices_where(mesh, cond) for cond in spec["where"]]))
+    box = spec["box"]
+    lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
+    inside = np.all((mesh.p.T >= lo) & (mesh.p.T <= hi), axis=1)
+    return np.nonzero(inside)[0]
+
+
+def _check_cross(config: dict, mesh, errors: list[str]) -> None:
+    """Checks that involve several keys or the mesh's dimension."""
+    dim = mesh.p.shape[0]
+    mat = config["material"]
+    if (mat["young"] is None) != (mat["poisson"] is None):
+        errors.append("material: young and poisson go together")
+    if mat["young"] is not None and (mat["mu"] is not None or mat["lam"] is not None):
+        errors.append("material: give mu (and lam) or young and poisson, not both")
+    muscles = config["muscles"]
+    m = muscles["count"]
+    if muscles["signs"] is not None and len(muscles["signs"]) != m:
+        errors.append(f"muscles.signs: expected {m} values (muscles.count), got {len(muscles['signs'])}")
+    gait = muscles["gait"]
+    if gait is not None and muscles["table"] is not None:
+        errors.append("muscles: give a gait or a table, not both")
+    if gait is not None:
+        for key in ("amplitude", "period", "phase"):
+            if gait[key] is not None and len(gait[key]) != m:
+                errors.append(f"muscles.gait.{key}: expected {m} values (muscles.count), got {len(gait[key])}")
+    t = config["time"]
+    if t["steps"] is not None and t["duration"] is not None:
+        errors.append("time: give duration or steps, not both")
+    if config["gravity"] is not None:
+        acc = config["gravity"]["acceleration"]
+        if acc is not None and len(acc) != dim:
+            errors.append(f"gravity.acceleration: expected {dim} values for this {dim}D mesh, got {len(acc)}")
+    ground = config["ground"]
+    if ground is not None:
+        if ground["height"] is not None and ground["offset"] is not None:
+            errors.append("ground: give height or offset, not both")
+        if ground["up"] is not None and not 0 <= ground["up"] < dim:
+            errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {ground['up']}")
+    pinned = config["pinned"]
+    if pinned is not None:
+        if (pinned["where"] is None) == (pinned["box"] is None):
+            errors.append("pinned: give where (conditions) or box, exactly one")
+        elif pinned["where"] is not None:
+            for cond in pinned["where"]:
+                match = _CONDITION.match(cond)
+                if match is None or "xyz".index(match.group(1)) >= dim:
+                    errors.append(
+                        f"pinned.where: cannot use {cond!r}; expected e.g. 'x <= 0.01' or 'x == min' "
+                        f"with an axis of this {dim}D mesh"
+                    )
+        else:
+            box = pinned["box"]
+            ok = (
+                set(box) == {"min", "max"}
+                and all(isinstance(box[k], list) and len(box[k]) == dim for k in ("min", "max"))
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for k in ("min", "max") for v in box[k])
+            )
+            if not ok:
+                errors.append(f"pinned.box: expected {{ min = [{dim} numbers], max = [{dim} numbers] }}, got {box!r}")
+        if not errors and _pinned(pinned, mesh).size == 0:
+            errors.append("pinned: the conditions select no vertex")
+    n_rigid = 3 if dim == 2 else 6
+    if m and m + n_rigid >= mesh.p.size:
+        errors.append(f"muscles.count: {m} is too many for a mesh with {mesh.p.size} degrees of freedom")
+    weights = config["subspace"]["weights"]
+    if weights is not None and weights >= mesh.p.shape[1]:
+        errors.append(f"subspace.weights: expected fewer than the {mesh.p.shape[1]} vertices, got {weights}")
+    clusters = config["subspace"]["clusters"]
+    if clusters is not None and clusters > mesh.t.shape[1]:
+        errors.append(f"subspace.clusters: expected at most the {mesh.t.shape[1]} elements, got {clusters}")
+
+
+def schema_markdown() -> str:
+    """The scene file reference as markdown: every key, its default and units."""
+    lines = []
+
+    def table(section: dict, prefix: str):
+        rows = []
+        subs = []
+        for key, spec in section.items():
+            if key.startswith("_"):
+                continue
+            if isinstance(spec, dict):
+                subs.append((key, spec))
+                continue
+            default = "required" if spec.required else ("-" if spec.default is None else f"`{spec.default!r}`")
+            rows.append(f"| `{key}` | {spec.kind} | {default} | {spec.units or '-'} | {spec.doc} |")
+        if rows:
+            lines.append("| key | type | default | units | meaning |")
+            lines.append("|---|---|---|---|---|")
+            lines.extend(rows)
+            lines.append("")
+        for key, spec in subs:
+            name = f"{prefix}.{key}" if prefix else key
+            effect = " (an effect: present switches it on)" if spec.get("_effect") else (
+                " (optional)" if spec.get("_optional") else ""
+            )
+            lines.append(f"### `[{name}]`{effect}")
+            lines.append("")
+            table(spec, name)
+
+    top = {k: v for k, v in SCHEMA.items() if not isinstance(v, dict)}
+    lines.append("### top level")
+    lines.append("")
+    table(top, "")
+    table({k: v for k, v in SCHEMA.items() if isinstance(v, dict)}, "")
+    return "\n".join(lines)

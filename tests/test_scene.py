@@ -1,0 +1,187 @@
+"""Scenes: validation with clear errors, effects built only when named."""
+
+import copy
+import pathlib
+
+import numpy as np
+import pytest
+
+from skfem_modal.contact import GroundContact
+from skfem_modal.run import run_scene
+from skfem_modal.scene import DEFAULT_SCENE, SCHEMA, Scene, SceneError, schema_markdown
+
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
+DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"
+
+
+def scene_with(**changes):
+    data = copy.deepcopy(DEFAULT_SCENE)
+    for path, value in changes.items():
+        keys = path.split("__")
+        target = data
+        for k in keys[:-1]:
+            target = target.setdefault(k, {})
+        if value is None:
+            target.pop(keys[-1], None)
+        else:
+            target[keys[-1]] = value
+    return data
+
+
+def test_default_scene_is_the_tutorial_crawl():
+    scene = Scene.default()
+    assert scene.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
+    assert scene.n_steps == 450 and scene.h == 0.01
+    assert scene.ground_height() == pytest.approx(-0.7200988947062296)
+    assert scene.material() == {"mu": 1e6, "gamma": 1e6, "lam": 1e6, "rho": 1e3}
+    expected = np.array([0.45, 0.35, 0.25, 0.15]) * np.sin(2 * np.pi * np.array([0.0, 0.25, 0.5, 0.1]))
+    np.testing.assert_allclose(scene.activation_fractions(0.0), expected)
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        (dict(ground__hieght=1.0), r"ground.hieght: unknown key; expected one of height, offset"),
+        (dict(time__step="fast"), r"time.step: expected a finite number, got 'fast' \(str\)"),
+        (dict(time__step=-0.01), r"time.step: expected a positive number, got -0.01"),
+        (dict(ground__stickiness=1.5), r"ground.stickiness: expected a number in \[0, 1\], got 1.5"),
+        (dict(subspace__weights=2.5), r"subspace.weights: expected an integer, got 2.5"),
+        (dict(mesh__shape=None, mesh__params=None, mesh__file="nowhere.msh"), r"mesh.file: no such file '.*nowhere.msh'"),
+        (dict(mesh__shape="blob"), r"mesh.shape: expected one of \['beam2d', 'beam3d', 'box3d', 'caterpillar', 'creature'\], got 'blob'"),
+        (dict(gravity__acceleration=[0.0, 0.0, -9.8]), r"gravity.acceleration: expected 2 values for this 2D mesh, got 3"),
+        (dict(muscles__gait__period=[1.0, 1.0]), r"muscles.gait.period: expected 4 values \(muscles.count\), got 2"),
+        (dict(muscles__signs=[1, -1, 2, 1]), r"muscles.signs: expected a list of \+1 and -1, got \[1, -1, 2, 1\]"),
+        (dict(mesh__params={"nx": 0}), r"mesh: caterpillar: nx and ny must be at least 2"),
+        (dict(pinned={"where": ["q < 1"]}), r"pinned.where: cannot use 'q < 1'"),
+        (dict(ground__contacts=0), r"ground.contacts: expected an integer >= 1 or \"all\", got 0"),
+        (dict(muscles__gait__amplitude=None), r"muscles.gait.amplitude: required"),
+        (dict(time__duration=2.0), r"time: give duration or steps, not both"),
+    ],
+)
+def test_scene_errors_name_key_value_and_expectation(changes, message):
+    with pytest.raises(SceneError, match=message):
+        Scene.from_dict(scene_with(**changes))
+
+
+def test_all_errors_are_reported_at_once():
+    with pytest.raises(SceneError) as info:
+        Scene.from_dict(scene_with(time__step=0, ground__stickiness=-1, extra=3))
+    text = str(info.value)
+    assert "3 problem(s)" in text and "extra: unknown key" in text and "time.step" in text and "ground.stickiness" in text
+
+
+def test_toml_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[time\nstep = 1\n")
+    with pytest.raises(SceneError, match="not valid TOML"):
+        Scene.from_toml(bad)
+    with pytest.raises(FileNotFoundError, match="scene file not found"):
+        Scene.from_toml(tmp_path / "missing.toml")
+    good = tmp_path / "s.toml"
+    good.write_text('[mesh]\nfile = "m.vtu"\n')
+    with pytest.raises(SceneError, match=r"(?s)s.toml: 1 problem.*mesh.file: no such file '.*m.vtu'"):
+        Scene.from_toml(good)
+
+
+def test_floating_scene_holds_no_contact_or_gravity(monkeypatch):
+    scene = Scene.from_toml(EXAMPLES / "caterpillar_float.toml")
+    assert scene.effects == ("elasticity", "inertia", "muscles")
+    sim = scene.build()
+    assert sim.effects == ("elasticity", "inertia", "muscles")
+    assert sim._contact is None and sim.gravity is None
+    assert not sim._f_ext.any()
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("contact code called in a floating scene")
+
+    monkeypatch.setattr(GroundContact, "correct", forbidden)
+    monkeypatch.setattr(GroundContact, "start_step", forbidden)
+    summary = run_scene(scene, None, sim=sim)
+    assert summary["status"] == "completed" and summary["ground"] is None
+    assert np.abs(summary["com"]["travel"]).max() < 1e-8
+
+
+def test_effects_follow_the_sections():
+    base = scene_with(gravity=None, ground=None)
+    assert Scene.from_dict(base).effects == ("elasticity", "inertia", "muscles")
+    with_damping = dict(base, damping={"mass": 0.5})
+    scene = Scene.from_dict(with_damping)
+    assert scene.effects == ("elasticity", "inertia", "muscles", "damping")
+    assert scene.build().effects == scene.effects
+    none = dict(base, muscles={"count": 0})
+    assert Scene.from_dict(none).build().effects == ("elasticity", "inertia")
+
+
+def test_activation_table_is_interpolated(tmp_path):
+    (tmp_path / "acts.csv").write_text("time,a,b\n0,0,0\n1,1,-1\n2,1,0.5\n")
+    data = scene_with(muscles__count=2, muscles__signs=None, muscles__gait=None, muscles__table="acts.csv")
+    scene = Scene.from_dict(data, base_dir=str(tmp_path))
+    np.testing.assert_allclose(scene.activation_fractions(0.5), [0.5, -0.5])
+    np.testing.assert_allclose(scene.activation_fractions(1.5), [1.0, -0.25])
+    np.testing.assert_allclose(scene.activation_fractions(9.0), [1.0, 0.5])  # held after the end
+    (tmp_path / "short.csv").write_text("time,a\n0,0\n")
+    data["muscles"]["table"] = "short.csv"
+    with pytest.raises(SceneError, match=r"short.csv' line 2 has 2 columns, expected 3"):
+        Scene.from_dict(data, base_dir=str(tmp_path))
+
+
+def test_pinned_beam_stays_pinned_and_moves():
+    scene = Scene.from_toml(EXAMPLES / "beam_pinned.toml")
+    sim = scene.build()
+    assert sim.effects == ("elasticity", "inertia", "muscles", "pinned", "damping")
+    clamp = scene.pinned_vertices()
+    assert clamp.size == 5 and np.all(scene.mesh.p[0, clamp] == 0.0)
+    summary = run_scene(scene, None, sim=sim)
+    # the clamp holds within 0.1 % of the beam's length while the tip swings
+    assert summary["pinned"] is None  # not written: no frames without an output directory
+    z, z_dot, _ = sim.rest_state()
+    x_max_tip, drift = 0.0, 0.0
+    tip = np.argmax(scene.mesh.p[0])
+    for i in range(200):
+        a = scene.activation_fractions(i * sim.h) * sim.ceilings
+        z_next = sim.step(z, z_dot, a)
+        z_dot, z = (z_next - z) / sim.h, z_next
+        x = sim.positions(z)
+        drift = max(drift, np.abs(x[clamp] - scene.mesh.p.T[clamp]).max())
+        x_max_tip = max(x_max_tip, abs(x[tip, 1] - scene.mesh.p[1, tip]))
+    assert drift < 4e-3
+    assert x_max_tip > 0.2
+
+
+def test_damping_removes_energy():
+    base = scene_with(gravity=None, ground=None, muscles={"count": 0}, time={"step": 0.01, "steps": 100})
+    results = {}
+    for alpha in (0.0, 2.0):
+        scene = Scene.from_dict(dict(base, damping={"mass": alpha}) if alpha else base)
+        sim = scene.build()
+        z, _, _ = sim.rest_state()
+        z_dot = np.random.default_rng(0).standard_normal(z.size) * 0.05
+        for _ in range(100):
+            z_next = sim.step(z, z_dot, None)
+            z_dot, z = (z_next - z) / sim.h, z_next
+        results[alpha] = float(z_dot @ sim.BMB @ z_dot)
+    assert results[2.0] < 0.5 * results[0.0]
+
+
+def test_scene_reference_documents_every_key():
+    text = (DOCS / "scenes.md").read_text()
+    assert schema_markdown() in text
+
+    def leaves(spec, prefix):
+        for key, value in spec.items():
+            if key.startswith("_"):
+                continue
+            if isinstance(value, dict):
+                assert f"`[{prefix}{key}]`" in text
+                yield from leaves(value, f"{prefix}{key}.")
+            else:
+                yield key
+
+    for key in leaves(SCHEMA, ""):
+        assert f"| `{key}` |" in text
+
+
+@pytest.mark.parametrize("name", ["caterpillar_crawl", "caterpillar_float", "creature_crawl", "beam_pinned"])
+def test_example_scenes_validate(name):
+    scene = Scene.from_toml(EXAMPLES / f"{name}.toml")
+    assert scene.n_steps >= 100
