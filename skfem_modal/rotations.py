@@ -26,13 +26,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["polar_rotations", "rotations2_flat", "rotations3_flat"]
+__all__ = ["polar_rotations", "rotations2_flat", "rotations3_flat", "dominant_quaternions", "HORN", "QUAT_TO_R", "ROT2"]
 
 _SQUARINGS = 8
+# from a good guess (the previous iteration's rotation) fewer are enough
+_WARM_SQUARINGS = 5
 _EYE4 = np.eye(4)
+_SHIFT = np.eye(4) / (np.sqrt(2.0) * 2.45)
 
 # N(F) as a linear map of row-major F (9 values) to row-major N (16 values)
-_HORN = np.zeros((9, 16))
+HORN = np.zeros((9, 16))
 for (_i, _j), _terms in {
     (0, 0): [(0, 1), (4, 1), (8, 1)],
     (0, 1): [(7, 1), (5, -1)],
@@ -46,11 +49,11 @@ for (_i, _j), _terms in {
     (3, 3): [(0, -1), (4, -1), (8, 1)],
 }.items():
     for _f, _s in _terms:
-        _HORN[_f, 4 * _i + _j] = _s
-        _HORN[_f, 4 * _j + _i] = _s
+        HORN[_f, 4 * _i + _j] = _s
+        HORN[_f, 4 * _j + _i] = _s
 
 # R(q) (row-major, 9 values) as a linear map of the outer product q q^T (16 values)
-_QUAT_TO_R = np.zeros((16, 9))
+QUAT_TO_R = np.zeros((16, 9))
 for _k, _terms in enumerate(
     [
         [(0, 0, 1), (1, 1, 1), (2, 2, -1), (3, 3, -1)],  # R00 = a2 + b2 - c2 - d2
@@ -65,15 +68,15 @@ for _k, _terms in enumerate(
     ]
 ):
     for _a, _b, _s in _terms:
-        _QUAT_TO_R[4 * _a + _b, _k] += _s
+        QUAT_TO_R[4 * _a + _b, _k] += _s
 
-_ROT2 = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, -1.0, 1.0, 0.0]])  # (c, s) -> [c, -s, s, c]
-_CS2 = np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 1.0], [1.0, 0.0]])  # F -> (F00 + F11, F10 - F01)
+ROT2 = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, -1.0, 1.0, 0.0]])  # (c, s) -> [c, -s, s, c]
+CS2 = np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 1.0], [1.0, 0.0]])  # F -> (F00 + F11, F10 - F01)
 
 
 def rotations2_flat(F4: np.ndarray) -> np.ndarray:
     """2D closest rotations of row-major matrices, shape (n, 4) -> (n, 4)."""
-    cs = F4 @ _CS2
+    cs = F4 @ CS2
     norm = np.hypot(cs[:, 0], cs[:, 1])
     zero = norm == 0.0
     if zero.any():
@@ -81,48 +84,65 @@ def rotations2_flat(F4: np.ndarray) -> np.ndarray:
         cs[zero, 0] = 1.0
         norm[zero] = 1.0
     cs /= norm[:, None]
-    return cs @ _ROT2
+    return cs @ ROT2
 
 
-def _quaternions(F9: np.ndarray) -> np.ndarray:
-    """Dominant unit eigenvectors of Horn's N(F), shape (n, 9) -> (n, 4)."""
-    n = F9.shape[0]
-    # the rotation does not change with a positive scale: bring entries to
-    # [-1, 1] so neither squares nor powers can overflow or underflow
-    big = np.abs(F9).max(axis=1)
-    big[big == 0.0] = 1.0  # F = 0: N = 0 and every quaternion is optimal
-    F9 = F9 / big[:, None]
-    N = (F9 @ _HORN).reshape(n, 4, 4)
-    fro = np.sqrt((F9 * F9).sum(axis=1))
-    fro[fro == 0.0] = 1.0
-    # Shift by c = |F|/sqrt(2): the unwanted eigenvalues move towards zero and
-    # all stay below the top one in magnitude (c exceeds the smallest singular
-    # value, even for inverted F), by a ratio of at most about 0.8. Then scale
-    # the top eigenvalue into [0.5, 1] so powers neither overflow nor underflow.
-    P = N + (fro / np.sqrt(2.0))[:, None, None] * _EYE4
-    P /= (2.45 * fro)[:, None, None]
-    for _ in range(_SQUARINGS):
+def dominant_quaternions(N: np.ndarray, q0: np.ndarray | None = None) -> np.ndarray:
+    """Unit eigenvectors of the largest eigenvalue of symmetric 4x4 Horn matrices.
+
+    Parameters
+    ----------
+    N : ndarray, shape (n, 4, 4)
+        Horn matrices ``N(F)`` (symmetric, zero trace).
+    q0 : ndarray, shape (n, 4), optional
+        A guess (e.g. the previous solution): then fewer squarings are needed.
+
+    Returns
+    -------
+    q : ndarray, shape (n, 4)
+        The rotation's quaternion (its sign is arbitrary).
+    """
+    n = N.shape[0]
+    N16 = N.reshape(n, 16)
+    # |N|_F = 2 |F|_F. Scale by it (so powers neither overflow nor underflow)
+    # and shift by |F|/sqrt(2): then the top eigenvalue dominates all others in
+    # magnitude, by at least ~1.25, and lies in [0.5, 1]. The tiny term keeps
+    # F = 0 (every rotation optimal) finite.
+    scale = 1.0 / (1.225 * np.sqrt(np.einsum("ij,ij->i", N16, N16)) + 1e-300)
+    P = N * scale[:, None, None]
+    P += _SHIFT
+    for _ in range(_WARM_SQUARINGS if q0 is not None else _SQUARINGS):
         P = P @ P
-    # P is now close to s q q^T: its column with the largest diagonal is along q
-    col = np.argmax(P.reshape(n, 16)[:, ::5], axis=1)
-    q = P[np.arange(n), :, col]
-    norm = np.sqrt((q * q).sum(axis=1))
-    bad = ~(norm > 1e-150)
-    q /= np.where(bad, 1.0, norm)[:, None]
-    # converged when q is an eigenvector of N: |N q - (q.N q) q| small
-    Nq = (N @ q[:, :, None])[:, :, 0]
-    residual = Nq - (q * Nq).sum(axis=1)[:, None] * q
-    bad |= (residual * residual).sum(axis=1) > (1e-12 * fro) ** 2
+    if q0 is not None:
+        q = np.einsum("nij,nj->ni", P, q0)
+    else:
+        # P is now close to s q q^T: its column with the largest diagonal is along q
+        col = np.argmax(P.reshape(n, 16)[:, ::5], axis=1)
+        q = P[np.arange(n), :, col]
+    q *= (1.0 / (np.sqrt(np.einsum("ij,ij->i", q, q)) + 1e-300))[:, None]
+    # converged when q is an eigenvector of N: |N q - (q.N q) q| ~ 0
+    Nq = np.einsum("nij,nj->ni", N, q)
+    Nq -= np.einsum("ij,ij->i", q, Nq)[:, None] * q
+    bad = np.einsum("ij,ij->i", Nq, Nq) * (scale * scale) > 1e-24
     if bad.any():
         _, vectors = np.linalg.eigh(N[bad])
         q[bad] = vectors[:, :, -1]
     return q
 
 
+def _quaternions(F9: np.ndarray) -> np.ndarray:
+    """Closest-rotation quaternions of row-major matrices, shape (n, 9) -> (n, 4)."""
+    # the rotation does not change with a positive scale: bring entries to
+    # [-1, 1] so that no square can overflow or underflow
+    big = np.abs(F9).max(axis=1)
+    big[big == 0.0] = 1.0
+    return dominant_quaternions(((F9 / big[:, None]) @ HORN).reshape(-1, 4, 4))
+
+
 def rotations3_flat(F9: np.ndarray) -> np.ndarray:
     """3D closest rotations of row-major matrices, shape (n, 9) -> (n, 9)."""
     q = _quaternions(F9)
-    return (q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ _QUAT_TO_R
+    return (q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ QUAT_TO_R
 
 
 def polar_rotations(F) -> np.ndarray:

@@ -30,7 +30,7 @@ from .contact import GroundContact
 from .fem import _gravity, _jacobian, _mass, _positive, element_volumes, vector_dofs
 from .mesh import boundary_vertices, check_mesh, farthest_point_sampling
 from .muscles import cluster_sum_operator, muscle_operators, muscle_target_constants
-from .rotations import rotations2_flat, rotations3_flat
+from .rotations import HORN, QUAT_TO_R, ROT2, dominant_quaternions, rotations2_flat, rotations3_flat
 from .subspace import com_operator, mass_orthonormalize, project, skinning_eigenmodes
 
 __all__ = ["ModalMuscle", "SimulationError"]
@@ -204,7 +204,7 @@ class ModalMuscle:
         if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
             raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
         self.max_iter = int(max_iter)
-        self.tol = _positive_scalar(tol, "tol", allow_zero=True)
+        self._tol2 = _positive_scalar(tol, "tol", allow_zero=True) ** 2
         self.rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
         up = dim - 1 if up is None else up
         if isinstance(up, bool) or not isinstance(up, (int, np.integer)) or not 0 <= up < dim:
@@ -326,6 +326,19 @@ class ModalMuscle:
             self._WA = np.einsum("rs,kcs->krc", H_inv, self._A)
             self._G[nc * dd :] = self._A[0]
             self._W[:, nc * dd :] = self._WA[0]
+        # The step works on rotation *features* that are linear in F: (c, s) =
+        # (F00 + F11, F10 - F01) in 2D, Horn's 4x4 matrix in 3D; and on the
+        # rotation's own parameters ((c, s) in 2D, q q^T in 3D), which R is
+        # linear in. Folding those maps into G and W saves two products per
+        # iteration.
+        self._feature = ROT2 if dim == 2 else HORN.T  # F -> features, (nf, dd)
+        self._unfeature = ROT2 if dim == 2 else QUAT_TO_R  # rotation parameters -> R, (nrot, dd)
+        self._Gf = self._to_features(self._G)
+        self._Wf = self._to_rotations(self._W)
+        if m:
+            self._Af = np.stack([self._to_features(Ak) for Ak in self._A])
+            self._WAf = np.stack([self._to_rotations(Wk) for Wk in self._WA])
+        self._q = None  # 3D: the last quaternions, a warm start for the next ones
         self._rest_const = 0.5 * dim * float(w_mu.sum())
         self.timings["factor"] = time.perf_counter() - clock
 
@@ -368,6 +381,27 @@ class ModalMuscle:
         self._rotations = rotations2_flat if dim == 2 else rotations3_flat
         self.iterations = 0
         self.timings["effects"] = time.perf_counter() - clock
+
+    @property
+    def tol(self) -> float:
+        """Absolute stopping tolerance on the change of ``z`` between iterations."""
+        return float(np.sqrt(self._tol2))
+
+    @tol.setter
+    def tol(self, value) -> None:
+        self._tol2 = _positive_scalar(value, "tol", allow_zero=True) ** 2
+
+    def _to_features(self, G: np.ndarray) -> np.ndarray:
+        """Cluster rows of ``F`` (dd each) -> rows of features (nf each)."""
+        dd = self.dim * self.dim
+        blocks = G.reshape(-1, dd, G.shape[-1])
+        return np.einsum("fj,kjr->kfr", self._feature, blocks).reshape(-1, G.shape[-1])
+
+    def _to_rotations(self, W: np.ndarray) -> np.ndarray:
+        """Cluster columns acting on ``vec(R)`` -> columns acting on rotation parameters."""
+        dd = self.dim * self.dim
+        blocks = W.reshape(W.shape[0], -1, dd)
+        return np.einsum("rkj,pj->rkp", blocks, self._unfeature).reshape(W.shape[0], -1)
 
     # ------------------------------------------------------------------ state
     def rest_state(self):
@@ -421,12 +455,17 @@ class ModalMuscle:
             raise ValueError(f"activation must have one value per muscle ({self.n_muscles}), got {a.size}")
         return a
 
-    def _set_activation(self, a: np.ndarray) -> None:
-        if self.n_muscles:
-            nc_rows = self.n_clusters * self.dim * self.dim
-            A, WA = self._A, self._WA
-            self._G[nc_rows:] = A[0] + np.tensordot(a, A[1:], axes=1)
-            self._W[:, nc_rows:] = WA[0] + np.tensordot(a, WA[1:], axes=1)
+    def _set_activation(self, a: np.ndarray, features: bool = True) -> None:
+        """Write the muscle rows of the operators for activation ``a``."""
+        if not self.n_muscles:
+            return
+        if features:
+            A, WA, G, W = self._Af, self._WAf, self._Gf, self._Wf
+        else:
+            A, WA, G, W = self._A, self._WA, self._G, self._W
+        rows = G.shape[0] - A.shape[1]
+        G[rows:] = A[0] + np.tensordot(a, A[1:], axes=1)
+        W[:, W.shape[1] - WA.shape[2] :] = WA[0] + np.tensordot(a, WA[1:], axes=1)
 
     def step(self, z, z_dot, a=None) -> np.ndarray:
         """Advance one time step.
@@ -457,30 +496,63 @@ class ModalMuscle:
             c = self._K_inertia @ (z + self.h * z_dot) + self._c_ext
         else:
             c = self._P_z @ z + self._P_v @ z_dot + self._c_ext
-        G, W, rotations = self._G, self._W, self._rotations
-        width = self.dim * self.dim
         contact = self._contact
         if contact is not None:
             contact.start_step(z)
-        tol, rtol = self.tol, self.rtol
+        if self.dim == 2:
+            z_next, self.iterations = self._iterate2(c, z, contact)
+        else:
+            z_next, self.iterations = self._iterate3(c, z, contact)
+        return z_next
+
+    def _converged(self, z_next, z_iter, z_start) -> bool:
+        """The stopping rules; raises on a non-finite state."""
+        diff = z_next - z_iter
+        change2 = diff @ diff
+        if change2 < self._tol2:
+            return True
+        if not change2 < np.inf:
+            raise SimulationError("the state became non-finite")
+        if self.rtol:
+            motion = z_next - z_start
+            return change2 <= self.rtol**2 * (motion @ motion)
+        return False
+
+    def _iterate2(self, c, z, contact):
+        Gf, Wf = self._Gf, self._Wf
         z_iter = z
         for it in range(1, self.max_iter + 1):
-            R = rotations((G @ z_iter).reshape(-1, width))
-            z_next = c + W @ R.ravel()
+            cs = (Gf @ z_iter).reshape(-1, 2)
+            norm = np.hypot(cs[:, 0], cs[:, 1])
+            if not norm.all():
+                # a zero target: every rotation is optimal, take the identity
+                cs[norm == 0.0, 0] = 1.0
+                norm[norm == 0.0] = 1.0
+            cs /= norm[:, None]
+            z_next = c + Wf @ cs.ravel()
             if contact is not None:
-                z_next = contact.correct(z_iter, z_next)
-            diff = z_next - z_iter
-            change = np.sqrt(diff @ diff)
+                z_next = contact.correct(z_next)
+            done = self._converged(z_next, z_iter, z)
             z_iter = z_next
-            if not change < tol:
-                if change != change or change == np.inf:
-                    raise SimulationError("the state became non-finite")
-                if rtol and change <= rtol * np.linalg.norm(z_next - z):
-                    break
-                continue
-            break
-        self.iterations = it
-        return z_iter
+            if done:
+                break
+        return z_iter, it
+
+    def _iterate3(self, c, z, contact):
+        Gf, Wf = self._Gf, self._Wf
+        q = self._q
+        z_iter = z
+        for it in range(1, self.max_iter + 1):
+            q = dominant_quaternions((Gf @ z_iter).reshape(-1, 4, 4), q)
+            z_next = c + Wf @ (q[:, :, None] * q[:, None, :]).ravel()
+            if contact is not None:
+                z_next = contact.correct(z_next)
+            done = self._converged(z_next, z_iter, z)
+            z_iter = z_next
+            if done:
+                break
+        self._q = q
+        return z_iter, it
 
     # ----------------------------------------------------------------- energy
     def energy(self, z_next, z, z_dot, a=None, gradient: bool = False):
@@ -505,7 +577,7 @@ class ModalMuscle:
             Only with ``gradient=True``.
         """
         a = self._activation(a)
-        self._set_activation(a)
+        self._set_activation(a, features=False)
         x = np.asarray(z_next, float)
         y = np.asarray(z, float) + self.h * np.asarray(z_dot, float)
         S = self._G @ x
