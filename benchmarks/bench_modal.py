@@ -60,17 +60,22 @@ def main():
         have_simkit = not args.no_simkit
     except ImportError:
         have_simkit = False
-    print(f"# {platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"python {platform.python_version()}, numpy {np.__version__}, {time.strftime('%Y-%m-%d')}")
+    print(
+        f"# {platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"python {platform.python_version()}, numpy {np.__version__}, {time.strftime('%Y-%m-%d')}"
+    )
     cases = [
         ("caterpillar 25975 vertices, 7 modes", caterpillar(nx=280, ny=136), 7, 3),
         ("box 4961 vertices / 24000 tets, 10 modes", box3d(40, 10, 10, (4.0, 1.0, 1.0)), 10, 6),
     ]
     print(f"{'case':42s} {'impl':10s} {'median s':>9s} {'min s':>7s} {'ratio':>6s}  lowest elastic eigenvalues")
     for name, mesh, k, n_rigid in cases:
-        ours, (values, _) = timed(lambda: linear_modal_analysis(mesh, k), args.repeat)
+        ours, (values, _) = timed(lambda mesh=mesh, k=k: linear_modal_analysis(mesh, k), args.repeat)
         ours_med = statistics.median(ours)
-        print(f"{name:42s} {'ours':10s} {ours_med:9.3f} {min(ours):7.3f} {'':>6s}  {np.round(values[n_rigid:n_rigid + 3], 6)}")
+        print(
+            f"{name:42s} {'ours':10s} {ours_med:9.3f} {min(ours):7.3f} {'':>6s}  "
+            f"{np.round(values[n_rigid : n_rigid + 3], 6)}"
+        )
         if have_simkit:
             # SimKit's 3D solve factors a singular matrix and takes minutes: once is enough
             ref, (ref_values, _) = timed(simkit_modal(mesh, k), 1 if mesh.p.shape[0] == 3 else min(args.repeat, 3))
@@ -79,7 +84,7 @@ def main():
             valid = np.allclose(ref_values[n_rigid:], values[n_rigid:], rtol=1e-6)
             print(
                 f"{'':42s} {'SimKit':10s} {ref_med:9.3f} {min(ref):7.3f} {ref_med / ours_med:6.2f}  "
-                f"{np.round(ref_values[n_rigid:n_rigid + 3], 6)}{'' if valid else '  (differs: SimKit solve failed)'}"
+                f"{np.round(ref_values[n_rigid : n_rigid + 3], 6)}{'' if valid else '  (differs: SimKit solve failed)'}"
             )
 
 

@@ -37,6 +37,9 @@ with FrameWriter(out, mesh, name="float", cell_data={"cluster": sim.labels}) as 
         if i % 3 == 0:
             frames.write(t + sim.h, sim.positions(z), field_data={"activation": a})
         if i % 45 == 44:
-            print(f"t={t + sim.h:4.2f}  commanded {np.round(a[:2], 3)}  realised {np.round(sim.muscle_amplitudes(z)[:2], 3)}")
+            print(
+                f"t={t + sim.h:4.2f}  commanded {np.round(a[:2], 3)}  "
+                f"realised {np.round(sim.muscle_amplitudes(z)[:2], 3)}"
+            )
 print(f"centre of mass drift over {i + 1} steps: {np.abs(sim.com(z) - start).max():.1e}")
 print(f"wrote {frames.pvd_path} ({frames.count} frames)")

@@ -19,8 +19,16 @@ out = sys.argv[1] if len(sys.argv) > 1 else "out/creature_crawl"
 mesh = sm.creature()  # body slab on four legs, z up, feet at z = 0
 ground = -0.05
 sim = ModalMuscle.from_mesh(
-    mesh, n_muscles=4, n_weights=8, n_clusters=20, mu=1e5, rho=1e3, h=0.01,
-    gravity=[0.0, 0.0, -9.8], ground=ground, n_contacts=40,
+    mesh,
+    n_muscles=4,
+    n_weights=8,
+    n_clusters=20,
+    mu=1e5,
+    rho=1e3,
+    h=0.01,
+    gravity=[0.0, 0.0, -9.8],
+    ground=ground,
+    n_contacts=40,
 )
 print("effects:", ", ".join(sim.effects), f"| subspace {sim.B.shape[1]}, {sim.n_clusters} clusters")
 

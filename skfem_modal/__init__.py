@@ -44,3 +44,35 @@ from .modal import (
 )
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "export_modes",
+    "deformation_jacobian",
+    "element_volumes",
+    "gravity_force",
+    "lame_parameters",
+    "mass_matrix",
+    "node_positions",
+    "quadrature_volumes",
+    "stiffness_matrix",
+    "MeshError",
+    "beam2d",
+    "beam3d",
+    "boundary_vertices",
+    "box3d",
+    "builtin_mesh",
+    "caterpillar",
+    "check_mesh",
+    "creature",
+    "farthest_point_sampling",
+    "load_mesh",
+    "make_mesh",
+    "normalize_and_center",
+    "vertices_where",
+    "actuation_limits",
+    "linear_modal_analysis",
+    "mode_sign_convention",
+    "natural_frequencies",
+    "rigid_mode_count",
+    "rigid_motions",
+]

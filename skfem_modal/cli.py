@@ -76,8 +76,7 @@ def cmd_modes(args) -> int:
     say = (lambda *a: None) if args.quiet else print
     say(
         f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
-        f"{info['dim']}D, {args.element}"
-        + (f", {fixed.size} fixed vertices" if fixed is not None else "")
+        f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
     )
     start = time.perf_counter()
     values, modes = linear_modal_analysis(
@@ -119,8 +118,10 @@ def cmd_run(args) -> int:
         return EXIT_NUMERICAL
     step = summary["timings"]["step_ms"]
     travel = np.round(summary["com"]["travel"], 4).tolist()
-    say(f"precompute {summary['timings']['precompute_total_s']:.3f} s; step median {step['median']:.3f} ms, "
-        f"p90 {step['p90']:.3f} ms; iterations per step {summary['iterations']['mean']:.2f}")
+    say(
+        f"precompute {summary['timings']['precompute_total_s']:.3f} s; step median {step['median']:.3f} ms, "
+        f"p90 {step['p90']:.3f} ms; iterations per step {summary['iterations']['mean']:.2f}"
+    )
     say(f"centre of mass travel {travel}")
     if summary["ground"]:
         say(f"worst penetration of the contact points: {summary['ground']['worst_penetration_contacts']:.3g}")
@@ -149,7 +150,7 @@ def cmd_render(args) -> int:
 
 def cmd_info(args) -> int:
     from .mesh import mesh_summary
-    from .scene import Scene, schema_markdown
+    from .scene import schema_markdown
 
     if args.scene_reference:
         print(schema_markdown())
@@ -163,26 +164,36 @@ def cmd_info(args) -> int:
         dim = info["dim"]
         r = c["subspace"]["weights"] * (dim + 1) * dim
         print(f"scene: {c['name']} ({scene.source})")
-        print(f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {dim}D, "
-              f"measure {info['measure']:.6g}, {info['parts']} part(s)")
+        print(
+            f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {dim}D, "
+            f"measure {info['measure']:.6g}, {info['parts']} part(s)"
+        )
         print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
         print(f"effects: {', '.join(scene.effects)}")
         mat = scene.material()
         print("material: " + ", ".join(f"{k} = {v:g}" for k, v in mat.items()))
-        print(f"sizes: {mesh.p.size} DOFs, subspace {r}, {c['subspace']['clusters']} clusters, "
-              f"{c['muscles']['count']} muscles")
-        print(f"time: {scene.n_steps} steps of {scene.h:g} ({scene.n_steps * scene.h:g} in all), "
-              f"at most {c['time']['iterations']} iterations per step")
+        print(
+            f"sizes: {mesh.p.size} DOFs, subspace {r}, {c['subspace']['clusters']} clusters, "
+            f"{c['muscles']['count']} muscles"
+        )
+        print(
+            f"time: {scene.n_steps} steps of {scene.h:g} ({scene.n_steps * scene.h:g} in all), "
+            f"at most {c['time']['iterations']} iterations per step"
+        )
         if c["ground"] is not None:
-            print(f"ground: height {scene.ground_height():.6g} along axis {scene.up}, contacts "
-                  f"{c['ground']['contacts']}, stickiness {c['ground']['stickiness']:g}")
+            print(
+                f"ground: height {scene.ground_height():.6g} along axis {scene.up}, contacts "
+                f"{c['ground']['contacts']}, stickiness {c['ground']['stickiness']:g}"
+            )
         if c["pinned"] is not None:
             print(f"pinned: {scene.pinned_vertices().size} vertices")
         return EXIT_OK
     mesh = parse_mesh_spec(target)
     info = mesh_summary(mesh)
-    print(f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {info['dim']}D, "
-          f"measure {info['measure']:.6g}, {info['parts']} part(s)")
+    print(
+        f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {info['dim']}D, "
+        f"measure {info['measure']:.6g}, {info['parts']} part(s)"
+    )
     print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
     return EXIT_OK
 
@@ -222,8 +233,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_modes)
 
     def render_options(p):
-        p.add_argument("--backend", choices=["auto", "pyvista", "matplotlib"], default="auto",
-                       help="auto: pyvista where off-screen OpenGL works, else matplotlib")
+        p.add_argument(
+            "--backend",
+            choices=["auto", "pyvista", "matplotlib"],
+            default="auto",
+            help="auto: pyvista where off-screen OpenGL works, else matplotlib",
+        )
         p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (default gif)")
         p.add_argument("--max-frames", type=int, default=120, help="frames in the animation, at most")
 

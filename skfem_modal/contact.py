@@ -16,7 +16,9 @@ do not stay inside the ground. ``push_out = 0`` is the reference behaviour.
 
 The correction for a given set of active points is a fixed matrix, so it is
 computed once per set and cached: contact sets repeat from one iteration and
-one step to the next, and a cached set costs two small products.
+one step to the next. The solver carries the contact positions along with
+``z`` (its global solve produces both in one product), so a cached set costs
+one small product.
 """
 
 from __future__ import annotations
@@ -67,32 +69,34 @@ class GroundContact:
         self.E = self.Je @ H_inv  # sensitivity of contact positions to the reduced force
         self.H_inv = H_inv
         self.n_points = self.Je.shape[0] // dim
+        self.lift = 0.0
         self.active_count = 0
         self._cache: OrderedDict = OrderedDict()
 
     def start_step(self, z_start: np.ndarray) -> None:
         """Remember the contact positions at the start of the step."""
         self.p_start = self.Je @ z_start
-        self.up_start = self.p_start[self.up :: self.dim].copy()
-        self.up_iter = self.up_start
+        up_start = self.p_start[self.up :: self.dim]
+        # a point is active when its end-of-step height would stay below this
+        self.limit = up_start.copy()
         if self.push_out:
-            depth = np.maximum(self.ground - self.up_start, 0.0)
-            self.lift = self.push_out * depth  # the climb asked of each point over the step
-        else:
-            self.lift = 0.0
+            self.lift = self.push_out * np.maximum(self.ground - up_start, 0.0)
+            self.limit += self.lift
+        self.up_iter = up_start
 
     def positions(self, z: np.ndarray) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""
         return (self.Je @ z).reshape(-1, self.dim)
 
-    def _projection(self, active: np.ndarray):
-        """Rows, contact rows of B and the correction matrix for an active set."""
-        key = active.tobytes()
+    def _projection(self, mask: np.ndarray):
+        """Rows and the stacked correction matrix of an active set (cached)."""
+        key = mask.tobytes()
         entry = self._cache.get(key)
         if entry is not None:
             self._cache.move_to_end(key)
             return entry
         dim = self.dim
+        active = np.flatnonzero(mask)
         rows = (active[:, None] * dim + np.arange(dim)).ravel()
         L = self.E[rows]
         if rows.size < L.shape[1]:
@@ -101,42 +105,46 @@ class GroundContact:
         else:
             # more constraints than coordinates: least squares
             correction = np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0]
+        dz = self.H_inv @ correction
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
-        entry = (rows, np.ascontiguousarray(self.Je[rows]), self.H_inv @ correction, factor)
+        # the correction of z and of every contact position, in one product
+        entry = (active, rows, np.vstack([dz, self.Je @ dz]), factor)
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
         return entry
 
-    def correct(self, z_tent: np.ndarray) -> np.ndarray:
-        """The tentative solution with the active contacts projected.
+    def correct(self, y: np.ndarray) -> np.ndarray:
+        """Project the active contacts.
 
         Parameters
         ----------
-        z_tent : ndarray, shape (r,)
-            ``H^{-1} f`` before contact. Points are tested against the
-            previous iterate (remembered from the last call, or the start of
-            the step).
+        y : ndarray, shape (r + p * dim,)
+            The tentative solution ``z_t = H^{-1} f`` followed by its contact
+            positions ``Je z_t``. Points are tested against the previous
+            iterate (from the last call, or the start of the step).
 
         Returns
         -------
-        z : ndarray, shape (r,)
+        y : ndarray, shape (r + p * dim,)
+            Corrected solution and positions.
         """
-        up_tent = self.Je_up @ z_tent
+        r = y.size - self.Je.shape[0]
+        p_tent = y[r:]
+        up_tent = p_tent[self.up :: self.dim]
         # below the plane at the current iterate and moving into it (with
         # push_out: or climbing out slower than asked)
-        active = (self.up_iter < self.ground) & (up_tent - self.up_start < self.lift)
-        if not active.any():
+        mask = (self.up_iter < self.ground) & (up_tent < self.limit)
+        if not mask.any():
             self.active_count = 0
             self.up_iter = up_tent
-            return z_tent
-        active = np.flatnonzero(active)
+            return y
+        active, rows, K, factor = self._projection(mask)
         self.active_count = active.size
-        rows, Je_rows, K, factor = self._projection(active)
-        residual = (self.p_start[rows] - Je_rows @ z_tent) * factor
+        residual = (self.p_start[rows] - p_tent[rows]) * factor
         if self.push_out:
             residual[self.up :: self.dim] += self.lift[active]
-        z = z_tent + K @ residual
-        self.up_iter = self.Je_up @ z
-        return z
+        y = y + K @ residual
+        self.up_iter = y[r + self.up :: self.dim]
+        return y

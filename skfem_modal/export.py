@@ -181,15 +181,12 @@ def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None
     points = mesh.p.T if element == "P1" else scalar_basis(mesh, element).doflocs.T
     if modes.ndim != 2 or modes.shape[0] != points.shape[0] * dim:
         raise ValueError(
-            f"modes must have shape ({points.shape[0] * dim}, k) for {element} on this mesh, "
-            f"got {modes.shape}"
+            f"modes must have shape ({points.shape[0] * dim}, k) for {element} on this mesh, got {modes.shape}"
         )
     if not np.all(np.isfinite(modes)):
         raise ValueError("modes contain non-finite values")
     width = max(2, len(str(modes.shape[1] - 1)))
-    point_data = {
-        f"mode_{i:0{width}d}": modes[:, i].reshape(-1, dim) for i in range(modes.shape[1])
-    }
+    point_data = {f"mode_{i:0{width}d}": modes[:, i].reshape(-1, dim) for i in range(modes.shape[1])}
     field_data = {}
     if eigenvalues is not None:
         ev = np.asarray(eigenvalues, dtype=np.float64).ravel()
@@ -199,7 +196,9 @@ def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None
     write_vtu(path, points, cell_type, cells, point_data=point_data, field_data=field_data)
 
 
-_PVD_HEAD = '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n  <Collection>\n'
+_PVD_HEAD = (
+    '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n  <Collection>\n'
+)
 _PVD_FOOT = "  </Collection>\n</VTKFile>\n"
 
 
@@ -285,9 +284,7 @@ class FrameWriter:
         fields = {"time": float(time), **(field_data or {})}
         write_vtu(path, positions, self.cell_type, self.cells, data, self.cell_data, fields)
         self._pvd.seek(self._body_end)
-        self._pvd.write(
-            f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n'
-        )
+        self._pvd.write(f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n')
         self._body_end = self._pvd.tell()
         self._pvd.write(_PVD_FOOT)
         self._pvd.flush()

@@ -15,7 +15,7 @@ slow on large 3D meshes); the tests check them against scikit-fem's own
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import scipy.sparse as sps
@@ -52,7 +52,7 @@ def _element_class(dim: int, element: str):
     }[(dim, element)]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _centroid_rule(dim: int):
     # one point is exact for P1 gradients (constant per element)
     points = np.full((dim, 1), 1.0 / (dim + 1))
@@ -258,9 +258,8 @@ def _elasticity_tensor(dx: np.ndarray, mu: np.ndarray, lam: np.ndarray, dim: int
     bulk = np.einsum("ij,kl->ijkl", eye, eye).reshape(dim * dim, -1)
     w_mu = (dx * mu[:, None]).ravel()
     w_lam = (dx * lam[:, None]).ravel()
-    return (
-        sps.kron(sps.diags(w_mu), sps.csr_matrix(shear), format="csr")
-        + sps.kron(sps.diags(w_lam), sps.csr_matrix(bulk), format="csr")
+    return sps.kron(sps.diags(w_mu), sps.csr_matrix(shear), format="csr") + sps.kron(
+        sps.diags(w_lam), sps.csr_matrix(bulk), format="csr"
     )
 
 
@@ -376,9 +375,7 @@ def _jacobian_from_basis(basis, dim: int) -> sps.csr_matrix:
     cols = np.broadcast_to(cols, vals.shape)
     n_rows = nT * nq * dim * dim
     indptr = np.arange(0, (n_rows + 1) * nloc, nloc, dtype=np.int64)
-    return sps.csr_matrix(
-        (vals.ravel(), cols.ravel().astype(np.int64), indptr), shape=(n_rows, basis.N * dim)
-    )
+    return sps.csr_matrix((vals.ravel(), cols.ravel().astype(np.int64), indptr), shape=(n_rows, basis.N * dim))
 
 
 def gravity_force(mesh, g, rho=1.0) -> np.ndarray:

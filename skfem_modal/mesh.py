@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import os
 import re
-from typing import Sequence
+from collections.abc import Sequence
+from contextlib import contextmanager
 
 import numpy as np
 from skfem import MeshTet, MeshTri
@@ -20,6 +21,7 @@ __all__ = [
     "MeshError",
     "make_mesh",
     "check_mesh",
+    "validated",
     "load_mesh",
     "caterpillar",
     "beam2d",
@@ -97,8 +99,7 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
         raise TypeError(f"{what}: point coordinates must be floating point, got dtype {p.dtype}")
     if t.ndim != 2 or t.shape[0] != dim + 1:
         raise MeshError(
-            f"{what}: a {dim}D mesh needs elements of shape ({dim + 1}, nT) "
-            f"({_element_name(dim)}), got {t.shape}"
+            f"{what}: a {dim}D mesh needs elements of shape ({dim + 1}, nT) ({_element_name(dim)}), got {t.shape}"
         )
     if not np.issubdtype(t.dtype, np.integer):
         raise TypeError(f"{what}: element indices must be integers, got dtype {t.dtype}")
@@ -109,14 +110,10 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
         raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
     out = np.nonzero(((t < 0) | (t >= n)).any(axis=0))[0]
     if out.size:
-        raise MeshError(
-            f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}"
-        )
+        raise MeshError(f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}")
     repeated = np.nonzero((np.diff(np.sort(t, axis=0), axis=0) == 0).any(axis=0))[0]
     if repeated.size:
-        raise MeshError(
-            f"{what}: {repeated.size} elements use the same vertex twice: {_listing(repeated)}"
-        )
+        raise MeshError(f"{what}: {repeated.size} elements use the same vertex twice: {_listing(repeated)}")
     measure = np.abs(_signed_measures(p, t))
     scale = _longest_edges(p, t) ** dim
     degenerate = np.nonzero(~(measure > DEGENERATE_RTOL * scale))[0]
@@ -134,6 +131,35 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
             f"{what}: {unused.size} vertices belong to no element: {_listing(unused)}; "
             "remove them (load_mesh does this for files)"
         )
+
+
+# ids of meshes checked by an enclosing `validated` block
+_TRUSTED: set[int] = set()
+
+
+@contextmanager
+def validated(mesh, *, what: str = "mesh"):
+    """Check a mesh once for a whole pipeline of calls.
+
+    Inside the block, :func:`check_mesh` on this mesh returns at once, so a
+    pipeline of public functions (each of which checks its input) validates
+    the mesh a single time.
+
+    Examples
+    --------
+    >>> m = beam2d(nx=4, ny=2)
+    >>> with validated(m):
+    ...     pass
+    """
+    check_mesh(mesh, what=what)
+    key = id(mesh)
+    added = key not in _TRUSTED
+    _TRUSTED.add(key)
+    try:
+        yield mesh
+    finally:
+        if added:
+            _TRUSTED.discard(key)
 
 
 def check_mesh(mesh, *, what: str = "mesh") -> None:
@@ -169,10 +195,10 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     ...
     skfem_modal.mesh.MeshError: mesh: 1 degenerate (zero-area) triangles: [0]; every element needs a positive area
     """
+    if id(mesh) in _TRUSTED:
+        return
     if not isinstance(mesh, (MeshTri, MeshTet)) or mesh.elem not in (ElementTriP1, ElementTetP1):
-        raise TypeError(
-            f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}"
-        )
+        raise TypeError(f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}")
     _check_arrays(mesh.p, mesh.t, what=what)
 
 
@@ -203,9 +229,7 @@ def make_mesh(points, elements, *, what: str = "mesh"):
     p = np.asarray(points)
     t = np.asarray(elements)
     if p.ndim != 2 or t.ndim != 2:
-        raise MeshError(
-            f"{what}: points must be (n, dim) and elements (nT, dim + 1); got {p.shape} and {t.shape}"
-        )
+        raise MeshError(f"{what}: points must be (n, dim) and elements (nT, dim + 1); got {p.shape} and {t.shape}")
     if np.issubdtype(p.dtype, np.integer):
         p = p.astype(np.float64)
     if np.issubdtype(t.dtype, np.floating):
@@ -294,9 +318,7 @@ def load_mesh(path: str | os.PathLike):
             points = points[:, :2]
     else:
         found = sorted({b.type for b in raw.cells}) or ["none"]
-        raise ValueError(
-            f"{path!r}: no triangle or tetrahedron cells (found: {', '.join(found)})"
-        )
+        raise ValueError(f"{path!r}: no triangle or tetrahedron cells (found: {', '.join(found)})")
     p, t = _compact(points.T, cells.T.astype(np.int64))
     return make_mesh(p.T, t.T, what=f"mesh {os.path.basename(path)!r}")
 
@@ -377,9 +399,7 @@ def caterpillar(
     if not 0 < body_fraction < 1:
         raise ValueError(f"caterpillar: body_fraction must be in (0, 1), got {body_fraction}")
     if not 0 < leg_fraction <= 1 or n_legs < 1:
-        raise ValueError(
-            f"caterpillar: need n_legs >= 1 and leg_fraction in (0, 1], got {n_legs}, {leg_fraction}"
-        )
+        raise ValueError(f"caterpillar: need n_legs >= 1 and leg_fraction in (0, 1], got {n_legs}, {leg_fraction}")
     xs = np.linspace(0.0, width, nx)
     ys = np.linspace(0.0, height, ny)
     px, py = np.meshgrid(xs, ys, indexing="xy")
@@ -452,9 +472,7 @@ def box3d(nx: int, ny: int, nz: int, size: Sequence[float] = (1.0, 1.0, 1.0)):
     )
 
 
-def beam3d(
-    length: float = 10.0, width: float = 1.0, height: float = 1.0, nx: int = 40, ny: int = 4, nz: int = 4
-):
+def beam3d(length: float = 10.0, width: float = 1.0, height: float = 1.0, nx: int = 40, ny: int = 4, nz: int = 4):
     """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra.
 
     Returns
@@ -513,9 +531,7 @@ def creature(
     if min(length, width, body_height, leg_height, leg_size, cell) <= 0:
         raise ValueError("creature: every size and the cell must be positive")
     if 2 * leg_size >= min(length, width):
-        raise ValueError(
-            f"creature: two legs of size {leg_size} do not fit in length {length} and width {width}"
-        )
+        raise ValueError(f"creature: two legs of size {leg_size} do not fit in length {length} and width {width}")
     xs = _axis_breaks(length, cell, [leg_size, length - leg_size])
     ys = _axis_breaks(width, cell, [leg_size, width - leg_size])
     zs = _axis_breaks(leg_height + body_height, cell, [leg_height])
@@ -543,8 +559,19 @@ def boundary_vertices(mesh) -> np.ndarray:
     -------
     indices : ndarray of int, shape (nb,)
     """
-    facets = mesh.facets[:, mesh.f2t[1] == -1]
-    return np.unique(facets).astype(np.int64)
+    t = np.sort(mesh.t, axis=0).astype(np.int64)
+    n = mesh.p.shape[1]
+    nv = t.shape[0]
+    # a boundary facet (its vertices sorted) occurs in exactly one element
+    faces = np.concatenate([np.delete(t, i, axis=0) for i in range(nv)], axis=1)
+    if float(n) ** (nv - 1) < 2.0**62:
+        keys = np.ravel_multi_index(tuple(faces), (n,) * (nv - 1))  # one integer per facet: fast
+        unique, counts = np.unique(keys, return_counts=True)
+        once = np.array(np.unravel_index(unique[counts == 1], (n,) * (nv - 1)))
+    else:
+        unique, counts = np.unique(faces.T, axis=0, return_counts=True)
+        once = unique[counts == 1].T
+    return np.unique(once)
 
 
 def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndarray:
@@ -670,15 +697,11 @@ def builtin_mesh(name: str, **params):
     accepted = inspect.signature(func).parameters
     unknown = sorted(set(params) - set(accepted))
     if unknown:
-        raise ValueError(
-            f"shape {name!r} has no parameter {', '.join(unknown)}; it takes {', '.join(accepted)}"
-        )
+        raise ValueError(f"shape {name!r} has no parameter {', '.join(unknown)}; it takes {', '.join(accepted)}")
     return func(**params)
 
 
-_CONDITION = re.compile(
-    r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s*$"
-)
+_CONDITION = re.compile(r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s*$")
 
 
 def vertices_where(mesh, condition: str) -> np.ndarray:
@@ -704,9 +727,7 @@ def vertices_where(mesh, condition: str) -> np.ndarray:
     """
     match = _CONDITION.match(condition)
     if match is None:
-        raise ValueError(
-            f"cannot read vertex condition {condition!r}; expected e.g. 'x <= 0.01' or 'y == min'"
-        )
+        raise ValueError(f"cannot read vertex condition {condition!r}; expected e.g. 'x <= 0.01' or 'y == min'")
     axis = "xyz".index(match.group(1))
     dim = mesh.p.shape[0]
     if axis >= dim:

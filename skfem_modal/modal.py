@@ -27,7 +27,6 @@ import numpy as np
 import scipy.linalg as sla
 
 from .eigen import canonical_repeated, generic_weight, lowest_eigenpairs, sign_convention
-
 from .fem import ELEMENTS, _jacobian, _mass, _stiffness, node_positions, scalar_basis, vector_dofs
 from .mesh import check_mesh, connected_parts
 
@@ -251,20 +250,24 @@ def linear_modal_analysis(
     R = _rigid_motions(mesh, fixed, element)[free]
     n_rigid = R.shape[1]
     k_solve = min(k + _EXTRA_MODES, free.size)
-    values, vectors = lowest_eigenpairs(Kf, Mf, k_solve, dim)
-    values, vectors = values.copy(), vectors.copy()
-
+    rigid = _m_orthonormalize(R, Mf) if n_rigid else np.zeros((free.size, 0))
+    n_elastic = max(0, k_solve - n_rigid)
+    values = np.zeros(k_solve)
+    vectors = np.zeros((free.size, k_solve))
     if n_rigid:
-        rigid = _m_orthonormalize(R, Mf)
+        # the rigid motions are known exactly: they are the first modes
         stop = min(n_rigid, k_solve)
         vectors[:, :stop] = rigid[:, :stop]
         values[:stop] = np.einsum("ij,ij->j", rigid[:, :stop], Kf @ rigid[:, :stop])
-        scale = float(np.abs(values).max()) if values.size else 1.0
-        n_zero = int((np.abs(values) <= 1e-8 * max(scale, 1e-300)).sum())
-        if n_zero > n_rigid and k_solve > n_rigid:
+    if n_elastic:
+        ev, evec = lowest_eigenpairs(Kf, Mf, n_elastic, dim, null=rigid if n_rigid else None)
+        values[n_rigid:], vectors[:, n_rigid:] = ev, evec
+        scale = float(np.abs(ev).max())
+        n_zero = int((np.abs(ev) <= 1e-8 * max(scale, 1e-300)).sum())
+        if n_zero and n_rigid:
             warnings.warn(
-                f"{n_zero} modes have zero stiffness but the mesh has only {n_rigid} rigid "
-                "motions: parts joined at a single vertex or edge act as hinges",
+                f"{n_zero} modes have zero stiffness besides the mesh's {n_rigid} rigid motions: "
+                "parts joined at a single vertex or edge act as hinges",
                 RuntimeWarning,
                 stacklevel=2,
             )
@@ -333,9 +336,7 @@ def actuation_limits(mesh, modes, max_s: float = 2.0, element: str | None = None
         element = "P1" if D.shape[0] == n * dim else "P2"
     n_rows = node_positions(mesh, element).size
     if D.ndim != 2 or D.shape[0] != n_rows:
-        raise ValueError(
-            f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}"
-        )
+        raise ValueError(f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}")
     J = _jacobian(mesh, element)
     JD = (J @ D).reshape(-1, dim * dim, D.shape[1])
     largest = np.sqrt((JD**2).sum(axis=1)).max(axis=0)

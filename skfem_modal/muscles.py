@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 
-__all__ = ["cluster_sum_operator", "muscle_operators", "muscle_target_constants", "sine_gait"]
+__all__ = ["cluster_sum_operator", "muscle_target_operator", "muscle_operators", "muscle_target_constants", "sine_gait"]
 
 
 def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = None) -> sps.csr_matrix:
@@ -47,6 +47,36 @@ def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = Non
     return sps.kron(P, sps.identity(dim * dim), format="csr")
 
 
+def muscle_target_operator(J, D, labels, weights, dim: int):
+    """The sparse map from per-element gradients to the active cluster sums.
+
+    Row ``(k, c, i, j)`` of the result applied to ``vec(F)`` is
+    ``sum_{e in c} w_e (F_e Y^k_e^T)[i, j]`` with ``Y^0_e = I`` and
+    ``Y^k_e = (J D_k)_e``: stacked for the rest target (``k = 0``) and each
+    muscle.
+
+    Returns
+    -------
+    T : scipy.sparse.csr_matrix, shape ((m + 1) * n_active * dim^2, nT * dim^2)
+    """
+    labels = np.asarray(labels)
+    nT = labels.size
+    na = int(labels.max()) + 1
+    dd = dim * dim
+    m = D.shape[1]
+    G = (J @ D).reshape(nT, dim, dim, m)  # per element, per muscle: (J D_m)_e
+    # row (c, i, j) <- column (e, i, k) with value w_e G^m_e[j, k]
+    e, i, j, k = np.meshgrid(np.arange(nT), np.arange(dim), np.arange(dim), np.arange(dim), indexing="ij")
+    rows = ((labels[e] * dim + i) * dim + j).ravel()
+    cols = ((e * dim + i) * dim + k).ravel()
+    blocks = [cluster_sum_operator(labels, weights, dim, na)]
+    we = weights[e]
+    for mm in range(m):
+        vals = (we * G[e, j, k, mm]).ravel()
+        blocks.append(sps.csr_matrix((vals, (rows, cols)), shape=(na * dd, nT * dd)))
+    return sps.vstack(blocks, format="csr")
+
+
 def muscle_operators(J, B, D, labels, weights, dim: int) -> np.ndarray:
     """The operators ``A_0, A_1, ..., A_m`` of the active target.
 
@@ -69,22 +99,8 @@ def muscle_operators(J, B, D, labels, weights, dim: int) -> np.ndarray:
     A : ndarray, shape (m + 1, n_active * dim * dim, r)
         ``A[0]`` pulls towards the rest shape, ``A[k]`` is muscle ``k``'s part.
     """
-    labels = np.asarray(labels)
-    nT = labels.size
-    na = int(labels.max()) + 1
-    dd = dim * dim
-    m = D.shape[1]
-    G = (J @ D).reshape(nT, dim, dim, m)  # per element, per muscle: (J D_m)_e
-    # row (c, i, j) <- column (e, i, k) with value w_e G^m_e[j, k]
-    e, i, j, k = np.meshgrid(np.arange(nT), np.arange(dim), np.arange(dim), np.arange(dim), indexing="ij")
-    rows = (labels[e] * dim + i) * dim + j
-    cols = (e * dim + i) * dim + k
-    blocks = [cluster_sum_operator(labels, weights, dim, na)]
-    for mm in range(m):
-        vals = weights[e] * G[e, j, k, mm]
-        blocks.append(sps.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(na * dd, nT * dd)))
-    T = sps.vstack(blocks, format="csr")
-    return np.asarray((T @ J) @ B).reshape(m + 1, na * dd, B.shape[1])
+    TJ = muscle_target_operator(J, D, labels, weights, dim) @ J
+    return np.asarray(TJ @ B).reshape(D.shape[1] + 1, -1, B.shape[1])
 
 
 def muscle_target_constants(J, D, weights, dim: int):

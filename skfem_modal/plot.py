@@ -46,8 +46,7 @@ def read_run(run_dir) -> dict:
     m = (len(header) - 1) // 2
     pvd = open(os.path.join(run_dir, "frames.pvd")).read()
     frames = [
-        (float(t), os.path.join(run_dir, f))
-        for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)
+        (float(t), os.path.join(run_dir, f)) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)
     ]
     return {
         "summary": summary,
@@ -202,7 +201,9 @@ def _pyvista_frames(frames, ground, up, size=(640, 360)):
                 normal = [0, 0, 0]
                 normal[up] = 1
                 extent = float((hi - lo).max()) * 1.5
-                plotter.add_mesh(pv.Plane(center=centre, direction=normal, i_size=extent, j_size=extent), color="lightgray")
+                plotter.add_mesh(
+                    pv.Plane(center=centre, direction=normal, i_size=extent, j_size=extent), color="lightgray"
+                )
         plotter.add_text(f"t = {t:.3f}", font_size=10)
         if dim == 2:
             plotter.view_xy()

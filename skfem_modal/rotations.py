@@ -108,8 +108,8 @@ def dominant_quaternions(N: np.ndarray, q0: np.ndarray | None = None) -> np.ndar
     # and shift by |F|/sqrt(2): then the top eigenvalue dominates all others in
     # magnitude, by at least ~1.25, and lies in [0.5, 1]. The tiny term keeps
     # F = 0 (every rotation optimal) finite.
-    scale = 1.0 / (1.225 * np.sqrt(np.einsum("ij,ij->i", N16, N16)) + 1e-300)
-    P = N * scale[:, None, None]
+    size = 1.225 * np.sqrt(np.einsum("ij,ij->i", N16, N16))
+    P = N * (1.0 / (size + 1e-300))[:, None, None]
     P += _SHIFT
     for _ in range(_WARM_SQUARINGS if q0 is not None else _SQUARINGS):
         P = P @ P
@@ -123,7 +123,7 @@ def dominant_quaternions(N: np.ndarray, q0: np.ndarray | None = None) -> np.ndar
     # converged when q is an eigenvector of N: |N q - (q.N q) q| ~ 0
     Nq = np.einsum("nij,nj->ni", N, q)
     Nq -= np.einsum("ij,ij->i", q, Nq)[:, None] * q
-    bad = np.einsum("ij,ij->i", Nq, Nq) * (scale * scale) > 1e-24
+    bad = np.einsum("ij,ij->i", Nq, Nq) > (1e-12 * size) ** 2
     if bad.any():
         _, vectors = np.linalg.eigh(N[bad])
         q[bad] = vectors[:, :, -1]

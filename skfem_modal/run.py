@@ -282,7 +282,12 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
                 "pinned": None if not sim.pinned.size or frames is None else {"worst_drift_written_frames": worst_pin},
                 "frames": None
                 if frames is None
-                else {"count": frames.count, "every": every, "pvd": "frames.pvd", "times": [frames.times[0], frames.times[-1]]},
+                else {
+                    "count": frames.count,
+                    "every": every,
+                    "pvd": "frames.pvd",
+                    "times": [frames.times[0], frames.times[-1]],
+                },
             }
         )
         if frames is not None:

@@ -14,12 +14,13 @@ import csv
 import math
 import os
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from .mesh import BUILTIN_SHAPES, _CONDITION, builtin_mesh, load_mesh, normalize_and_center, vertices_where
+from .mesh import _CONDITION, BUILTIN_SHAPES, builtin_mesh, load_mesh, normalize_and_center, vertices_where
 
 __all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
 
@@ -71,7 +72,7 @@ def _positive_list(v):
 def _contacts(v):
     if v == "all" or (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
         return None
-    return "an integer >= 1 or \"all\""
+    return 'an integer >= 1 or "all"'
 
 
 #: Every key a scene may hold, by section. Sections marked as effects are
@@ -79,49 +80,100 @@ def _contacts(v):
 SCHEMA: dict[str, Any] = {
     "name": Key("str", "scene", "A name for the scene, copied to summary.json."),
     "mesh": {
-        "shape": Key("str", None, "Built-in shape: caterpillar, beam2d, beam3d, box3d or creature "
-                     "(default caterpillar when no file is given).", check=_shape_name),
-        "file": Key("str", None, "Mesh file (any format meshio reads), relative to the scene file. "
-                    "Triangles make a 2D body, tetrahedra a 3D one."),
-        "params": Key("table", {}, "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }` "
-                      "(see the shape functions in `skfem_modal.mesh`)."),
+        "shape": Key(
+            "str",
+            None,
+            "Built-in shape: caterpillar, beam2d, beam3d, box3d or creature "
+            "(default caterpillar when no file is given).",
+            check=_shape_name,
+        ),
+        "file": Key(
+            "str",
+            None,
+            "Mesh file (any format meshio reads), relative to the scene file. "
+            "Triangles make a 2D body, tetrahedra a 3D one.",
+        ),
+        "params": Key(
+            "table",
+            {},
+            "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }` "
+            "(see the shape functions in `skfem_modal.mesh`).",
+        ),
         "normalize": Key("bool", False, "Centre the mesh at its vertex mean and scale its largest extent to 2."),
-        "scale": Key("float", 1.0, "Multiply every coordinate by this factor (after normalising).",
-                     "length", _positive),
+        "scale": Key(
+            "float", 1.0, "Multiply every coordinate by this factor (after normalising).", "length", _positive
+        ),
     },
     "material": {
-        "mu": Key("float", None, "Passive (ARAP) stiffness, the shear modulus. Default 1e5, or from "
-                  "young and poisson.", "stress", _positive),
+        "mu": Key(
+            "float",
+            None,
+            "Passive (ARAP) stiffness, the shear modulus. Default 1e5, or from young and poisson.",
+            "stress",
+            _positive,
+        ),
         "gamma": Key("float", None, "Muscle stiffness (default: mu).", "stress", _non_negative),
-        "lam": Key("float", None, "First Lame parameter, used for the linear modes only (default: mu, "
-                   "or from young and poisson).", "stress", _non_negative),
+        "lam": Key(
+            "float",
+            None,
+            "First Lame parameter, used for the linear modes only (default: mu, or from young and poisson).",
+            "stress",
+            _non_negative,
+        ),
         "young": Key("float", None, "Young's modulus (with poisson, instead of mu and lam).", "stress", _positive),
-        "poisson": Key("float", None, "Poisson's ratio, in (-1, 0.5).", "",
-                       lambda v: None if -1 < v < 0.5 else "a number in (-1, 0.5)"),
+        "poisson": Key(
+            "float",
+            None,
+            "Poisson's ratio, in (-1, 0.5).",
+            "",
+            lambda v: None if -1 < v < 0.5 else "a number in (-1, 0.5)",
+        ),
         "rho": Key("float", 1e3, "Density.", "mass / volume", _positive),
     },
     "subspace": {
-        "weights": Key("int", 8, "Skinning eigenmodes; the subspace has weights x (dim + 1) x dim coordinates.",
-                       check=_at_least_one),
+        "weights": Key(
+            "int",
+            8,
+            "Skinning eigenmodes; the subspace has weights x (dim + 1) x dim coordinates.",
+            check=_at_least_one,
+        ),
         "clusters": Key("int", 20, "Rotation clusters of elements for the passive energy.", check=_at_least_one),
         "active_clusters": Key("int", 1, "Rotation clusters for the muscle energy.", check=_at_least_one),
         "seed": Key("int", 0, "Seed of the k-means clustering (same seed, same clusters)."),
     },
     "muscles": {
-        "count": Key("int", 4, "Muscles: the lowest linear modes after the rigid ones (with pinned "
-                     "vertices, the modes of the clamped body). 0 for none.",
-                     check=lambda v: None if v >= 0 else "an integer >= 0"),
-        "signs": Key("ints", None, "Flip muscles: +1 or -1 each (modes have a deterministic sign; "
-                     "the caterpillar tutorial's gait uses [1, -1, -1, 1]).", check=_signs),
-        "max_s": Key("float", 2.0, "Amplitude ceilings: a mode scaled by its ceiling changes some "
-                     "element's deformation gradient by max_s (Frobenius norm).", "", _positive),
-        "table": Key("str", None, "CSV file of activations over time (instead of gait): a header, then "
-                     "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling; "
-                     "linearly interpolated, held after the last row."),
+        "count": Key(
+            "int",
+            4,
+            "Muscles: the lowest linear modes after the rigid ones (with pinned "
+            "vertices, the modes of the clamped body). 0 for none.",
+            check=lambda v: None if v >= 0 else "an integer >= 0",
+        ),
+        "signs": Key(
+            "ints",
+            None,
+            "Flip muscles: +1 or -1 each (modes have a deterministic sign; "
+            "the caterpillar tutorial's gait uses [1, -1, -1, 1]).",
+            check=_signs,
+        ),
+        "max_s": Key(
+            "float",
+            2.0,
+            "Amplitude ceilings: a mode scaled by its ceiling changes some "
+            "element's deformation gradient by max_s (Frobenius norm).",
+            "",
+            _positive,
+        ),
+        "table": Key(
+            "str",
+            None,
+            "CSV file of activations over time (instead of gait): a header, then "
+            "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling; "
+            "linearly interpolated, held after the last row.",
+        ),
         "gait": {
             "_optional": True,
-            "amplitude": Key("floats", None, "Per muscle: amplitude as a fraction of its ceiling.", "",
-                             required=True),
+            "amplitude": Key("floats", None, "Per muscle: amplitude as a fraction of its ceiling.", "", required=True),
             "period": Key("floats", None, "Per muscle: period.", "time", _positive_list, required=True),
             "phase": Key("floats", None, "Per muscle: phase, as a fraction of the period (default 0).", "periods"),
         },
@@ -131,43 +183,90 @@ SCHEMA: dict[str, Any] = {
         "duration": Key("float", None, "Simulated time (default 4.5, or from steps).", "time", _positive),
         "steps": Key("int", None, "Number of steps (instead of duration).", check=_at_least_one),
         "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
-        "tol": Key("float", 1e-6, "Stop a step's iterations when the change of z is below tol (0: always "
-                   "run all iterations).", "", _non_negative),
-        "rtol": Key("float", 0.0, "Also stop when the change of z is below rtol times the step's motion "
-                    "(0: off).", "", _non_negative),
+        "tol": Key(
+            "float",
+            1e-6,
+            "Stop a step's iterations when the change of z is below tol (0: always run all iterations).",
+            "",
+            _non_negative,
+        ),
+        "rtol": Key(
+            "float",
+            0.0,
+            "Also stop when the change of z is below rtol times the step's motion (0: off).",
+            "",
+            _non_negative,
+        ),
     },
     "gravity": {
         "_effect": True,
-        "acceleration": Key("floats", None, "Gravitational acceleration vector, one value per axis.",
-                            "length / time^2", required=True),
+        "acceleration": Key(
+            "floats", None, "Gravitational acceleration vector, one value per axis.", "length / time^2", required=True
+        ),
     },
     "ground": {
         "_effect": True,
         "height": Key("float", None, "Height of the ground plane along the up axis.", "length"),
-        "offset": Key("float", None, "Instead of height: put the ground this far below the mesh's lowest "
-                      "point (default 0).", "length", _non_negative),
+        "offset": Key(
+            "float",
+            None,
+            "Instead of height: put the ground this far below the mesh's lowest point (default 0).",
+            "length",
+            _non_negative,
+        ),
         "up": Key("int", None, "Index of the up axis (default: the last, y in 2D, z in 3D)."),
-        "stickiness": Key("float", 1.0, "1 removes the tangential velocity of contacting points (the "
-                          "reference behaviour), 0 lets them slide freely.", "", _unit_interval),
-        "contacts": Key("int|all", 30, "Contact points: that many boundary vertices by farthest-point "
-                        "sampling, or \"all\" boundary vertices.", check=_contacts),
-        "push_out": Key("float", 0.0, "Fraction of a contact point's penetration undone per step (0: none, "
-                        "the reference behaviour; 1: back on the ground in one step).", "", _unit_interval),
+        "stickiness": Key(
+            "float",
+            1.0,
+            "1 removes the tangential velocity of contacting points (the "
+            "reference behaviour), 0 lets them slide freely.",
+            "",
+            _unit_interval,
+        ),
+        "contacts": Key(
+            "int|all",
+            30,
+            'Contact points: that many boundary vertices by farthest-point sampling, or "all" boundary vertices.',
+            check=_contacts,
+        ),
+        "push_out": Key(
+            "float",
+            0.0,
+            "Fraction of a contact point's penetration undone per step (0: none, "
+            "the reference behaviour; 1: back on the ground in one step).",
+            "",
+            _unit_interval,
+        ),
     },
     "pinned": {
         "_effect": True,
-        "where": Key("strs", None, "Conditions selecting the pinned vertices, e.g. [\"x <= 0.01\"] or "
-                     "[\"x == min\"] (a vertex satisfying any one is pinned)."),
+        "where": Key(
+            "strs",
+            None,
+            'Conditions selecting the pinned vertices, e.g. ["x <= 0.01"] or '
+            '["x == min"] (a vertex satisfying any one is pinned).',
+        ),
         "box": Key("table", None, "Instead of where: `{ min = [...], max = [...] }`, pin the vertices inside."),
-        "stiffness": Key("float", None, "Pin spring stiffness (default: 1e3 x the system's own stiffness "
-                         "scale).", "force / length", _positive),
+        "stiffness": Key(
+            "float",
+            None,
+            "Pin spring stiffness (default: 1e3 x the system's own stiffness scale).",
+            "force / length",
+            _positive,
+        ),
     },
     "damping": {
         "_effect": True,
-        "mass": Key("float", 0.0, "Mass-proportional Rayleigh damping alpha (damps all motion, like drag).",
-                    "1 / time", _non_negative),
-        "stiffness": Key("float", 0.0, "Stiffness-proportional Rayleigh damping beta (damps deformation).",
-                         "time", _non_negative),
+        "mass": Key(
+            "float",
+            0.0,
+            "Mass-proportional Rayleigh damping alpha (damps all motion, like drag).",
+            "1 / time",
+            _non_negative,
+        ),
+        "stiffness": Key(
+            "float", 0.0, "Stiffness-proportional Rayleigh damping beta (damps deformation).", "time", _non_negative
+        ),
     },
     "output": {
         "every": Key("int", 1, "Write every k-th frame (the command's --every overrides).", check=_at_least_one),
@@ -219,8 +318,10 @@ def _coerce(kind: str, value, path: str, errors: list[str]):
     if kind == "str":
         return value if isinstance(value, str) else bad("a string")
     if kind == "int|all":
-        return value if (value == "all" or (isinstance(value, int) and not isinstance(value, bool))) else bad(
-            'an integer or "all"'
+        return (
+            value
+            if (value == "all" or (isinstance(value, int) and not isinstance(value, bool)))
+            else bad('an integer or "all"')
         )
     if kind in ("floats", "ints", "strs"):
         items = value if isinstance(value, list) else None
@@ -295,8 +396,10 @@ def _read_table(path: str, count: int, errors: list[str]):
             if not any(cell.strip() for cell in row):
                 continue
             if len(row) != count + 1:
-                errors.append(f"{where}: {path!r} line {line} has {len(row)} columns, expected {count + 1} "
-                              f"(time and one per muscle)")
+                errors.append(
+                    f"{where}: {path!r} line {line} has {len(row)} columns, expected {count + 1} "
+                    f"(time and one per muscle)"
+                )
                 return None
             try:
                 rows.append([float(cell) for cell in row])
@@ -341,7 +444,7 @@ class Scene:
 
     # ------------------------------------------------------------ loading
     @classmethod
-    def from_toml(cls, path) -> "Scene":
+    def from_toml(cls, path) -> Scene:
         """Load and validate a scene file."""
         path = os.fspath(path)
         if not os.path.isfile(path):
@@ -354,12 +457,12 @@ class Scene:
         return cls.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)), source=path)
 
     @classmethod
-    def default(cls) -> "Scene":
+    def default(cls) -> Scene:
         """The built-in scene: the tutorial's caterpillar crawl."""
         return cls.from_dict(DEFAULT_SCENE, source="built-in")
 
     @classmethod
-    def from_dict(cls, data: dict, base_dir: str | None = None, source: str = "dict") -> "Scene":
+    def from_dict(cls, data: dict, base_dir: str | None = None, source: str = "dict") -> Scene:
         """Validate a scene given as nested dicts (the same keys as the TOML file)."""
         errors: list[str] = []
         config = _validate_table(SCHEMA, data, "", errors)
@@ -634,8 +737,10 @@ def schema_markdown() -> str:
             lines.append("")
         for key, spec in subs:
             name = f"{prefix}.{key}" if prefix else key
-            effect = " (an effect: present switches it on)" if spec.get("_effect") else (
-                " (optional)" if spec.get("_optional") else ""
+            effect = (
+                " (an effect: present switches it on)"
+                if spec.get("_effect")
+                else (" (optional)" if spec.get("_optional") else "")
             )
             lines.append(f"### `[{name}]`{effect}")
             lines.append("")

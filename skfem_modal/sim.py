@@ -26,10 +26,11 @@ import time
 import numpy as np
 import scipy.linalg as sla
 
+from . import _accel
 from .contact import GroundContact
-from .fem import _gravity, _jacobian, _mass, _positive, element_volumes, vector_dofs
-from .mesh import boundary_vertices, check_mesh, farthest_point_sampling
-from .muscles import cluster_sum_operator, muscle_operators, muscle_target_constants
+from .fem import _gravity, _jacobian, _mass, _positive, scalar_basis, vector_dofs
+from .mesh import _signed_measures, boundary_vertices, check_mesh, farthest_point_sampling, validated
+from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
 from .rotations import HORN, QUAT_TO_R, ROT2, dominant_quaternions, rotations2_flat, rotations3_flat
 from .subspace import com_operator, mass_orthonormalize, project, skinning_eigenmodes
 
@@ -78,6 +79,49 @@ def _labels(value, nT, name):
     if arr.min() < 0:
         raise ValueError(f"{name} must be non-negative, got {arr.min()}")
     return arr.astype(np.int64)
+
+
+def _muscle_modes(D, N: int) -> np.ndarray:
+    """Muscle modes as a checked (N, m) array."""
+    if D is None:
+        return np.zeros((N, 0))
+    D = np.asarray(D, dtype=np.float64)
+    if D.ndim == 1:
+        D = D[:, None]
+    if D.ndim != 2 or D.shape[0] != N:
+        raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
+    if not np.all(np.isfinite(D)):
+        raise ValueError("D must be finite")
+    return D
+
+
+def _p1_gradients(mesh) -> np.ndarray:
+    """P1 basis gradients per element, shape (dim + 1, dim, nT)."""
+    basis = scalar_basis(mesh, "P1")
+    return np.stack([phi[0].grad[..., 0] for phi in basis.basis])
+
+
+def _laplacian_hessian(mesh, grads, weights, B) -> np.ndarray:
+    """``B^T J^T diag(w) J B`` as ``sum_i B_i^T L_w B_i`` (``L_w`` the weighted scalar Laplacian)."""
+    import scipy.sparse as sps
+
+    dim, n = mesh.p.shape
+    t = mesh.t
+    # L_w[a, b] = sum_e w_e grad(phi_a) . grad(phi_b)
+    vals = np.einsum("ake,bke->abe", grads, grads) * weights
+    rows = np.broadcast_to(t[:, None, :], vals.shape).ravel()
+    cols = np.broadcast_to(t[None, :, :], vals.shape).ravel()
+    L = sps.csr_matrix((vals.ravel(), (rows, cols)), shape=(n, n))
+    Bv = B.reshape(n, dim, -1)
+    H = sum(Bv[:, i].T @ (L @ Bv[:, i]) for i in range(dim))
+    return (H + H.T) / 2
+
+
+def _through(TJ, B) -> np.ndarray:
+    """``TJ @ B`` for a sparse ``TJ`` with few rows: densified when small (BLAS is faster)."""
+    if TJ.shape[0] * TJ.shape[1] <= 2e7:
+        return TJ.toarray() @ B
+    return np.asarray(TJ @ B)
 
 
 class ModalMuscle:
@@ -139,6 +183,10 @@ class ModalMuscle:
     rtol : float
         Also stop when ``|z_k - z_{k-1}| <= rtol |z_k - z_start|``: the last
         change is small compared with this step's motion. 0 disables.
+    accelerator : {"auto", "numpy", "numba"}
+        The per-iteration rotations in numpy, or compiled with numba (the
+        ``fast`` extra; same method, same results to round-off). ``auto``
+        uses numba when it is installed.
 
     Attributes
     ----------
@@ -177,6 +225,7 @@ class ModalMuscle:
         max_iter=10,
         tol=1e-6,
         rtol=0.0,
+        accelerator="auto",
     ):
         clock = time.perf_counter()
         check_mesh(mesh)
@@ -189,15 +238,12 @@ class ModalMuscle:
         if not np.all(np.isfinite(B)):
             raise ValueError("B must be finite")
         r = B.shape[1]
-        if D is None:
-            D = np.zeros((N, 0))
-        D = np.asarray(D, dtype=np.float64)
-        if D.ndim == 1:
-            D = D[:, None]
-        if D.ndim != 2 or D.shape[0] != N:
-            raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
-        if not np.all(np.isfinite(D)):
-            raise ValueError("D must be finite")
+        # D may be a callable that produces the modes: it is called once the
+        # passive operators are built, so an expensive modal analysis can
+        # run meanwhile (from_mesh does that)
+        pending = D if callable(D) else None
+        if pending is None:
+            D = _muscle_modes(D, N)
         labels = _labels(labels, nT, "labels")
         active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
         self.h = _positive_scalar(h, "h")
@@ -206,6 +252,12 @@ class ModalMuscle:
         self.max_iter = int(max_iter)
         self._tol2 = _positive_scalar(tol, "tol", allow_zero=True) ** 2
         self.rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
+        if accelerator not in ("auto", "numpy", "numba"):
+            raise ValueError(f"accelerator must be 'auto', 'numpy' or 'numba', got {accelerator!r}")
+        if accelerator == "numba" and not _accel.AVAILABLE:
+            raise ValueError("accelerator='numba' needs numba: pip install 'skfem_modal[fast]'")
+        self.accelerator = "numba" if accelerator != "numpy" and _accel.AVAILABLE else "numpy"
+        self._accel = None  # the compiled kernels, loaded at the first step
         up = dim - 1 if up is None else up
         if isinstance(up, bool) or not isinstance(up, (int, np.integer)) or not 0 <= up < dim:
             raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {up!r}")
@@ -230,13 +282,12 @@ class ModalMuscle:
             ground = float(_array(ground, (), "ground"))
         if contact_vertices is not None and ground is None:
             raise ValueError("contact_vertices need a ground height (ground=...)")
-        vol = element_volumes(mesh)
+        vol = np.abs(_signed_measures(mesh.p, mesh.t))
         w_mu = _positive(mu, nT, "mu") * vol
-        m = D.shape[1]
-        w_gamma = _positive(gamma, nT, "gamma", allow_zero=True) * vol if m else None
+        w_gamma = _positive(gamma, nT, "gamma", allow_zero=True) * vol
         rho_e = _positive(rho, nT, "rho")
-        self.mesh, self.B, self.D = mesh, B, D
-        self.dim, self.n_muscles = dim, m
+        self.mesh, self.B = mesh, B
+        self.dim = dim
         self.labels, self.active_labels = labels, active_labels
         self.timings = {"validate": time.perf_counter() - clock}
 
@@ -250,17 +301,28 @@ class ModalMuscle:
         # passive ARAP: cluster sums of mu vol F, and its Hessian B^T J^T (mu vol) J B
         clock = time.perf_counter()
         dd = dim * dim
-        Sp = cluster_sum_operator(labels, w_mu, dim)
-        Gp = np.asarray((Sp @ J) @ B)
-        WJ = J.multiply(np.repeat(w_mu, dd)[:, None]).tocsr()
-        H_el = B.T @ np.asarray(J.T @ (WJ @ B))
-        self.timings["passive"] = time.perf_counter() - clock
+        # cluster sums of w F (passive rotations, muscle targets): sparse maps
+        # of vec(F), taken through J and B; and the Hessians B^T J^T w J B,
+        # which are B^T (L_w x I) B for the w-weighted scalar Laplacian L_w
+        grads = _p1_gradients(mesh)
+        Gp = _through(cluster_sum_operator(labels, w_mu, dim) @ J, B)
+        H_el = _laplacian_hessian(mesh, grads, w_mu, B)
+        if pending is not None:
+            wait = time.perf_counter()
+            D = _muscle_modes(pending(), N)
+            self.timings["waiting_for_muscles"] = time.perf_counter() - wait
+        m = D.shape[1]
+        self.D = D
+        self.dim, self.n_muscles = dim, m
+        products = [Gp]
+        if m:
+            products.append(_through(muscle_target_operator(J, D, active_labels, w_gamma, dim) @ J, B))
+        self.timings["reduced operators"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         if m:
-            self._A = muscle_operators(J, B, D, active_labels, w_gamma, dim)
-            WJa = J.multiply(np.repeat(w_gamma, dd)[:, None]).tocsr()
-            self._H_act = B.T @ np.asarray(J.T @ (WJa @ B))
+            self._A = products[1].reshape(m + 1, -1, r)
+            self._H_act = _laplacian_hessian(mesh, grads, w_gamma, B)
             self._active_consts = muscle_target_constants(J, D, w_gamma, dim)
             JD = (J @ D).reshape(nT, dd, m)
             largest = np.sqrt((JD**2).sum(axis=1)).max(axis=0)
@@ -286,7 +348,8 @@ class ModalMuscle:
         if pinned is not None:
             if pin_stiffness is None:
                 # mean diagonal of the passive Hessian J^T W J, per DOF
-                passive_diag = float(np.asarray(WJ.multiply(J).sum(axis=0)).mean())
+                row_norms = np.asarray(J.multiply(J).sum(axis=1)).ravel()
+                passive_diag = float(np.repeat(w_mu, dd) @ row_norms) / N
                 mass_diag = float(M.diagonal().mean()) / h**2
                 pin_stiffness = 1e3 * max(passive_diag, mass_diag)
             Bs = B[vector_dofs(pinned, dim)]
@@ -375,6 +438,19 @@ class ModalMuscle:
             )
             effects.append("contact")
         self.stickiness, self.push_out = stickiness, push_out
+        # the operators the step uses: rotation features, or (compiled 3D) F itself
+        if self.accelerator == "numba" and dim == 3:
+            G_step, W_step, A_step, WA_step = self._G, self._W.copy(), self._A, self._WA
+        else:
+            G_step, W_step = self._Gf, self._Wf
+            A_step, WA_step = (self._Af, self._WAf) if m else (None, None)
+        if self._contact is not None:
+            # the global solve also yields the contact positions: stack their rows
+            Je = self._contact.Je
+            W_step = np.vstack([W_step, Je @ W_step])
+            if m:
+                WA_step = np.concatenate([WA_step, np.einsum("pr,krc->kpc", Je, WA_step)], axis=1)
+        self._step_ops = (A_step, WA_step, G_step, W_step)
         self.effects = tuple(effects)
         self._com = com_operator(mesh, B, rho_e)
         self._M = M
@@ -460,12 +536,15 @@ class ModalMuscle:
         if not self.n_muscles:
             return
         if features:
-            A, WA, G, W = self._Af, self._WAf, self._Gf, self._Wf
+            A, WA, G, W = self._step_ops
         else:
             A, WA, G, W = self._A, self._WA, self._G, self._W
+        m = A.shape[0] - 1
         rows = G.shape[0] - A.shape[1]
-        G[rows:] = A[0] + np.tensordot(a, A[1:], axes=1)
-        W[:, W.shape[1] - WA.shape[2] :] = WA[0] + np.tensordot(a, WA[1:], axes=1)
+        cols = W.shape[1] - WA.shape[2]
+        # one small product each: the operators are affine in a
+        G[rows:] = (a @ A[1:].reshape(m, -1)).reshape(A.shape[1:]) + A[0]
+        W[:, cols:] = (a @ WA[1:].reshape(m, -1)).reshape(WA.shape[1:]) + WA[0]
 
     def step(self, z, z_dot, a=None) -> np.ndarray:
         """Advance one time step.
@@ -496,21 +575,24 @@ class ModalMuscle:
             c = self._K_inertia @ (z + self.h * z_dot) + self._c_ext
         else:
             c = self._P_z @ z + self._P_v @ z_dot + self._c_ext
+        if self._accel is None and self.accelerator == "numba":
+            self._accel = _accel.kernels()
         contact = self._contact
         if contact is not None:
             contact.start_step(z)
+            c = np.concatenate([c, contact.Je @ c])
         if self.dim == 2:
             z_next, self.iterations = self._iterate2(c, z, contact)
         else:
             z_next, self.iterations = self._iterate3(c, z, contact)
         return z_next
 
-    def _converged(self, z_next, z_iter, z_start) -> bool:
-        """The stopping rules; raises on a non-finite state."""
-        diff = z_next - z_iter
-        change2 = diff @ diff
-        if change2 < self._tol2:
-            return True
+    def _stop(self, change2: float, z_next, z_start) -> bool:
+        """The relative stopping rule; raises on a non-finite state.
+
+        Called when the absolute rule (``change2 < tol**2``, checked inline)
+        did not stop the iterations.
+        """
         if not change2 < np.inf:
             raise SimulationError("the state became non-finite")
         if self.rtol:
@@ -519,37 +601,54 @@ class ModalMuscle:
         return False
 
     def _iterate2(self, c, z, contact):
-        Gf, Wf = self._Gf, self._Wf
+        _, _, Gf, Wf = self._step_ops
+        tol2, r = self._tol2, z.size
+        compiled = self._accel.normalize_cs if self._accel is not None else None
         z_iter = z
-        for it in range(1, self.max_iter + 1):
+        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
             cs = (Gf @ z_iter).reshape(-1, 2)
-            norm = np.hypot(cs[:, 0], cs[:, 1])
-            if not norm.all():
-                # a zero target: every rotation is optimal, take the identity
-                cs[norm == 0.0, 0] = 1.0
-                norm[norm == 0.0] = 1.0
-            cs /= norm[:, None]
-            z_next = c + Wf @ cs.ravel()
+            if compiled is not None:
+                compiled(cs)
+            else:
+                norm = np.hypot(cs[:, 0], cs[:, 1])
+                if not norm.all():
+                    # a zero target: every rotation is optimal, take the identity
+                    cs[norm == 0.0, 0] = 1.0
+                    norm[norm == 0.0] = 1.0
+                cs /= norm[:, None]
+            y = c + Wf @ cs.ravel()
             if contact is not None:
-                z_next = contact.correct(z_next)
-            done = self._converged(z_next, z_iter, z)
+                y = contact.correct(y)
+            z_next = y[:r]
+            diff = z_next - z_iter
+            change2 = diff @ diff
             z_iter = z_next
-            if done:
+            if change2 < tol2 or self._stop(change2, z_next, z):
                 break
         return z_iter, it
 
     def _iterate3(self, c, z, contact):
-        Gf, Wf = self._Gf, self._Wf
+        tol2, r = self._tol2, z.size
         q = self._q
         z_iter = z
-        for it in range(1, self.max_iter + 1):
-            q = dominant_quaternions((Gf @ z_iter).reshape(-1, 4, 4), q)
-            z_next = c + Wf @ (q[:, :, None] * q[:, None, :]).ravel()
+        # compiled, the kernel builds Horn's matrix from F and returns R, so
+        # the products use the smaller F-space operators
+        _, _, G, W = self._step_ops
+        compiled = self._accel.rotations3 if self._accel is not None else None
+        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
+            if compiled is not None:
+                R, q = compiled((G @ z_iter).reshape(-1, 9), q)
+                y = c + W @ R.ravel()
+            else:
+                q = dominant_quaternions((G @ z_iter).reshape(-1, 4, 4), q)
+                y = c + W @ (q[:, :, None] * q[:, None, :]).ravel()
             if contact is not None:
-                z_next = contact.correct(z_next)
-            done = self._converged(z_next, z_iter, z)
+                y = contact.correct(y)
+            z_next = y[:r]
+            diff = z_next - z_iter
+            change2 = diff @ diff
             z_iter = z_next
-            if done:
+            if change2 < tol2 or self._stop(change2, z_next, z):
                 break
         self._q = q
         return z_iter, it
@@ -641,6 +740,8 @@ class ModalMuscle:
         rtol=0.0,
         seed: int = 0,
         progress=None,
+        accelerator="auto",
+        parallel: bool = True,
     ):
         """Build every ingredient from a mesh and a few numbers.
 
@@ -654,83 +755,107 @@ class ModalMuscle:
         ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
         (all boundary vertices if ``n_contacts`` is None). With ``pinned``
         vertices the muscles are the modes of the body clamped there.
-        ``progress(stage)``, if given, is called before each stage.
+        ``progress(stage)``, if given, is called before each stage. With
+        ``parallel`` the modal analysis runs in a second thread beside the
+        subspace and clusters (the results do not change).
 
         Returns
         -------
         sim : ModalMuscle
             With ``sim.timings`` covering these stages too.
         """
+        from concurrent.futures import ThreadPoolExecutor
+
         from .clusters import spectral_clusters
         from .modal import linear_modal_analysis, rigid_mode_count
 
-        check_mesh(mesh)
+        # arguments used late are checked before any work
+        if accelerator not in ("auto", "numpy", "numba"):
+            raise ValueError(f"accelerator must be 'auto', 'numpy' or 'numba', got {accelerator!r}")
+        if accelerator == "numba" and not _accel.AVAILABLE:
+            raise ValueError("accelerator='numba' needs numba: pip install 'skfem_modal[fast]'")
+        signs = None
+        if muscle_signs is not None and n_muscles:
+            signs = np.asarray(muscle_signs, dtype=np.float64)
+            if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
+                raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
         say = progress or (lambda stage: None)
         timings = {}
-        clock = time.perf_counter()
-        say("modal analysis")
-        n_rigid = rigid_mode_count(mesh, pinned)
-        D = np.zeros((mesh.p.size, 0))
-        if n_muscles:
-            _, modes = linear_modal_analysis(
-                mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
-            )
-            D = modes[:, n_rigid:]
-            if muscle_signs is not None:
-                signs = np.asarray(muscle_signs, dtype=np.float64)
-                if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
-                    raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
-                D = D * signs
-        timings["modal_analysis"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        say("skinning eigenmodes")
-        _, weights, B = skinning_eigenmodes(mesh, n_weights)
-        timings["skinning_eigenmodes"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        say("orthonormalise")
-        B = mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True))
-        timings["orthonormalize"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        say("clusters")
-        labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
-        active = None
-        if n_active_clusters > 1:
-            active = spectral_clusters(mesh, weights, n_active_clusters, seed=seed)
-        timings["clusters"] = time.perf_counter() - clock
-        contacts = None
-        if ground is not None:
+        with validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
+            # scikit-fem caches mesh data on first use; build it here, before
+            # the two threads read it
+            scalar_basis(mesh)
+            boundary = boundary_vertices(mesh) if ground is not None else None
+            n_rigid = rigid_mode_count(mesh, pinned)
+
+            def modes():
+                clock = time.perf_counter()
+                if not n_muscles:
+                    return np.zeros((mesh.p.size, 0)), time.perf_counter() - clock
+                _, found = linear_modal_analysis(
+                    mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
+                )
+                return found[:, n_rigid:], time.perf_counter() - clock
+
+            # the modal analysis (one sparse factorisation and back-solves, in
+            # compiled code that releases the GIL) runs beside the subspace
+            say("modal analysis (in parallel with the subspace)")
+            modal = pool.submit(modes) if parallel else None
             clock = time.perf_counter()
-            boundary = boundary_vertices(mesh)
-            if n_contacts is None or n_contacts >= boundary.size:
-                contacts = boundary
-            else:
-                contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], n_contacts)]
-            timings["contacts"] = time.perf_counter() - clock
-        say("simulator set-up")
-        sim = cls(
-            mesh,
-            B,
-            D,
-            labels,
-            mu=mu,
-            gamma=mu if gamma is None else gamma,
-            rho=rho,
-            h=h,
-            active_labels=active,
-            gravity=gravity,
-            contact_vertices=contacts,
-            ground=ground,
-            up=up,
-            stickiness=stickiness,
-            push_out=push_out,
-            pinned=pinned,
-            pin_stiffness=pin_stiffness,
-            damping_mass=damping_mass,
-            damping_stiffness=damping_stiffness,
-            max_iter=max_iter,
-            tol=tol,
-            rtol=rtol,
-        )
+            say("skinning eigenmodes")
+            _, weights, B = skinning_eigenmodes(mesh, n_weights)
+            timings["skinning_eigenmodes"] = time.perf_counter() - clock
+            clock = time.perf_counter()
+            say("orthonormalise")
+            B = mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True), overwrite=True)
+            timings["orthonormalize"] = time.perf_counter() - clock
+            clock = time.perf_counter()
+            say("clusters")
+            labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+            active = None
+            if n_active_clusters > 1:
+                active = spectral_clusters(mesh, weights, n_active_clusters, seed=seed)
+            timings["clusters"] = time.perf_counter() - clock
+            contacts = None
+            if ground is not None:
+                clock = time.perf_counter()
+                if n_contacts is None or n_contacts >= boundary.size:
+                    contacts = boundary
+                else:
+                    contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], n_contacts)]
+                timings["contacts"] = time.perf_counter() - clock
+
+            def muscles():
+                # called by the constructor once the passive operators are built
+                D, timings["modal_analysis"] = modal.result() if parallel else modes()
+                return D if signs is None else D * signs
+
+            say("simulator set-up")
+            sim = cls(
+                mesh,
+                B,
+                muscles,
+                labels,
+                mu=mu,
+                gamma=mu if gamma is None else gamma,
+                rho=rho,
+                h=h,
+                active_labels=active,
+                gravity=gravity,
+                contact_vertices=contacts,
+                ground=ground,
+                up=up,
+                stickiness=stickiness,
+                push_out=push_out,
+                pinned=pinned,
+                pin_stiffness=pin_stiffness,
+                damping_mass=damping_mass,
+                damping_stiffness=damping_stiffness,
+                max_iter=max_iter,
+                tol=tol,
+                rtol=rtol,
+                accelerator=accelerator,
+            )
         sim.timings = {**timings, **sim.timings}
         sim.weights = weights
         return sim

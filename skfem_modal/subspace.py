@@ -126,13 +126,18 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
         raise ValueError(f"k (the number of skinning weights) must be in 1..{n - 1}, got {k}")
     L = laplacian(mesh)
     M = _mass(mesh, rho, True, "P1", False)
-    values, W = lowest_eigenpairs(L, M, k)
+    # the constant is the first eigenfunction, known exactly (eigenvalue 0 on a
+    # connected mesh): the solver only looks for the others
+    constant = np.full((n, 1), 1.0 / np.sqrt(M.diagonal().sum()))
+    values, W = lowest_eigenpairs(L, M, k - 1, null=constant) if k > 1 else (np.zeros(0), np.zeros((n, 0)))
+    values = np.concatenate([[float(constant[:, 0] @ (L @ constant[:, 0]))], values])
+    W = np.hstack([constant, W])
     values, W = canonical_repeated(values.copy(), W.copy(), M, generic_weight(mesh.p.T))
     W = sign_convention(W)
     return values, W, lbs_basis(mesh.p.T, W)
 
 
-def mass_orthonormalize(B, M) -> np.ndarray:
+def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
     """Make the columns of ``B`` orthonormal in the mass inner product.
 
     Gram-Schmidt in column order (a QR factorisation of ``M^(1/2) B`` for a
@@ -146,6 +151,8 @@ def mass_orthonormalize(B, M) -> np.ndarray:
     B : ndarray, shape (N, r)
     M : scipy.sparse matrix or ndarray, shape (N, N)
         Symmetric positive definite.
+    overwrite : bool
+        Work in ``B``'s own memory (it is destroyed): no copy of a large basis.
 
     Returns
     -------
@@ -160,17 +167,21 @@ def mass_orthonormalize(B, M) -> np.ndarray:
         if np.any(m <= 0):
             raise ValueError("mass_orthonormalize: the mass matrix must be positive definite")
         root = np.sqrt(m)
-        Q, R = np.linalg.qr(root[:, None] * B)
-        keep = np.abs(np.diag(R)) > 1e-10 * np.abs(np.diag(R)).max()
-        if not keep.all():
+        Bm = B if overwrite and B.flags.c_contiguous else np.array(B, order="C")
+        Bm *= root[:, None]
+        Q = _cholesky_qr2(Bm)
+        if Q is None:
+            # (numerically) dependent columns: a rank-revealing QR drops them
+            Q, R, _ = sla.qr(Bm, mode="economic", pivoting=True)
+            keep = np.abs(np.diag(R)) > 1e-10 * np.abs(R[0, 0])
             warnings.warn(
                 f"mass_orthonormalize: dropped {int((~keep).sum())} linearly dependent columns",
                 RuntimeWarning,
                 stacklevel=2,
             )
-            Q, R, piv = sla.qr(root[:, None] * B, mode="economic", pivoting=True)
-            Q = Q[:, : int(keep.sum())]
-        return Q / root[:, None]
+            Q = Q[:, keep]
+        Q /= root[:, None]
+        return Q
     G = B.T @ (M @ B)
     G = (G + G.T) / 2
     try:
@@ -185,6 +196,31 @@ def mass_orthonormalize(B, M) -> np.ndarray:
             stacklevel=2,
         )
         return B @ (vecs[:, keep] / np.sqrt(vals[keep]))
+
+
+def _cholesky_qr2(A: np.ndarray, block: int = 1 << 15):
+    """Orthonormalise the columns of ``A`` in place (Gram-Schmidt order), or return None.
+
+    Cholesky QR twice: two products with the small Gram matrix instead of a
+    Householder QR of the tall matrix (several times faster for n >> r), and
+    accurate to round-off for condition numbers up to ~1e7. Rows are updated
+    a block at a time, so no copy of ``A`` is made. Returns None, with ``A``
+    untouched, when the columns are (nearly) dependent.
+    """
+    for _ in range(2):
+        G = A.T @ A
+        try:
+            L = np.linalg.cholesky((G + G.T) / 2)
+        except np.linalg.LinAlgError:
+            return None
+        d = np.diag(L)
+        if d.min() <= 1e-7 * d.max():
+            return None
+        # A L^-T, block by block, with the small inverse factor
+        inv_t = sla.solve_triangular(L, np.eye(L.shape[0]), lower=True, check_finite=False).T
+        for start in range(0, A.shape[0], block):
+            A[start : start + block] = A[start : start + block] @ inv_t
+    return A
 
 
 def project(x, B, M) -> np.ndarray:

@@ -68,7 +68,9 @@ def test_cli_modes_mesh_file_and_clamp(tmp_path, capsys):
     path = tmp_path / "beam.vtu"
     meshio.write(path, meshio.Mesh(mesh.p.T, [("tetra", mesh.t.T)]))
     out = tmp_path / "beam_modes.vtu"
-    code = main(["modes", str(path), "-k", "4", "--young", "1e3", "--poisson", "0.3", "--fix", "x == min", "--out", str(out)])
+    code = main(
+        ["modes", str(path), "-k", "4", "--young", "1e3", "--poisson", "0.3", "--fix", "x == min", "--out", str(out)]
+    )
     assert code == 0
     assert "0 rigid motions" in capsys.readouterr().out
     assert meshio.read(out).point_data["mode_00"].shape == (mesh.p.shape[1], 3)

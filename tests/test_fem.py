@@ -56,6 +56,7 @@ def test_stiffness_equals_scikit_fem_linear_elasticity(case):
     mu = np.linspace(0.5, 2.0, mesh.t.shape[1])
     ref = asm(linear_elasticity(Lambda=0.7, Mu=1.3), Basis(mesh, ElementVector(cls())))
     assert rel(stiffness_matrix(mesh, mu=1.3, lam=0.7, element=element), ref) < 1e-13
+
     # per-element material against scikit-fem with element-wise parameters
     @BilinearForm
     def varying(u, v, w):

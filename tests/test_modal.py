@@ -72,9 +72,7 @@ def test_rigid_modes_are_the_canonical_rigid_motions(cat_mesh, tutorial_modes):
 def test_rigid_mode_count():
     assert rigid_mode_count(beam2d(2.0, 1.0, 4, 2)) == 3
     assert rigid_mode_count(box3d(2, 2, 2)) == 6
-    two = make_mesh(
-        [[0, 0], [1, 0], [0, 1], [3, 0], [4, 0], [3, 1]], [[0, 1, 2], [3, 4, 5]]
-    )
+    two = make_mesh([[0, 0], [1, 0], [0, 1], [3, 0], [4, 0], [3, 1]], [[0, 1, 2], [3, 4, 5]])
     assert rigid_mode_count(two) == 6
     values, _ = linear_modal_analysis(two, 7)
     assert np.all(np.abs(values[:6]) < 1e-10) and values[6] > 1e-3

@@ -11,7 +11,8 @@ from skfem_modal.scene import Scene
 
 PVPYTHON = shutil.which("pvpython")
 pytestmark = pytest.mark.skipif(
-    PVPYTHON is None, reason="ParaView's pvpython is not installed (Debian: paraview python3-paraview; .ci/run installs it)"
+    PVPYTHON is None,
+    reason="ParaView's pvpython is not installed (Debian: paraview python3-paraview; .ci/run installs it)",
 )
 
 SCRIPT = """
@@ -46,14 +47,24 @@ def open_in_paraview(pvd, tmp_path):
     "data, points, cells",
     [
         (
-            {"mesh": {"shape": "caterpillar"}, "time": {"step": 0.02, "steps": 30}, "output": {"every": 10},
-             "muscles": {"count": 2, "gait": {"amplitude": [0.5, 0.5], "period": [0.5, 0.4]}}},
-            1719, 3058,
+            {
+                "mesh": {"shape": "caterpillar"},
+                "time": {"step": 0.02, "steps": 30},
+                "output": {"every": 10},
+                "muscles": {"count": 2, "gait": {"amplitude": [0.5, 0.5], "period": [0.5, 0.4]}},
+            },
+            1719,
+            3058,
         ),
         (
-            {"mesh": {"shape": "creature", "params": {"cell": 0.2}}, "time": {"step": 0.02, "steps": 30},
-             "output": {"every": 10}, "muscles": {"count": 2, "gait": {"amplitude": [0.5, 0.5], "period": [0.5, 0.4]}}},
-            None, None,
+            {
+                "mesh": {"shape": "creature", "params": {"cell": 0.2}},
+                "time": {"step": 0.02, "steps": 30},
+                "output": {"every": 10},
+                "muscles": {"count": 2, "gait": {"amplitude": [0.5, 0.5], "period": [0.5, 0.4]}},
+            },
+            None,
+            None,
         ),
     ],
     ids=["2d", "3d"],

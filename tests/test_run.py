@@ -33,8 +33,13 @@ def test_default_run_writes_every_file(default_run, reference):
     assert summary["effects"] == ["elasticity", "inertia", "muscles", "gravity", "contact"]
     assert summary["com"]["travel"][0] == pytest.approx(reference["crawl_com_dx"], abs=0.01)
     assert summary["sizes"] == {
-        "dofs": 3438, "subspace": 48, "clusters": 20, "active_clusters": 1, "muscles": 4,
-        "contact_points": 30, "pinned_vertices": 0,
+        "dofs": 3438,
+        "subspace": 48,
+        "clusters": 20,
+        "active_clusters": 1,
+        "muscles": 4,
+        "contact_points": 30,
+        "pinned_vertices": 0,
     }
     for stage in ("modal_analysis", "skinning_eigenmodes", "orthonormalize", "clusters", "factor"):
         assert summary["timings"]["precompute_s"][stage] >= 0
@@ -88,7 +93,9 @@ def test_csv_outputs(default_run):
     # the commanded amplitudes are the gait times the ceilings
     ceilings = np.array(summary["muscle_ceilings"])
     t = data[1:, 0] - 0.01
-    gait = np.array([0.45, 0.35, 0.25, 0.15]) * np.sin(2 * np.pi * (t[:, None] / [1.2, 0.8, 1.0, 0.6] + [0, 0.25, 0.5, 0.1]))
+    gait = np.array([0.45, 0.35, 0.25, 0.15]) * np.sin(
+        2 * np.pi * (t[:, None] / [1.2, 0.8, 1.0, 0.6] + [0, 0.25, 0.5, 0.1])
+    )
     np.testing.assert_allclose(data[1:, 1:5], gait * ceilings, rtol=1e-12, atol=1e-12)
 
 

@@ -46,9 +46,18 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(time__step=-0.01), r"time.step: expected a positive number, got -0.01"),
         (dict(ground__stickiness=1.5), r"ground.stickiness: expected a number in \[0, 1\], got 1.5"),
         (dict(subspace__weights=2.5), r"subspace.weights: expected an integer, got 2.5"),
-        (dict(mesh__shape=None, mesh__params=None, mesh__file="nowhere.msh"), r"mesh.file: no such file '.*nowhere.msh'"),
-        (dict(mesh__shape="blob"), r"mesh.shape: expected one of \['beam2d', 'beam3d', 'box3d', 'caterpillar', 'creature'\], got 'blob'"),
-        (dict(gravity__acceleration=[0.0, 0.0, -9.8]), r"gravity.acceleration: expected 2 values for this 2D mesh, got 3"),
+        (
+            dict(mesh__shape=None, mesh__params=None, mesh__file="nowhere.msh"),
+            r"mesh.file: no such file '.*nowhere.msh'",
+        ),
+        (
+            dict(mesh__shape="blob"),
+            r"mesh.shape: expected one of \['beam2d', 'beam3d', 'box3d', 'caterpillar', 'creature'\], got 'blob'",
+        ),
+        (
+            dict(gravity__acceleration=[0.0, 0.0, -9.8]),
+            r"gravity.acceleration: expected 2 values for this 2D mesh, got 3",
+        ),
         (dict(muscles__gait__period=[1.0, 1.0]), r"muscles.gait.period: expected 4 values \(muscles.count\), got 2"),
         (dict(muscles__signs=[1, -1, 2, 1]), r"muscles.signs: expected a list of \+1 and -1, got \[1, -1, 2, 1\]"),
         (dict(mesh__params={"nx": 0}), r"mesh: caterpillar: nx and ny must be at least 2"),
@@ -67,7 +76,9 @@ def test_all_errors_are_reported_at_once():
     with pytest.raises(SceneError) as info:
         Scene.from_dict(scene_with(time__step=0, ground__stickiness=-1, extra=3))
     text = str(info.value)
-    assert "3 problem(s)" in text and "extra: unknown key" in text and "time.step" in text and "ground.stickiness" in text
+    assert (
+        "3 problem(s)" in text and "extra: unknown key" in text and "time.step" in text and "ground.stickiness" in text
+    )
 
 
 def test_toml_errors(tmp_path):

@@ -118,8 +118,17 @@ def test_tutorial_crawl(tutorial, reference):
     contacts = boundary[farthest_point_sampling(X[boundary], 30)]
     ground = float(X[:, 1].min()) - 0.15
     sim = ModalMuscle(
-        mesh, tutorial["B"], tutorial["D"], tutorial["labels"], mu=1e6, gamma=1e6, rho=1e3, h=0.01,
-        gravity=[0.0, -9.8], contact_vertices=contacts, ground=ground,
+        mesh,
+        tutorial["B"],
+        tutorial["D"],
+        tutorial["labels"],
+        mu=1e6,
+        gamma=1e6,
+        rho=1e3,
+        h=0.01,
+        gravity=[0.0, -9.8],
+        contact_vertices=contacts,
+        ground=ground,
     )
     assert sim.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
     coms, _ = run(sim, CRAWL_GAIT, 450, tutorial["ceilings"])
@@ -146,7 +155,9 @@ def test_energy_never_increases_across_iterations(tutorial):
     z, z_dot, _ = sim.rest_state()
     # start from a moving, deformed state
     for i in range(20):
-        a = sine_gait(i * sim.h, np.array([0.9, 0.6, 0.3, 0.2]) * tutorial["ceilings"], [1.0, 0.7, 0.5, 0.4], [0, 0.25, 0.1, 0.3])
+        a = sine_gait(
+            i * sim.h, np.array([0.9, 0.6, 0.3, 0.2]) * tutorial["ceilings"], [1.0, 0.7, 0.5, 0.4], [0, 0.25, 0.1, 0.3]
+        )
         z_next = sim.step(z, z_dot, a)
         z_dot, z = (z_next - z) / sim.h, z_next
     energies = []
@@ -165,7 +176,9 @@ def test_converged_step_is_the_energy_minimum():
     _, W, B = skinning_eigenmodes(mesh, 3)
     B = mass_orthonormalize(B, mass_matrix(mesh))
     labels = spectral_clusters(mesh, W, 4)
-    sim = ModalMuscle(mesh, B, D, labels, mu=1e3, gamma=2e3, rho=1.0, h=0.05, gravity=[0.3, -1.0], tol=1e-13, max_iter=5000)
+    sim = ModalMuscle(
+        mesh, B, D, labels, mu=1e3, gamma=2e3, rho=1.0, h=0.05, gravity=[0.3, -1.0], tol=1e-13, max_iter=5000
+    )
     z, _, _ = sim.rest_state()
     z_dot = np.random.default_rng(0).standard_normal(z.size) * 0.1
     a = 0.4 * actuation_limits(mesh, D)
@@ -195,8 +208,16 @@ def test_stickiness_zero_slides_and_one_sticks():
     results = {}
     for stickiness in (0.0, 1.0):
         sim = ModalMuscle.from_mesh(
-            mesh, n_muscles=0, n_weights=4, n_clusters=6, mu=1e5, rho=1e3, h=0.01,
-            gravity=[0.0, -9.8], ground=float(mesh.p[1].min()), stickiness=stickiness,
+            mesh,
+            n_muscles=0,
+            n_weights=4,
+            n_clusters=6,
+            mu=1e5,
+            rho=1e3,
+            h=0.01,
+            gravity=[0.0, -9.8],
+            ground=float(mesh.p[1].min()),
+            stickiness=stickiness,
         )
         z, z_dot, _ = sim.rest_state()
         # slide sideways at 1 unit/s: the translation part of z
@@ -215,7 +236,9 @@ def test_creature_floats_with_its_centre_of_mass_fixed():
     mesh = creature()
     sim = ModalMuscle.from_mesh(mesh, n_muscles=4, mu=1e5, rho=1e3, h=0.01)
     assert sim.B.shape[1] == 8 * 4 * 3
-    coms, zs = run(sim, dict(amplitudes=[0.4] * 4, periods=[1.0, 0.8, 0.6, 0.9], phases=[0, 0.25, 0.5, 0.75]), 100, sim.ceilings)
+    coms, zs = run(
+        sim, dict(amplitudes=[0.4] * 4, periods=[1.0, 0.8, 0.6, 0.9], phases=[0, 0.25, 0.5, 0.75]), 100, sim.ceilings
+    )
     assert np.abs(coms - coms[0]).max() <= 1e-8
     assert np.abs(sim.positions(zs[-1]) - sim.positions(zs[0])).max() > 0.01
 

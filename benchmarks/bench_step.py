@@ -1,0 +1,228 @@
+"""Per-step speed against the reference implementation, side by side, same inputs.
+
+    python benchmarks/bench_step.py [--repeat 3] [--tutorial PATH]
+
+Scenes (all with 10 local/global iterations a step, the reference's default):
+  * float: the tutorial's floating caterpillar (180 steps, h = 0.02)
+  * crawl: the tutorial's crawl with gravity and 30 ground contacts (450 steps, h = 0.01)
+  * 3d:    the 24000-tetrahedron box (40 x 10 x 10), 8 skinning weights (96
+           coordinates), 20 clusters, 4 muscles, floating (100 steps, h = 0.01)
+
+The reference (SimKit 0.1.8 and the tutorial's ModalMuscle class, see
+reference_impl.py) and skfem_modal get the same B, D, clusters, contact
+vertices and gravity, and the trajectories are compared: the relative
+difference of z over the whole run must stay below 1e-8, so the speed is not
+bought with a different answer. Prints per-step median and p90 for each
+implementation (numpy, and numba when installed) and the ratios; the best of
+``--repeat`` runs is kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import reference_impl  # noqa: E402
+
+import skfem_modal as sm  # noqa: E402
+from skfem_modal import _accel  # noqa: E402
+from skfem_modal.clusters import spectral_clusters  # noqa: E402
+from skfem_modal.muscles import sine_gait  # noqa: E402
+from skfem_modal.sim import ModalMuscle  # noqa: E402
+from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes  # noqa: E402
+
+
+def inputs(mesh, n_muscles, n_weights=8, n_clusters=20):
+    dim = mesh.p.shape[0]
+    n_rigid = 3 if dim == 2 else 6
+    _, modes = sm.linear_modal_analysis(mesh, n_rigid + n_muscles)
+    D = modes[:, n_rigid:]
+    if dim == 2:  # the tutorial's mode signs
+        D = D * (np.array([1.0, -1.0, -1.0, 1.0]) * np.sign(D[0]))
+    _, W, B = skinning_eigenmodes(mesh, n_weights)
+    B = mass_orthonormalize(B, sm.mass_matrix(mesh))
+    labels = spectral_clusters(mesh, W, n_clusters, seed=0)
+    return D, B, labels, sm.actuation_limits(mesh, D)
+
+
+def scenes():
+    cat = sm.caterpillar()
+    D, B, labels, ceilings = inputs(cat, 4)
+    X = cat.p.T
+    boundary = sm.boundary_vertices(cat)
+    contacts = boundary[sm.farthest_point_sampling(X[boundary], 30)]
+    ground = float(X[:, 1].min()) - 0.15
+    box = sm.box3d(40, 10, 10, (4.0, 1.0, 1.0))
+    D3, B3, labels3, ceilings3 = inputs(box, 4)
+    return [
+        dict(
+            name="float",
+            mesh=cat,
+            B=B,
+            D=D,
+            labels=labels,
+            mu=1e5,
+            h=0.02,
+            steps=180,
+            gait=(np.array([0.9, 0.6, 0.0, 0.0]) * ceilings, [1.0, 0.7, 1.0, 1.0], [0.0, 0.25, 0.0, 0.0]),
+        ),
+        dict(
+            name="crawl",
+            mesh=cat,
+            B=B,
+            D=D,
+            labels=labels,
+            mu=1e6,
+            h=0.01,
+            steps=450,
+            gravity=[0.0, -9.8],
+            contacts=contacts,
+            ground=ground,
+            gait=(np.array([0.45, 0.35, 0.25, 0.15]) * ceilings, [1.2, 0.8, 1.0, 0.6], [0.0, 0.25, 0.5, 0.1]),
+        ),
+        dict(
+            name="3d",
+            mesh=box,
+            B=B3,
+            D=D3,
+            labels=labels3,
+            mu=1e5,
+            h=0.01,
+            steps=100,
+            gait=(0.4 * ceilings3, [1.0, 0.8, 0.6, 0.9], [0.0, 0.25, 0.5, 0.75]),
+        ),
+    ]
+
+
+def run_ours(scene, accelerator):
+    sim = ModalMuscle(
+        scene["mesh"],
+        scene["B"],
+        scene["D"],
+        scene["labels"],
+        mu=scene["mu"],
+        gamma=scene["mu"],
+        rho=1e3,
+        h=scene["h"],
+        gravity=scene.get("gravity"),
+        contact_vertices=scene.get("contacts"),
+        ground=scene.get("ground"),
+        accelerator=accelerator,
+    )
+    z, z_dot, _ = sim.rest_state()
+    sim.step(z, z_dot, np.zeros(sim.n_muscles))  # compile / warm up
+    amp, per, ph = scene["gait"]
+    times, zs = [], []
+    for i in range(scene["steps"]):
+        a = sine_gait(i * sim.h, amp, per, ph)
+        start = time.perf_counter()
+        z_next = sim.step(z, z_dot, a)
+        times.append(time.perf_counter() - start)
+        z_dot, z = (z_next - z) / sim.h, z_next
+        zs.append(z)
+    return times, np.array(zs)
+
+
+def run_reference(scene, RefModalMuscle):
+    import scipy.sparse as sps  # noqa: F401
+    import simkit as sk
+
+    mesh = scene["mesh"]
+    X = np.ascontiguousarray(mesh.p.T)
+    T = reference_impl.oriented(X, np.ascontiguousarray(mesh.t.T))
+    dim = X.shape[1]
+    D = np.hstack([scene["D"], X.reshape(-1, 1)])
+    kwargs = {}
+    if scene.get("gravity") is not None:
+        g = scene["B"].T @ sk.gravity_force(X, T, a=scene["gravity"][-1], rho=1e3).reshape(-1, 1)
+        plane = np.zeros((dim, 1))
+        plane[-1] = scene["ground"]
+        kwargs = dict(b0=-g, contact=True, cI=scene["contacts"], plane_pos=plane, alpha=1.0)
+    sim = RefModalMuscle(
+        X,
+        T,
+        scene["B"],
+        D,
+        scene["labels"],
+        np.zeros(T.shape[0]),
+        mu=scene["mu"],
+        gamma=scene["mu"],
+        rho=1e3,
+        h=scene["h"],
+        max_iter=10,
+        **kwargs,
+    )
+    z, z_dot, a = sim.rest_state(X)
+    amp, per, ph = scene["gait"]
+    times, zs = [], []
+    for i in range(scene["steps"]):
+        a[:-1, 0] = sine_gait(i * scene["h"], amp, per, ph)
+        start = time.perf_counter()
+        z_next = sim.step(z, z_dot, a)
+        times.append(time.perf_counter() - start)
+        z_dot, z = (z_next - z) / scene["h"], z_next
+        zs.append(z.ravel())
+    return times, np.array(zs)
+
+
+def stats(times):
+    ms = np.array(times) * 1e3
+    return float(np.median(ms)), float(np.percentile(ms, 90))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--tutorial", default=reference_impl.DEFAULT_TUTORIAL)
+    parser.add_argument("--only", nargs="*", help="scene names to run (float, crawl, 3d)")
+    args = parser.parse_args()
+    missing = reference_impl.available(args.tutorial)
+    Ref = None if missing else reference_impl.load_modal_muscle(args.tutorial)
+    print(
+        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, numpy {np.__version__}, "
+        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
+        f"numba {'yes' if _accel.AVAILABLE else 'no'}"
+    )
+    if missing:
+        print(f"# reference not run: {missing}")
+    impls = ["numpy"] + (["numba"] if _accel.AVAILABLE else [])
+    print(
+        f"{'scene':6s} {'implementation':16s} {'median ms':>9s} {'p90 ms':>8s} {'ratio':>7s}  "
+        f"{'max rel. diff of z':>18s}"
+    )
+    for scene in scenes():
+        if args.only and scene["name"] not in args.only:
+            continue
+        best = {}
+        trajectories = {}
+        for _ in range(args.repeat):
+            runs = [("reference", lambda scene=scene: run_reference(scene, Ref))] if Ref else []
+            runs += [(impl, lambda impl=impl, scene=scene: run_ours(scene, impl)) for impl in impls]
+            for name, func in runs:
+                times, zs = func()
+                med, p90 = stats(times)
+                if name not in best or med < best[name][0]:
+                    best[name] = (med, p90)
+                trajectories[name] = zs
+        ref_med = best["reference"][0] if "reference" in best else None
+        for name, (med, p90) in best.items():
+            ratio = "" if ref_med is None or name == "reference" else f"{ref_med / med:6.1f}x"
+            diff = ""
+            if "reference" in trajectories and name != "reference":
+                zr = trajectories["reference"]
+                diff = f"{np.abs(trajectories[name] - zr).max() / np.abs(zr).max():.1e}"
+            print(f"{scene['name']:6s} {name:16s} {med:9.3f} {p90:8.3f} {ratio:>7s}  {diff:>18s}")
+        sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,228 @@
+"""Compiled kernels (numba) for the per-iteration rotations; imported on first use.
+
+See :mod:`skfem_modal._accel`. The methods are those of
+:mod:`skfem_modal.rotations` (2D closed form; 3D Horn quaternion, here by
+Rayleigh quotient iteration from the previous rotation, with the squaring
+method as the fallback), compiled so a step does not pay numpy's per-call
+overhead.
+"""
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, fastmath=False)
+def normalize_cs(cs):  # pragma: no cover - compiled
+    """In place: each row (c, s) scaled to unit length; (0, 0) becomes (1, 0)."""
+    for k in range(cs.shape[0]):
+        c = cs[k, 0]
+        s = cs[k, 1]
+        n = np.hypot(c, s)
+        if n == 0.0:
+            cs[k, 0] = 1.0
+            cs[k, 1] = 0.0
+        else:
+            cs[k, 0] = c / n
+            cs[k, 1] = s / n
+    return cs
+
+
+@numba.njit(cache=True, fastmath=False)
+def _solve4(A, b, x, M):  # pragma: no cover - compiled
+    """x = A^{-1} b for a 4x4 A (partial pivoting, M a 4x5 scratch); False if singular."""
+    for i in range(4):
+        for j in range(4):
+            M[i, j] = A[i, j]
+        M[i, 4] = b[i]
+    for col in range(4):
+        piv = col
+        for i in range(col + 1, 4):
+            if abs(M[i, col]) > abs(M[piv, col]):
+                piv = i
+        if M[piv, col] == 0.0:
+            return False
+        if piv != col:
+            for j in range(5):
+                M[col, j], M[piv, j] = M[piv, j], M[col, j]
+        for i in range(col + 1, 4):
+            f = M[i, col] / M[col, col]
+            for j in range(col, 5):
+                M[i, j] -= f * M[col, j]
+    for i in range(3, -1, -1):
+        acc = M[i, 4]
+        for j in range(i + 1, 4):
+            acc -= M[i, j] * x[j]
+        x[i] = acc / M[i, i]
+    return True
+
+
+@numba.njit(cache=True, fastmath=False)
+def _certified(N, q, size, fro, Nq):  # pragma: no cover - compiled
+    """Is q (unit) the top eigenvector of N to round-off? Returns (ok, rayleigh)."""
+    rq = 0.0
+    for i in range(4):
+        acc = 0.0
+        for k in range(4):
+            acc += N[i, k] * q[k]
+        Nq[i] = acc
+        rq += q[i] * acc
+    res = 0.0
+    for i in range(4):
+        d = Nq[i] - rq * q[i]
+        res += d * d
+    # an eigenvalue above |F| can only be the top one (the second is at
+    # most the largest singular value)
+    return res <= (1e-12 * size) ** 2 and rq > fro * (1.0 + 1e-12), rq
+
+
+@numba.njit(cache=True, fastmath=False)
+def _top_quaternion(N, q0, warm, out, work):  # pragma: no cover - compiled
+    """Dominant eigenvector of one symmetric 4x4 Horn matrix.
+
+    Rayleigh quotient iteration from the warm start (cubic convergence,
+    certified by the residual and by the eigenvalue exceeding |F|); the
+    squaring method of rotations.py when that does not certify.
+    """
+    total = 0.0
+    for i in range(4):
+        for j in range(4):
+            total += N[i, j] * N[i, j]
+    size = 1.225 * np.sqrt(total)
+    fro = 0.5 * np.sqrt(total)
+    if total == 0.0:
+        out[0], out[1], out[2], out[3] = 1.0, 0.0, 0.0, 0.0
+        return True
+    q = work[0, :4]
+    x = work[1, :4]
+    Nq = work[2, :4]
+    M = work[3:7, :5]
+    A = work[7:11, :4]
+    P = work[11:15, :4]
+    T = work[15:19, :4]
+    if warm:
+        for i in range(4):
+            q[i] = q0[i]
+    else:
+        q[0], q[1], q[2], q[3] = 1.0, 0.0, 0.0, 0.0
+    nrm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if nrm > 0.0:
+        for i in range(4):
+            q[i] /= nrm
+        for _ in range(4):
+            ok, rq = _certified(N, q, size, fro, Nq)
+            if ok:
+                for i in range(4):
+                    out[i] = q[i]
+                return True
+            for i in range(4):
+                for j in range(4):
+                    A[i, j] = N[i, j]
+                A[i, i] -= rq
+            if not _solve4(A, q, x, M):
+                break  # q is an exact eigenvector: certified above or not the top
+            nrm = np.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+            if not nrm > 0.0 or nrm == np.inf:
+                break
+            for i in range(4):
+                q[i] = x[i] / nrm
+    # fallback: powers of the shifted, scaled matrix (see rotations.py)
+    inv = 1.0 / size
+    shift = 1.0 / (np.sqrt(2.0) * 2.45)
+    for i in range(4):
+        for j in range(4):
+            P[i, j] = N[i, j] * inv
+        P[i, i] += shift
+    for _ in range(8):
+        for i in range(4):
+            for j in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += P[i, k] * P[k, j]
+                T[i, j] = acc
+        for i in range(4):
+            for j in range(4):
+                P[i, j] = T[i, j]
+    col = 0
+    for i in range(1, 4):
+        if P[i, i] > P[col, col]:
+            col = i
+    nrm = 0.0
+    for i in range(4):
+        out[i] = P[i, col]
+        nrm += out[i] * out[i]
+    nrm = np.sqrt(nrm)
+    for i in range(4):
+        out[i] /= nrm + 1e-300
+    rq = 0.0
+    for i in range(4):
+        acc = 0.0
+        for k in range(4):
+            acc += N[i, k] * out[k]
+        Nq[i] = acc
+        rq += out[i] * acc
+    res = 0.0
+    for i in range(4):
+        d = Nq[i] - rq * out[i]
+        res += d * d
+    return res <= (1e-12 * size) ** 2 and nrm > 1e-150
+
+
+@numba.njit(cache=True, fastmath=False)
+def _rotation_kernel(F, q, warm, R, ok):  # pragma: no cover - compiled
+    N = np.empty((4, 4))
+    out = np.empty(4)
+    work = np.empty((19, 5))
+    for k in range(F.shape[0]):
+        f = F[k]
+        # Horn's matrix: tr(R(q)^T F) = q^T N q
+        N[0, 0] = f[0] + f[4] + f[8]
+        N[1, 1] = f[0] - f[4] - f[8]
+        N[2, 2] = -f[0] + f[4] - f[8]
+        N[3, 3] = -f[0] - f[4] + f[8]
+        N[0, 1] = N[1, 0] = f[7] - f[5]
+        N[0, 2] = N[2, 0] = f[2] - f[6]
+        N[0, 3] = N[3, 0] = f[3] - f[1]
+        N[1, 2] = N[2, 1] = f[1] + f[3]
+        N[1, 3] = N[3, 1] = f[2] + f[6]
+        N[2, 3] = N[3, 2] = f[5] + f[7]
+        ok[k] = _top_quaternion(N, q[k], warm, out, work)
+        a, b, c, d = out[0], out[1], out[2], out[3]
+        q[k, 0], q[k, 1], q[k, 2], q[k, 3] = a, b, c, d
+        R[k, 0] = a * a + b * b - c * c - d * d
+        R[k, 1] = 2.0 * (b * c - a * d)
+        R[k, 2] = 2.0 * (b * d + a * c)
+        R[k, 3] = 2.0 * (b * c + a * d)
+        R[k, 4] = a * a - b * b + c * c - d * d
+        R[k, 5] = 2.0 * (c * d - a * b)
+        R[k, 6] = 2.0 * (b * d - a * c)
+        R[k, 7] = 2.0 * (c * d + a * b)
+        R[k, 8] = a * a - b * b - c * c + d * d
+
+
+def rotations3(F9, q):
+    """Closest rotations of row-major 3x3 matrices, warm-started.
+
+    Parameters
+    ----------
+    F9 : ndarray, shape (n, 9)
+    q : ndarray, shape (n, 4) or None
+        Quaternions of the previous rotations (updated in place), or None.
+
+    Returns
+    -------
+    R9 : ndarray, shape (n, 9)
+    q : ndarray, shape (n, 4)
+    """
+    n = F9.shape[0]
+    warm = q is not None
+    if q is None:
+        q = np.zeros((n, 4))
+    R = np.empty((n, 9))
+    ok = np.empty(n, dtype=np.bool_)
+    _rotation_kernel(F9, q, warm, R, ok)
+    if not ok.all():
+        from .rotations import rotations3_flat
+
+        bad = ~ok
+        R[bad] = rotations3_flat(F9[bad])
+    return R, q
