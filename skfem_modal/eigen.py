@@ -57,8 +57,8 @@ def _banded_solver(A, node_dim: int):
     return None
 
 
-def _shift_invert_solver(A: sps.spmatrix, node_dim: int):
-    """A solver for the symmetric positive definite ``A``: ``b -> A^{-1} b``.
+def _shift_invert_solver(K, M, sigma: float, node_dim: int):
+    """A solver for the symmetric positive definite ``A = K - sigma M``: ``b -> A^{-1} b``.
 
     3D elasticity (three DOFs per node) fills in badly in a general sparse LU;
     after reverse Cuthill-McKee ordering LAPACK's banded Cholesky is 3 to 10
@@ -69,10 +69,11 @@ def _shift_invert_solver(A: sps.spmatrix, node_dim: int):
     is needed), which is faster there.
     """
     if node_dim == 3:
-        factor_solve = _banded_solver(A, node_dim)
+        factor_solve = _banded_solver(K - sigma * M, node_dim)
         if factor_solve is not None:
             return factor_solve
-    A = A.tocsc()
+    # built here, so only the compressed-column copy stays alive while factoring
+    A = (K - sigma * M).tocsc()
     lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     return lu.solve
 
@@ -119,7 +120,7 @@ def lowest_eigenpairs(K, M, k: int, node_dim: int = 1, null=None):
     # a shift just below zero: K - sigma M is positive definite even for a
     # free body, and the modes nearest sigma are the lowest ones
     sigma = -1e-6 * float(np.median(K.diagonal() / M.diagonal()))
-    solve = _shift_invert_solver(K - sigma * M, node_dim)
+    solve = _shift_invert_solver(K, M, sigma, node_dim)
     if q:
         MN = np.asarray(M @ null)
 

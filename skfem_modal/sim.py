@@ -798,9 +798,11 @@ class ModalMuscle:
                 return found[:, n_rigid:], time.perf_counter() - clock
 
             # the modal analysis (one sparse factorisation and back-solves, in
-            # compiled code that releases the GIL) runs beside the subspace
-            say("modal analysis (in parallel with the subspace)")
+            # compiled code that releases the GIL) runs first, beside the rest
+            # in a second thread when parallel: little else is in memory yet
+            say("modal analysis" + (" (in a second thread)" if parallel else ""))
             modal = pool.submit(modes) if parallel else None
+            found = None if parallel else modes()
             clock = time.perf_counter()
             say("skinning eigenmodes")
             _, weights, B = skinning_eigenmodes(mesh, n_weights)
@@ -827,7 +829,7 @@ class ModalMuscle:
 
             def muscles():
                 # called by the constructor once the passive operators are built
-                D, timings["modal_analysis"] = modal.result() if parallel else modes()
+                D, timings["modal_analysis"] = modal.result() if parallel else found
                 return D if signs is None else D * signs
 
             say("simulator set-up")
