@@ -49,7 +49,7 @@ def measure(scene, steps):
     z, z_dot, _ = sim.rest_state()
     times, iterations = [], []
     for i in range(steps):
-        a = scene.activation_fractions(i * sim.h) * sim.ceilings if sim.n_muscles else None
+        a = scene.activation(i * sim.h, sim.ceilings) if sim.n_muscles else None
         start = time.perf_counter()
         z_next = sim.step(z, z_dot, a)
         times.append(time.perf_counter() - start)

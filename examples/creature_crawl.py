@@ -29,10 +29,13 @@ sim = ModalMuscle.from_mesh(
     gravity=[0.0, 0.0, -9.8],
     ground=ground,
     n_contacts=40,
+    contact_candidates=sm.vertices_where(mesh, "z <= 0.05"),  # the soles of the feet
+    push_out=1.0,  # contact points never end a step inside the ground
+    stickiness=0.7,  # feet slip a little
 )
 print("effects:", ", ".join(sim.effects), f"| subspace {sim.B.shape[1]}, {sim.n_clusters} clusters")
 
-amplitudes = np.full(4, 0.2) * sim.ceilings
+amplitudes = np.full(4, 0.4) * sim.ceilings
 periods = [1.0, 0.8, 0.6, 0.9]
 phases = [0.0, 0.25, 0.5, 0.75]
 

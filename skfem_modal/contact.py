@@ -9,10 +9,14 @@ when there are more constraints than coordinates) so that each moves, over
 the step, by ``h v``: normal velocity zero, tangential velocity kept times
 ``1 - stickiness`` (``stickiness = 1`` sticks, ``0`` slides freely).
 
-With an optional ``push_out`` fraction, a point that starts the step inside
-the ground is asked to climb out by that fraction of its depth within the
-step (``push_out = 1``: back on the plane at the end of the step), so points
-do not stay inside the ground. ``push_out = 0`` is the reference behaviour.
+``push_out = 0`` is the reference behaviour, and it lets points end inside
+the ground: activity is decided on the previous iterate and only velocity is
+constrained. With ``push_out > 0`` the contact works on positions instead: a
+point may not end the step below its target height, the ground (or, for a
+point that starts inside the ground, its start height raised by
+``push_out`` of its depth, so it climbs out within a step or two); points
+whose tentative end height is below target are constrained to it, and the
+active set is re-checked after each correction.
 
 The correction for a given set of active points is a fixed matrix, so it is
 computed once per set and cached: contact sets repeat from one iteration and
@@ -67,6 +71,7 @@ class GroundContact:
         self.stickiness = float(stickiness)
         self.push_out = float(push_out)
         self.E = self.Je @ H_inv  # sensitivity of contact positions to the reduced force
+        self.HinvJeT = self.E.T
         self.H_inv = H_inv
         self.n_points = self.Je.shape[0] // dim
         self.lift = 0.0
@@ -77,12 +82,17 @@ class GroundContact:
         """Remember the contact positions at the start of the step."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
-        # a point is active when its end-of-step height would stay below this
-        self.limit = up_start.copy()
-        if self.push_out:
-            self.lift = self.push_out * np.maximum(self.ground - up_start, 0.0)
-            self.limit += self.lift
         self.up_iter = up_start
+        if self.push_out:
+            depth = np.maximum(self.ground - up_start, 0.0)
+            # the lowest end height allowed: the ground, or on the way out of it
+            self.target = np.where(depth > 0, up_start + self.push_out * depth, self.ground)
+            self.lift = self.target - up_start
+            self.limit = self.target
+        else:
+            # reference rule: a point below ground may not move further down
+            self.lift = 0.0
+            self.limit = up_start
 
     def positions(self, z: np.ndarray) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""
@@ -99,13 +109,21 @@ class GroundContact:
         active = np.flatnonzero(mask)
         rows = (active[:, None] * dim + np.arange(dim)).ravel()
         L = self.E[rows]
-        if rows.size < L.shape[1]:
-            # the least change of force that meets every constraint exactly
-            correction = L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size))
+        if self.push_out:
+            # position rule: the least change of z in the energy norm of the
+            # global step (contact forces at the points), z += H^-1 Je^T lam
+            # with (Je H^-1 Je^T + eps I) lam = residual. The small eps keeps
+            # it well posed when the points ask more than the subspace can do
+            # (then it is a least-squares compromise instead of a blow-up).
+            S = L @ self.Je[rows].T
+            eps = 1e-9 * np.trace(S) / rows.size
+            dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
+        elif rows.size < L.shape[1]:
+            # reference: the least change of force that meets every constraint exactly
+            dz = self.H_inv @ (L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size)))
         else:
-            # more constraints than coordinates: least squares
-            correction = np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0]
-        dz = self.H_inv @ correction
+            # reference, more constraints than coordinates: least squares
+            dz = self.H_inv @ np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0]
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
         # the correction of z and of every contact position, in one product
@@ -122,8 +140,9 @@ class GroundContact:
         ----------
         y : ndarray, shape (r + p * dim,)
             The tentative solution ``z_t = H^{-1} f`` followed by its contact
-            positions ``Je z_t``. Points are tested against the previous
-            iterate (from the last call, or the start of the step).
+            positions ``Je z_t``. In the reference rule points are tested
+            against the previous iterate (from the last call, or the start of
+            the step).
 
         Returns
         -------
@@ -131,20 +150,41 @@ class GroundContact:
             Corrected solution and positions.
         """
         r = y.size - self.Je.shape[0]
+        if self.push_out:
+            return self._correct_positions(y, r)
         p_tent = y[r:]
         up_tent = p_tent[self.up :: self.dim]
-        # below the plane at the current iterate and moving into it (with
-        # push_out: or climbing out slower than asked)
+        # below the plane at the current iterate and moving into it
         mask = (self.up_iter < self.ground) & (up_tent < self.limit)
         if not mask.any():
             self.active_count = 0
             self.up_iter = up_tent
             return y
+        y = self._apply(y, r, mask)
+        self.up_iter = y[r + self.up :: self.dim]
+        return y
+
+    def _apply(self, y, r, mask):
         active, rows, K, factor = self._projection(mask)
         self.active_count = active.size
-        residual = (self.p_start[rows] - p_tent[rows]) * factor
+        residual = (self.p_start[rows] - y[r:][rows]) * factor
         if self.push_out:
             residual[self.up :: self.dim] += self.lift[active]
-        y = y + K @ residual
-        self.up_iter = y[r + self.up :: self.dim]
+        return y + K @ residual
+
+    def _correct_positions(self, y, r):
+        """Position rule: no contact point ends below its target height."""
+        tol = 1e-12 * max(1.0, abs(self.ground))
+        mask = y[r + self.up :: self.dim] < self.target - tol
+        if not mask.any():
+            self.active_count = 0
+            return y
+        tentative = y
+        for _ in range(4):
+            y = self._apply(tentative, r, mask)
+            # a correction moves other points too: add any now below target
+            violated = y[r + self.up :: self.dim] < self.target - tol
+            if not (violated & ~mask).any():
+                break
+            mask = mask | violated
         return y

@@ -225,7 +225,7 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
         record(0, z, a)
         ceilings = sim.ceilings
         for step in range(1, n_steps + 1):
-            a = scene.activation_fractions((step - 1) * h) * ceilings if m else a
+            a = scene.activation((step - 1) * h, ceilings) if m else a
             clock = time.perf_counter()
             z_next = sim.step(z, z_dot, a)
             step_seconds.append(time.perf_counter() - clock)

@@ -232,10 +232,17 @@ SCHEMA: dict[str, Any] = {
         "push_out": Key(
             "float",
             0.0,
-            "Fraction of a contact point's penetration undone per step (0: none, "
-            "the reference behaviour; 1: back on the ground in one step).",
+            "0: the reference contact (velocity only; points can end inside the ground). > 0: contact "
+            "points may not end a step below the ground, and one inside climbs out by this fraction of "
+            "its depth per step (1: in one step).",
             "",
             _unit_interval,
+        ),
+        "contacts_where": Key(
+            "strs",
+            None,
+            "Sample the contact points only among the boundary vertices where one of these conditions "
+            'holds, e.g. ["z <= 0.1"] for the feet.',
         ),
     },
     "pinned": {
@@ -539,6 +546,12 @@ class Scene:
         g = self.config["ground"]
         return self.dim - 1 if g is None or g["up"] is None else g["up"]
 
+    def contact_candidates(self) -> np.ndarray | None:
+        g = self.config["ground"]
+        if g is None or g["contacts_where"] is None:
+            return None
+        return np.unique(np.concatenate([vertices_where(self.mesh, cond) for cond in g["contacts_where"]]))
+
     def pinned_vertices(self) -> np.ndarray | None:
         p = self.config["pinned"]
         if p is None:
@@ -584,6 +597,7 @@ class Scene:
             up=self.up,
             stickiness=1.0 if ground is None else ground["stickiness"],
             push_out=0.0 if ground is None else ground["push_out"],
+            contact_candidates=self.contact_candidates(),
             pinned=self.pinned_vertices(),
             pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
             damping_mass=damping["mass"],
@@ -593,6 +607,23 @@ class Scene:
             rtol=c["time"]["rtol"],
             progress=progress,
         )
+
+    def activation(self, t: float, ceilings) -> np.ndarray:
+        """Muscle activations at time ``t`` in mode-amplitude units, shape (count,).
+
+        The same arithmetic as :func:`~skfem_modal.muscles.sine_gait` with
+        amplitudes ``fraction * ceiling``, so a scene and a script that use
+        ``sine_gait`` step bit for bit the same (contact-rich motion is chaotic:
+        round-off differences grow).
+        """
+        muscles = self.config["muscles"]
+        gait = muscles["gait"]
+        if self._table is None and gait is not None and muscles["count"]:
+            from .muscles import sine_gait
+
+            phase = np.zeros(muscles["count"]) if gait["phase"] is None else gait["phase"]
+            return sine_gait(t, np.asarray(gait["amplitude"]) * ceilings, gait["period"], phase)
+        return self.activation_fractions(t) * ceilings
 
     def activation_fractions(self, t: float) -> np.ndarray:
         """Muscle activations at time ``t`` as fractions of the ceilings, shape (count,)."""
@@ -681,6 +712,13 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
             errors.append("ground: give height or offset, not both")
         if ground["up"] is not None and not 0 <= ground["up"] < dim:
             errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {ground['up']}")
+        for cond in ground["contacts_where"] or []:
+            match = _CONDITION.match(cond)
+            if match is None or "xyz".index(match.group(1)) >= dim:
+                errors.append(
+                    f"ground.contacts_where: cannot use {cond!r}; expected e.g. 'z <= 0.1' with an axis of this "
+                    f"{dim}D mesh"
+                )
     pinned = config["pinned"]
     if pinned is not None:
         if (pinned["where"] is None) == (pinned["box"] is None):

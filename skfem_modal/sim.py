@@ -709,6 +709,27 @@ class ModalMuscle:
         )
         return float(E), grad
 
+    def mechanical_energy(self, z, z_dot) -> float:
+        """Kinetic plus potential energy of a state, the muscles at rest.
+
+        ``1/2 z_dot^T BMB z_dot`` plus the elastic energy (passive, and the
+        muscles' with zero activation, rotations optimal), the pins' and the
+        gravitational potential ``-z^T B^T f_g``. Without input (zero
+        activation) implicit Euler, damping and contact only remove energy,
+        so this does not grow over a run: the stability tests check it.
+
+        Parameters
+        ----------
+        z, z_dot : ndarray, shape (r,)
+
+        Returns
+        -------
+        E : float
+        """
+        z = np.asarray(z, float)
+        v = np.asarray(z_dot, float)
+        return 0.5 * float(v @ self.BMB @ v) + self.energy(z, z, np.zeros_like(z), np.zeros(self.n_muscles))
+
     # ------------------------------------------------------------ convenience
     @classmethod
     def from_mesh(
@@ -727,6 +748,7 @@ class ModalMuscle:
         gravity=None,
         ground=None,
         n_contacts: int | None = 30,
+        contact_candidates=None,
         up=None,
         stickiness=1.0,
         push_out=0.0,
@@ -786,6 +808,10 @@ class ModalMuscle:
             # the two threads read it
             scalar_basis(mesh)
             boundary = boundary_vertices(mesh) if ground is not None else None
+            if boundary is not None and contact_candidates is not None:
+                boundary = np.intersect1d(boundary, np.asarray(contact_candidates, dtype=np.int64))
+                if boundary.size == 0:
+                    raise ValueError("contact_candidates holds no boundary vertex: nothing could touch the ground")
             n_rigid = rigid_mode_count(mesh, pinned)
 
             def modes():
