@@ -341,6 +341,7 @@ def normalize_and_center(mesh):
     >>> float(np.ptp(m.p, axis=1).max())
     2.0
     """
+    check_mesh(mesh)
     # work on (n, dim) rows: the same summation order as the usual
     # ``X -= X.mean(0)`` on vertex rows, so results agree to the last bit
     x = np.array(mesh.p.T, order="C")
@@ -559,6 +560,7 @@ def boundary_vertices(mesh) -> np.ndarray:
     -------
     indices : ndarray of int, shape (nb,)
     """
+    check_mesh(mesh)
     t = np.sort(mesh.t, axis=0).astype(np.int64)
     n = mesh.p.shape[1]
     nv = t.shape[0]
@@ -628,6 +630,7 @@ def connected_parts(mesh) -> np.ndarray:
     labels : ndarray of int, shape (n,)
         Part index of each vertex, numbered 0.. in order of first vertex.
     """
+    check_mesh(mesh)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -654,6 +657,7 @@ def mesh_summary(mesh) -> dict:
         ``dim``, ``vertices``, ``elements``, ``element`` name, ``measure``
         (total area/volume), ``bounds`` (min and max per axis), ``parts``.
     """
+    check_mesh(mesh)
     dim = mesh.p.shape[0]
     return {
         "dim": dim,
@@ -725,6 +729,7 @@ def vertices_where(mesh, condition: str) -> np.ndarray:
     >>> m.p[:, vertices_where(m, "x == min")].T.tolist()
     [[0.0, 0.0], [0.0, 1.0]]
     """
+    check_mesh(mesh)
     match = _CONDITION.match(condition)
     if match is None:
         raise ValueError(f"cannot read vertex condition {condition!r}; expected e.g. 'x <= 0.01' or 'y == min'")

@@ -581,10 +581,12 @@ class ModalMuscle:
         if contact is not None:
             contact.start_step(z)
             c = np.concatenate([c, contact.Je @ c])
-        if self.dim == 2:
-            z_next, self.iterations = self._iterate2(c, z, contact)
-        else:
-            z_next, self.iterations = self._iterate3(c, z, contact)
+        # overflow in a blown-up state is reported as a SimulationError below
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self.dim == 2:
+                z_next, self.iterations = self._iterate2(c, z, contact)
+            else:
+                z_next, self.iterations = self._iterate3(c, z, contact)
         return z_next
 
     def _stop(self, change2: float, z_next, z_start) -> bool:

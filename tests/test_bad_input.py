@@ -1,0 +1,135 @@
+"""Every public entry point checks its input first and names the problem."""
+
+import numpy as np
+import pytest
+from skfem import MeshTri
+
+import skfem_modal as sm
+from skfem_modal.clusters import spectral_clusters
+from skfem_modal.mesh import MeshError, boundary_vertices, connected_parts, mesh_summary
+from skfem_modal.sim import ModalMuscle
+from skfem_modal.subspace import laplacian, skinning_eigenmodes
+
+GOOD = sm.beam2d(2.0, 1.0, 4, 2)
+
+
+def nan_mesh():
+    p = GOOD.p.copy()
+    p[1, 3] = np.nan
+    return MeshTri(p, GOOD.t.copy())
+
+
+def degenerate_mesh():
+    p = np.array([[0.0, 1.0, 2.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    return MeshTri(p, np.array([[0, 0], [1, 1], [2, 3]]), sort_t=False)
+
+
+def unused_mesh():
+    p = np.hstack([GOOD.p, [[9.0], [9.0]]])
+    return MeshTri(p, GOOD.t.copy())
+
+
+ENTRY_POINTS = {
+    "linear_modal_analysis": lambda m: sm.linear_modal_analysis(m, 3),
+    "stiffness_matrix": lambda m: sm.stiffness_matrix(m),
+    "mass_matrix": lambda m: sm.mass_matrix(m),
+    "deformation_jacobian": lambda m: sm.deformation_jacobian(m),
+    "element_volumes": lambda m: sm.element_volumes(m),
+    "gravity_force": lambda m: sm.gravity_force(m, [0.0, -9.8]),
+    "rigid_mode_count": lambda m: sm.rigid_mode_count(m),
+    "actuation_limits": lambda m: sm.actuation_limits(m, np.zeros((m.p.size, 1))),
+    "laplacian": lambda m: laplacian(m),
+    "skinning_eigenmodes": lambda m: skinning_eigenmodes(m, 3),
+    "spectral_clusters": lambda m: spectral_clusters(m, np.ones((m.p.shape[1], 2)), 2),
+    "boundary_vertices": lambda m: boundary_vertices(m),
+    "connected_parts": lambda m: connected_parts(m),
+    "mesh_summary": lambda m: mesh_summary(m),
+    "normalize_and_center": lambda m: sm.normalize_and_center(m),
+    "vertices_where": lambda m: sm.vertices_where(m, "x < 1"),
+    "export_modes": lambda m: sm.export_modes("/nonexistent/never_written.vtu", m, np.zeros((m.p.size, 1))),
+    "ModalMuscle.from_mesh": lambda m: ModalMuscle.from_mesh(m, n_muscles=1, n_weights=2, n_clusters=2),
+    "ModalMuscle": lambda m: ModalMuscle(
+        m, np.ones((m.p.size, 1)), None, np.zeros(m.t.shape[1], int), mu=1.0, gamma=1.0, rho=1.0, h=0.1
+    ),
+}
+
+
+@pytest.mark.parametrize("entry", ENTRY_POINTS)
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (nan_mesh, r"1 vertices have non-finite coordinates: \[3\]"),
+        (degenerate_mesh, r"1 degenerate \(zero-area\) triangles: \[0\]"),
+        (unused_mesh, r"1 vertices belong to no element: \[15\]"),
+    ],
+    ids=["non-finite", "degenerate", "unused"],
+)
+def test_bad_meshes_are_refused_before_any_work(entry, make, message):
+    with pytest.raises(MeshError, match=message):
+        ENTRY_POINTS[entry](make())
+
+
+def test_not_a_mesh():
+    with pytest.raises(TypeError, match="expected a linear skfem.MeshTri or skfem.MeshTet, got ndarray"):
+        sm.linear_modal_analysis(np.zeros((2, 3)), 3)
+
+
+def test_k_larger_than_possible():
+    with pytest.raises(ValueError, match=r"k must be in 1..30"):
+        sm.linear_modal_analysis(GOOD, 31)
+    with pytest.raises(ValueError, match=r"number of skinning weights\) must be in 1..14"):
+        skinning_eigenmodes(GOOD, 15)
+    with pytest.raises(ValueError, match=r"number of clusters\) must be in 1..16"):
+        spectral_clusters(GOOD, np.ones((15, 2)), 17)
+    with pytest.raises(ValueError, match=r"k must be in 1..15"):
+        sm.farthest_point_sampling(GOOD.p.T, 16)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(h=0.0), "h must be positive"),
+        (dict(h=-1.0), "h must be positive"),
+        (dict(rho=0.0), "rho must be positive"),
+        (dict(mu=-2.0), "mu must be positive"),
+        (dict(mu=np.ones(3)), r"mu must be a scalar or have shape \(16,\)"),
+        (dict(max_iter=0), "max_iter must be a positive integer"),
+        (dict(tol=-1.0), "tol must be non-negative"),
+        (dict(stickiness=2.0), r"stickiness and push_out must be in \[0, 1\]"),
+        (dict(gravity=[0.0, np.inf]), "gravity must be finite"),
+        (dict(up=5), r"up must be an axis index in 0..1"),
+        (dict(accelerator="gpu"), "accelerator must be 'auto', 'numpy' or 'numba'"),
+    ],
+)
+def test_simulator_parameters(kwargs, message):
+    base = dict(mu=1.0, gamma=1.0, rho=1.0, h=0.1)
+    B = np.ones((GOOD.p.size, 1))
+    with pytest.raises((ValueError, TypeError), match=message):
+        ModalMuscle(GOOD, B, None, np.zeros(16, int), **{**base, **kwargs})
+
+
+def test_labels_and_arrays_of_the_wrong_kind():
+    B = np.ones((GOOD.p.size, 1))
+    kw = dict(mu=1.0, gamma=1.0, rho=1.0, h=0.1)
+    with pytest.raises(TypeError, match="labels must be integers"):
+        ModalMuscle(GOOD, B, None, np.full(16, "a"), **kw)
+    with pytest.raises(ValueError, match=r"D must have shape \(30, m\)"):
+        ModalMuscle(GOOD, B, np.ones((29, 2)), np.zeros(16, int), **kw)
+    with pytest.raises(ValueError, match="B must be finite"):
+        ModalMuscle(GOOD, np.full((30, 1), np.nan), None, np.zeros(16, int), **kw)
+
+
+def test_activation_of_the_wrong_length():
+    sim = ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=2, n_weights=3, n_clusters=4)
+    z, z_dot, a = sim.rest_state()
+    with pytest.raises(ValueError, match=r"one value per muscle \(2\), got 3"):
+        sim.step(z, z_dot, np.zeros(3))
+    with pytest.raises(ValueError, match=r"z and z_dot must have shape \(18,\), got \(17,\)"):
+        sim.step(z[:-1], z_dot, a)
+
+
+def test_unknown_mesh_format(tmp_path):
+    path = tmp_path / "mesh.xyz123"
+    path.write_text("not a mesh")
+    with pytest.raises(ValueError, match="cannot read mesh"):
+        sm.load_mesh(path)
