@@ -172,8 +172,17 @@ def _rotation_kernel(F, q, warm, R, ok):  # pragma: no cover - compiled
     N = np.empty((4, 4))
     out = np.empty(4)
     work = np.empty((19, 5))
+    g = np.empty(9)
     for k in range(F.shape[0]):
-        f = F[k]
+        # the rotation does not change with a positive scale: entries in [-1, 1]
+        # so that no square can overflow or underflow
+        big = 0.0
+        for i in range(9):
+            big = max(big, abs(F[k, i]))
+        scale = 1.0 / big if big > 0.0 else 1.0
+        for i in range(9):
+            g[i] = F[k, i] * scale
+        f = g
         # Horn's matrix: tr(R(q)^T F) = q^T N q
         N[0, 0] = f[0] + f[4] + f[8]
         N[1, 1] = f[0] - f[4] - f[8]

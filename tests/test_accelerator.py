@@ -96,3 +96,31 @@ def test_polar_rotations_unchanged_by_accelerator():
     # the public function is numpy-only and exact
     F = np.diag([1.0, 2.0, 3.0])[None]
     np.testing.assert_allclose(polar_rotations(F)[0], np.eye(3), atol=1e-14)
+
+
+if _accel.AVAILABLE:
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=100, deadline=None)
+    @given(st.integers(0, 2**32 - 1), st.sampled_from(["random", "inverted", "rank_deficient", "tiny", "huge"]))
+    def test_property_compiled_kernel_any_batch(seed, kind):
+        kernels = _accel.kernels()
+        rng = np.random.default_rng(seed)
+        F = rng.standard_normal((12, 3, 3))
+        if kind == "inverted":
+            F[:, :, 0] *= -np.sign(np.linalg.det(F))[:, None]
+        elif kind == "rank_deficient":
+            F[:, :, 2] = F[:, :, 0] * rng.standard_normal(12)[:, None]
+        elif kind == "tiny":
+            F *= 1e-200
+        elif kind == "huge":
+            F *= 1e200
+        F9 = F.reshape(-1, 9)
+        warm = None if seed % 2 else rng.standard_normal((12, 4))
+        R, _ = kernels.rotations3(F9, warm)
+        R3 = R.reshape(-1, 3, 3)
+        assert np.all(np.isfinite(R))
+        np.testing.assert_allclose(np.linalg.det(R3), 1.0, atol=1e-12)
+        best = np.einsum("ij,ij->i", rotations3_flat(F9), F9)
+        assert np.all(np.einsum("ij,ij->i", R, F9) >= best - 1e-10 * np.abs(F9).max(axis=1))
