@@ -41,10 +41,13 @@ class GroundContact:
 
     Parameters
     ----------
-    B_contact : ndarray, shape (p * dim, r)
-        Rows of the subspace basis for the contact vertices (interleaved).
-    H_inv : ndarray, shape (r, r)
-        Inverse of the global system matrix.
+    Je : ndarray or scipy.sparse matrix, shape (p * dim, r)
+        The map from the unknowns to the contact vertices' positions
+        (interleaved): rows of the subspace basis, or a selection matrix in
+        the full space.
+    solve : callable
+        ``solve(X)`` returns ``H^{-1} X`` for the global system matrix ``H``
+        and a dense ``X`` of shape (r, k).
     h : float
         Time step.
     dim, up : int
@@ -63,16 +66,24 @@ class GroundContact:
         Contact points active in the last projection.
     """
 
-    def __init__(self, B_contact, H_inv, h, dim, up, ground, stickiness=1.0, push_out=0.0):
-        self.Je = np.ascontiguousarray(B_contact)
-        self.Je_up = np.ascontiguousarray(self.Je[up::dim])
+    def __init__(self, Je, solve, h, dim, up, ground, stickiness=1.0, push_out=0.0):
+        import scipy.sparse as sps
+
+        if sps.issparse(Je):
+            self.Je = Je.tocsr()
+            self.Je_up = self.Je[up::dim]
+            JeT = self.Je.T.toarray()
+        else:
+            self.Je = np.ascontiguousarray(Je)
+            self.Je_up = np.ascontiguousarray(self.Je[up::dim])
+            JeT = self.Je.T
+        self.solve = solve
         self.dim, self.up, self.h = dim, up, float(h)
         self.ground = float(ground)
         self.stickiness = float(stickiness)
         self.push_out = float(push_out)
-        self.E = self.Je @ H_inv  # sensitivity of contact positions to the reduced force
-        self.HinvJeT = self.E.T
-        self.H_inv = H_inv
+        self.HinvJeT = solve(JeT)  # (r, p dim): H^-1 Je^T
+        self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
         self.n_points = self.Je.shape[0] // dim
         self.lift = 0.0
         self.active_count = 0
@@ -115,19 +126,19 @@ class GroundContact:
             # with (Je H^-1 Je^T + eps I) lam = residual. The small eps keeps
             # it well posed when the points ask more than the subspace can do
             # (then it is a least-squares compromise instead of a blow-up).
-            S = L @ self.Je[rows].T
+            S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
         elif rows.size < L.shape[1]:
             # reference: the least change of force that meets every constraint exactly
-            dz = self.H_inv @ (L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size)))
+            dz = self.solve(L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size)))
         else:
             # reference, more constraints than coordinates: least squares
-            dz = self.H_inv @ np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0]
+            dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
         # the correction of z and of every contact position, in one product
-        entry = (active, rows, np.vstack([dz, self.Je @ dz]), factor)
+        entry = (active, rows, np.vstack([dz, np.asarray(self.Je @ dz)]), factor)
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)

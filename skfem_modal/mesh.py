@@ -31,6 +31,7 @@ __all__ = [
     "normalize_and_center",
     "boundary_vertices",
     "farthest_point_sampling",
+    "sample_boundary",
     "connected_parts",
     "mesh_summary",
     "BUILTIN_SHAPES",
@@ -618,6 +619,32 @@ def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndar
         chosen[i] = nxt
         distance = np.minimum(distance, np.sqrt(((pts - pts[nxt]) ** 2).sum(axis=1)))
     return chosen
+
+
+def sample_boundary(mesh, count: int | None, candidates=None) -> np.ndarray:
+    """Boundary vertices spread by farthest-point sampling: the ground-contact points.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    count : int or None
+        How many; None (or more than there are) gives all of them.
+    candidates : array_like of int, optional
+        Only boundary vertices among these (e.g. the feet).
+
+    Returns
+    -------
+    indices : ndarray of int
+        In sampling order (all boundary vertices: ascending).
+    """
+    boundary = boundary_vertices(mesh)
+    if candidates is not None:
+        boundary = np.intersect1d(boundary, np.asarray(candidates, dtype=np.int64))
+        if boundary.size == 0:
+            raise ValueError("the contact candidates hold no boundary vertex: nothing could touch the ground")
+    if count is None or count >= boundary.size:
+        return boundary
+    return boundary[farthest_point_sampling(mesh.p.T[boundary], count)]
 
 
 def connected_parts(mesh) -> np.ndarray:

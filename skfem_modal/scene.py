@@ -608,6 +608,60 @@ class Scene:
             progress=progress,
         )
 
+    def build_reference(self, rtol: float = 1e-10, max_iter: int = 5000):
+        """The full-space simulator of this scene: every DOF, one rotation per element.
+
+        Same muscles (the scene's modes and signs), material, effects and
+        contact points (sampled as :meth:`build` does), iterated to ``rtol``.
+
+        Returns
+        -------
+        ref : skfem_modal.reference.FullSpaceSimulator
+        """
+        from .mesh import sample_boundary
+        from .reference import FullSpaceSimulator
+        from .sim import muscle_modes
+
+        c = self.config
+        mat = self.material()
+        pinned = self.pinned_vertices()
+        D = muscle_modes(
+            self.mesh,
+            c["muscles"]["count"],
+            mu=mat["mu"],
+            lam=mat["lam"],
+            rho=mat["rho"],
+            pinned=pinned,
+            signs=c["muscles"]["signs"] if c["muscles"]["count"] else None,
+        )
+        ground = c["ground"]
+        contacts = None
+        if ground is not None:
+            count = None if ground["contacts"] == "all" else ground["contacts"]
+            contacts = sample_boundary(self.mesh, count, self.contact_candidates())
+        damping = c["damping"] or {"mass": 0.0, "stiffness": 0.0}
+        return FullSpaceSimulator(
+            self.mesh,
+            D,
+            mu=mat["mu"],
+            gamma=mat["gamma"],
+            rho=mat["rho"],
+            h=self.h,
+            gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
+            contact_vertices=contacts,
+            ground=self.ground_height(),
+            up=self.up,
+            stickiness=1.0 if ground is None else ground["stickiness"],
+            push_out=0.0 if ground is None else ground["push_out"],
+            pinned=pinned,
+            pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
+            damping_mass=damping["mass"],
+            damping_stiffness=damping["stiffness"],
+            max_iter=max_iter,
+            tol=0.0,
+            rtol=rtol,
+        )
+
     def activation(self, t: float, ceilings) -> np.ndarray:
         """Muscle activations at time ``t`` in mode-amplitude units, shape (count,).
 

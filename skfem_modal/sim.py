@@ -29,12 +29,12 @@ import scipy.linalg as sla
 from . import _accel
 from .contact import GroundContact
 from .fem import _gravity, _jacobian, _mass, _positive, scalar_basis, vector_dofs
-from .mesh import _signed_measures, boundary_vertices, check_mesh, farthest_point_sampling, validated
+from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
 from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
 from .rotations import HORN, QUAT_TO_R, ROT2, dominant_quaternions, rotations2_flat, rotations3_flat
 from .subspace import com_operator, mass_orthonormalize, project, skinning_eigenmodes
 
-__all__ = ["ModalMuscle", "SimulationError"]
+__all__ = ["ModalMuscle", "SimulationError", "muscle_modes"]
 
 
 class SimulationError(RuntimeError):
@@ -79,6 +79,47 @@ def _labels(value, nT, name):
     if arr.min() < 0:
         raise ValueError(f"{name} must be non-negative, got {arr.min()}")
     return arr.astype(np.int64)
+
+
+def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None, signs=None) -> np.ndarray:
+    """The muscles of a body: its lowest linear modes without the rigid ones.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    n_muscles : int
+    mu, lam, rho : float or ndarray of shape (nT,)
+        Material of the modal analysis (``lam`` defaults to ``mu``).
+    pinned : array_like of int, optional
+        Clamped vertices: then the modes of the clamped body (no rigid ones).
+    signs : array_like of +1 / -1, shape (n_muscles,), optional
+        Flip muscles (the modes' own signs follow
+        :func:`~skfem_modal.eigen.sign_convention`).
+
+    Returns
+    -------
+    D : ndarray, shape (n * dim, n_muscles)
+    """
+    from .modal import linear_modal_analysis, rigid_mode_count
+
+    if not n_muscles:
+        return np.zeros((mesh.p.size, 0))
+    n_rigid = rigid_mode_count(mesh, pinned)
+    _, found = linear_modal_analysis(
+        mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
+    )
+    D = found[:, n_rigid:]
+    return D if signs is None else D * np.asarray(signs, dtype=np.float64)
+
+
+class _MatrixSolve:
+    """``X -> H^{-1} X`` with a precomputed dense inverse (picklable, unlike a lambda)."""
+
+    def __init__(self, H_inv: np.ndarray):
+        self.H_inv = H_inv
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.H_inv @ X
 
 
 def _muscle_modes(D, N: int) -> np.ndarray:
@@ -434,7 +475,7 @@ class ModalMuscle:
                     raise ValueError(f"contact_vertices must be in 0..{n - 1}")
             self.contact_vertices = cv
             self._contact = GroundContact(
-                B[vector_dofs(cv, dim)], H_inv, self.h, dim, self.up, ground, stickiness, push_out
+                B[vector_dofs(cv, dim)], _MatrixSolve(H_inv), self.h, dim, self.up, ground, stickiness, push_out
             )
             effects.append("contact")
         self.stickiness, self.push_out = stickiness, push_out
@@ -791,7 +832,6 @@ class ModalMuscle:
         from concurrent.futures import ThreadPoolExecutor
 
         from .clusters import spectral_clusters
-        from .modal import linear_modal_analysis, rigid_mode_count
 
         # arguments used late are checked before any work
         if accelerator not in ("auto", "numpy", "numba"):
@@ -809,21 +849,12 @@ class ModalMuscle:
             # scikit-fem caches mesh data on first use; build it here, before
             # the two threads read it
             scalar_basis(mesh)
-            boundary = boundary_vertices(mesh) if ground is not None else None
-            if boundary is not None and contact_candidates is not None:
-                boundary = np.intersect1d(boundary, np.asarray(contact_candidates, dtype=np.int64))
-                if boundary.size == 0:
-                    raise ValueError("contact_candidates holds no boundary vertex: nothing could touch the ground")
-            n_rigid = rigid_mode_count(mesh, pinned)
+            contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
 
             def modes():
                 clock = time.perf_counter()
-                if not n_muscles:
-                    return np.zeros((mesh.p.size, 0)), time.perf_counter() - clock
-                _, found = linear_modal_analysis(
-                    mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
-                )
-                return found[:, n_rigid:], time.perf_counter() - clock
+                found = muscle_modes(mesh, n_muscles, mu=mu, lam=lam, rho=rho, pinned=pinned)
+                return found, time.perf_counter() - clock
 
             # the modal analysis (one sparse factorisation and back-solves, in
             # compiled code that releases the GIL) runs first, beside the rest
@@ -846,14 +877,6 @@ class ModalMuscle:
             if n_active_clusters > 1:
                 active = spectral_clusters(mesh, weights, n_active_clusters, seed=seed)
             timings["clusters"] = time.perf_counter() - clock
-            contacts = None
-            if ground is not None:
-                clock = time.perf_counter()
-                if n_contacts is None or n_contacts >= boundary.size:
-                    contacts = boundary
-                else:
-                    contacts = boundary[farthest_point_sampling(mesh.p.T[boundary], n_contacts)]
-                timings["contacts"] = time.perf_counter() - clock
 
             def muscles():
                 # called by the constructor once the passive operators are built
