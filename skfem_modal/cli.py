@@ -198,6 +198,37 @@ def cmd_info(args) -> int:
     return EXIT_OK
 
 
+def cmd_study(args) -> int:
+    from .study import FLOATING_CATERPILLAR, run_study
+
+    if args.scene is None:
+        data, base_dir = FLOATING_CATERPILLAR, None
+    else:
+        import tomllib
+
+        from .scene import Scene
+
+        Scene.from_toml(args.scene)  # every scene error before anything runs
+        with open(args.scene, "rb") as f:
+            data = tomllib.load(f)
+        base_dir = os.path.dirname(os.path.abspath(args.scene))
+    say = (lambda *a: None) if args.quiet else print
+    say(f"study ({'quick' if args.quick else 'full'}) of {data.get('name', args.scene)}; writing to {args.out}")
+    report = run_study(
+        data,
+        args.out,
+        preset="quick" if args.quick else "full",
+        base_dir=base_dir,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.quiet,
+    )
+    for line in report["recommendation"]:
+        say(line)
+    say(f"wrote {report['markdown']}, {report['csv']}" + (f", {report['png']}" if "png" in report else ""))
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skfem-modal",
@@ -255,6 +286,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("target", nargs="?", help="scene .toml, mesh file or built-in NAME (default: the built-in scene)")
     p.add_argument("--scene-reference", action="store_true", help="print the scene file reference (markdown)")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("study", help="accuracy against cost: the reduced simulator against the full-space reference")
+    p.add_argument("scene", nargs="?", help="scene .toml (default: the floating caterpillar)")
+    p.add_argument("--out", default="study", help="output directory (default: study)")
+    p.add_argument("--quick", action="store_true", help="the short preset (under two minutes on 2 cores)")
+    p.add_argument("--workers", type=int, default=1, help="processes of the local pool (default 1: clean timings)")
+    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the sweep on")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")

@@ -1,15 +1,17 @@
 """The full-space simulator: the ground truth for accuracy studies.
 
 The same energy as :class:`~skfem_modal.sim.ModalMuscle` with every mesh DOF
-free and one rotation per element (passive and muscle): implicit-Euler
+free and one passive rotation per element (the muscles keep their rotation
+clusters: one by default, as the reduced model; they are part of the muscle
+model, not an approximation of it): implicit-Euler
 inertia, passive ARAP, the muscles' plastic-stretch target, gravity, pins,
 damping and the same ground contact, iterated to a tight tolerance. The
 global system matrix ``M/h^2 + J^T (w x I) J`` (+ pins, damping) is constant,
 so it is factored once (sparse) and each iteration is one back-solve.
 
-With the reduced simulator given a full basis (``B = I``) and one cluster per
-element (passive and active), both compute the same thing: the tests check
-they agree to 1e-8.
+With the reduced simulator given a full basis (``B = I``), one passive cluster
+per element and the same muscle clusters, both compute the same thing: the
+tests check they agree to 1e-8.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ class FullSpaceSimulator:
         Muscle modes (without the rest pose).
     mu, gamma, rho : float or ndarray of shape (nT,)
     h : float
+    active_labels : ndarray of int, shape (nT,), optional
+        Muscle rotation cluster of each element (default one cluster).
     gravity, contact_vertices, ground, up, stickiness, push_out, pinned,
     pin_stiffness, damping_mass, damping_stiffness :
         As for :class:`~skfem_modal.sim.ModalMuscle`.
@@ -74,6 +78,7 @@ class FullSpaceSimulator:
         gamma,
         rho,
         h,
+        active_labels=None,
         gravity=None,
         contact_vertices=None,
         ground=None,
@@ -146,6 +151,13 @@ class FullSpaceSimulator:
         self._solve = _SparseSolve(self._lu)
         # per element, per muscle: the gradient change (J D_k)_e
         self._G = (self.J @ D).reshape(nT, dim, dim, m) if m else None
+        labels = np.zeros(nT, np.int64) if active_labels is None else np.asarray(active_labels, np.int64)
+        if labels.shape != (nT,) or labels.min() < 0:
+            raise ValueError(f"active_labels must hold one non-negative label per element ({nT})")
+        na = int(labels.max()) + 1
+        self._active = labels
+        # sums over each muscle cluster of per-element values
+        self._cluster_sum = sps.csr_matrix((np.ones(nT), (labels, np.arange(nT))), shape=(na, nT))
         self._contact = None
         self.ground = ground
         if ground is not None:
@@ -163,6 +175,13 @@ class FullSpaceSimulator:
         self.effects = tuple(effects)
         self.iterations = 0
         self.timings = {"precompute": time.perf_counter() - clock}
+
+    def _muscle_rotations(self, F, Y) -> np.ndarray:
+        """Each element's muscle-cluster rotation: polar of the cluster's sum of w F Y^T."""
+        dim = self.dim
+        w = self._w_gamma[:: dim * dim]
+        sums = self._cluster_sum @ (w[:, None, None] * (F @ np.swapaxes(Y, 1, 2))).reshape(-1, dim * dim)
+        return polar_rotations(sums.reshape(-1, dim, dim))[self._active]
 
     def rest_state(self):
         """``(x, x_dot, a)``: rest positions (interleaved), zero velocity and activation."""
@@ -199,7 +218,7 @@ class FullSpaceSimulator:
             F = (self.J @ x_iter).reshape(nT, dim, dim)
             target = self._w_mu * polar_rotations(F).ravel()
             if m:
-                R_a = polar_rotations(F @ np.swapaxes(Y, 1, 2))
+                R_a = self._muscle_rotations(F, Y)
                 target += self._w_gamma * (R_a @ Y).ravel()
             x_next = self._solve(rhs0 + self.J.T @ target)
             if contact is not None:
@@ -235,7 +254,7 @@ class FullSpaceSimulator:
         force = self._w_mu * (F - R_p).ravel()
         if self.n_muscles:
             Y = np.eye(dim) + np.tensordot(self._G, np.asarray(a, float), axes=([3], [0]))
-            R_a = polar_rotations(F @ np.swapaxes(Y, 1, 2))
+            R_a = self._muscle_rotations(F, Y)
             E += 0.5 * self._w_gamma @ ((F - R_a @ Y) ** 2).reshape(-1)
             force += self._w_gamma * (F - R_a @ Y).ravel()
         rest = self.mesh.p.T.ravel()

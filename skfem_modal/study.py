@@ -1,0 +1,636 @@
+"""What accuracy costs in time: the reduced simulator against the full-space reference.
+
+A reduced simulation trades accuracy for speed in several ways at once: the
+subspace size (skinning weights), the rotation clusters, the local/global
+iterations (a fixed count, or a relative tolerance), the mesh resolution. A
+study runs the scene's full-space reference (:mod:`skfem_modal.reference`,
+every DOF, one rotation per element, iterated to 1e-10) once per mesh, then
+the reduced simulator over sweeps of those settings, each run a task on a
+:class:`concurrent.futures.Executor` (a local process pool, or a
+dask.distributed cluster), and reports error against milliseconds per step.
+
+Error measures, all relative (dimensionless):
+
+* ``trajectory_error``: ``sqrt(sum_t |u(t) - u_ref(t)|_M^2 / sum_t |u_ref(t)|_M^2)``
+  with ``u`` the displacement from rest and ``|.|_M`` the mass norm;
+* ``subspace_error``: the same for the best the subspace can do, the
+  mass-orthogonal projection of the reference onto ``B``; and
+  ``solver_error``, the distance from the reduced run to that projection
+  (clusters and iterations), in the same units: the first bounds what any
+  solver in that subspace could reach, the second is what this one loses;
+* ``com_error``: largest distance between the two centres of mass, over the
+  body's size;
+* ``worst_vertex_error``: largest distance of any vertex at any step, over the
+  body's size.
+
+The modal part compares P1 and P2 natural frequencies of a clamped beam with
+Euler-Bernoulli theory and with a refined P2 mesh, with their solve times.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import inspect
+import json
+import os
+import platform
+import time
+from concurrent.futures import Executor, ProcessPoolExecutor
+
+import numpy as np
+
+__all__ = [
+    "PRESETS",
+    "FLOATING_CATERPILLAR",
+    "trajectory_errors",
+    "resolution_scene",
+    "run_reference",
+    "run_reduced",
+    "modal_convergence",
+    "pareto_front",
+    "recommend",
+    "make_executor",
+    "run_study",
+]
+
+#: Sweeps, one setting at a time around the scene's own (its weights, clusters, iterations).
+PRESETS = {
+    "quick": dict(
+        steps=100,
+        weights=[3, 5, 8, 12],
+        clusters=[5, 10, 20, 40],
+        iterations=[2, 5, 10, 20],
+        rtol=[1e-1, 1e-2, 1e-3],
+        resolution=[0.5, 1.0],
+        grid=[],
+        modal=[(40, 1), (80, 2), (160, 4)],
+    ),
+    "full": dict(
+        steps=200,
+        weights=[2, 3, 5, 8, 12, 16, 24],
+        clusters=[1, 5, 10, 20, 40, 80, 160],
+        iterations=[1, 2, 5, 10, 20, 50],
+        rtol=[1e-1, 3e-2, 1e-2, 3e-3, 1e-3],
+        resolution=[0.5, 1.0, 1.5],
+        grid=[(w, c) for w in (5, 8, 12, 16) for c in (10, 20, 40, 80)],
+        modal=[(40, 1), (80, 2), (160, 4), (320, 8)],
+    ),
+}
+
+#: The default study scene: the tutorial's floating caterpillar (smooth motion, so
+#: errors measure approximation, not the chaos of contact).
+FLOATING_CATERPILLAR = {
+    "name": "caterpillar floating",
+    "mesh": {"shape": "caterpillar"},
+    "material": {"mu": 1e5, "rho": 1e3},
+    "subspace": {"weights": 8, "clusters": 20, "seed": 0},
+    "muscles": {
+        "count": 4,
+        "gait": {"amplitude": [0.9, 0.6, 0.0, 0.0], "period": [1.0, 0.7, 1.0, 1.0], "phase": [0.0, 0.25, 0.0, 0.0]},
+    },
+    "time": {"step": 0.02, "steps": 180},
+}
+
+
+def trajectory_errors(x, x_ref, mass, rest, size, dim, B=None) -> dict:
+    """Error measures of a trajectory against the reference.
+
+    Parameters
+    ----------
+    x, x_ref : ndarray, shape (T, n * dim)
+        Positions over time (interleaved), same steps.
+    mass : ndarray, shape (n * dim,)
+        Lumped masses per DOF.
+    rest : ndarray, shape (n * dim,)
+    size : float
+        Body size (largest extent) for the absolute measures.
+    dim : int
+    B : ndarray, shape (n * dim, r), optional
+        The subspace, for the best achievable (projection) error.
+
+    Returns
+    -------
+    errors : dict
+        ``trajectory_error``, ``com_error``, ``worst_vertex_error`` and, with
+        ``B``, ``subspace_error`` and ``solver_error``.
+
+    Examples
+    --------
+    >>> x = np.array([[0.0, 0.0], [1.0, 0.0]])
+    >>> e = trajectory_errors(x * 1.1, x, np.ones(2), np.zeros(2), 1.0, 2)
+    >>> round(e["trajectory_error"], 12), round(e["worst_vertex_error"], 12)
+    (0.1, 0.1)
+    """
+    u_ref = x_ref - rest
+    norm = np.sqrt(np.sum(mass * u_ref**2))
+    norm = norm if norm > 0 else 1.0
+    diff = x - x_ref
+    out = {"trajectory_error": float(np.sqrt(np.sum(mass * diff**2)) / norm)}
+    m_nodes = mass[::dim]
+
+    def com(X):
+        return (X.reshape(X.shape[0], -1, dim) * m_nodes[None, :, None]).sum(axis=1) / m_nodes.sum()
+
+    out["com_error"] = float(np.linalg.norm(com(x) - com(x_ref), axis=1).max() / size)
+    out["worst_vertex_error"] = float(np.linalg.norm(diff.reshape(diff.shape[0], -1, dim), axis=2).max() / size)
+    if B is not None:
+        MB = mass[:, None] * B
+        coef = np.linalg.solve(B.T @ MB, MB.T @ x_ref.T)
+        proj = (B @ coef).T
+        out["subspace_error"] = float(np.sqrt(np.sum(mass * (proj - x_ref) ** 2)) / norm)
+        out["solver_error"] = float(np.sqrt(np.sum(mass * (x - proj) ** 2)) / norm)
+    return out
+
+
+def _shape_defaults(shape: str) -> dict:
+    from .mesh import BUILTIN_SHAPES
+
+    return {k: v.default for k, v in inspect.signature(BUILTIN_SHAPES[shape]).parameters.items()}
+
+
+def resolution_scene(data: dict, factor: float) -> dict:
+    """A copy of a scene dict whose built-in mesh is ``factor`` times finer (1: unchanged).
+
+    Grid counts are scaled (the caterpillar's vertices per side, the beams'
+    cells), the creature's cell size divided. Mesh files cannot be refined:
+    ``ValueError``.
+    """
+    data = copy.deepcopy(data)
+    if factor == 1.0:
+        return data
+    mesh = data.setdefault("mesh", {})
+    if mesh.get("file"):
+        raise ValueError("a mesh from a file has no resolution to change; sweep resolutions with a built-in shape")
+    shape = mesh.get("shape") or "caterpillar"
+    params = {**_shape_defaults(shape), **mesh.get("params", {})}
+    if shape == "caterpillar":
+        for key in ("nx", "ny"):
+            params[key] = max(2, int(round((params[key] - 1) * factor)) + 1)
+    elif shape == "creature":
+        params["cell"] = params["cell"] / factor
+    else:
+        for key in ("nx", "ny", "nz"):
+            if key in params:
+                params[key] = max(1, int(round(params[key] * factor)))
+    keep = {k: v for k, v in params.items() if k in mesh.get("params", {}) or k in ("nx", "ny", "nz", "cell")}
+    mesh["params"] = {k: v for k, v in keep.items() if k in _shape_defaults(shape)}
+    return data
+
+
+def _steps_scene(data: dict, steps: int) -> dict:
+    data = copy.deepcopy(data)
+    data.setdefault("time", {})
+    data["time"].pop("duration", None)
+    data["time"]["steps"] = steps
+    return data
+
+
+def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
+    """Run a scene's full-space reference.
+
+    Returns
+    -------
+    reference : dict
+        ``x`` (steps + 1, n * dim) positions, ``seconds`` per step, ``iterations`` mean.
+    """
+    from .scene import Scene
+
+    scene = Scene.from_dict(_steps_scene(data, steps), base_dir=base_dir)
+    ref = scene.build_reference()
+    x, x_dot, _ = ref.rest_state()
+    xs, its = [x], []
+    clock = time.perf_counter()
+    for i in range(steps):
+        a = scene.activation(i * ref.h, _ceilings(ref))
+        x_next = ref.step(x, x_dot, a)
+        x_dot, x = (x_next - x) / ref.h, x_next
+        xs.append(x)
+        its.append(ref.iterations)
+    return {
+        "x": np.array(xs),
+        "seconds_per_step": (time.perf_counter() - clock) / steps,
+        "iterations": float(np.mean(its)),
+        "vertices": int(scene.mesh.p.shape[1]),
+    }
+
+
+def _ceilings(ref) -> np.ndarray:
+    from .modal import actuation_limits
+
+    if not ref.n_muscles:
+        return np.zeros(0)
+    if not hasattr(ref, "_ceilings"):
+        ref._ceilings = actuation_limits(ref.mesh, ref.D)
+    return ref._ceilings
+
+
+def run_reduced(task: dict) -> dict:
+    """One reduced run of a study (a task for an executor; plain data in and out).
+
+    ``task`` holds ``scene`` (a dict), ``base_dir``, ``steps``, ``overrides``
+    (weights, clusters, iterations, rtol), ``sweep`` and ``label``, and
+    ``reference`` (the reference's positions) or None.
+    """
+    from .scene import Scene
+
+    data = _steps_scene(task["scene"], task["steps"])
+    over = task["overrides"]
+    if "weights" in over:
+        data.setdefault("subspace", {})["weights"] = over["weights"]
+    if "clusters" in over:
+        data.setdefault("subspace", {})["clusters"] = over["clusters"]
+    if "iterations" in over:
+        data.setdefault("time", {}).update(iterations=over["iterations"], tol=0.0, rtol=0.0)
+    if "rtol" in over:
+        data.setdefault("time", {}).update(iterations=100, tol=0.0, rtol=over["rtol"])
+    scene = Scene.from_dict(data, base_dir=task["base_dir"])
+    clock = time.perf_counter()
+    sim = scene.build()
+    precompute = time.perf_counter() - clock
+    z, z_dot, _ = sim.rest_state()
+    sim.step(z, z_dot, np.zeros(sim.n_muscles))  # warm up (compiled kernels)
+    zs, times, its = [z], [], []
+    for i in range(task["steps"]):
+        a = scene.activation(i * sim.h, sim.ceilings)
+        start = time.perf_counter()
+        z_next = sim.step(z, z_dot, a)
+        times.append(time.perf_counter() - start)
+        its.append(sim.iterations)
+        z_dot, z = (z_next - z) / sim.h, z_next
+        zs.append(z)
+    row = {
+        "sweep": task["sweep"],
+        "label": task["label"],
+        "resolution": task.get("resolution", 1.0),
+        "vertices": int(sim.mesh.p.shape[1]),
+        "weights": scene.config["subspace"]["weights"],
+        "subspace": int(sim.B.shape[1]),
+        "clusters": int(sim.n_clusters),
+        "max_iterations": sim.max_iter,
+        "rtol": sim.rtol,
+        "iterations_mean": float(np.mean(its)),
+        "precompute_s": precompute,
+        "step_ms": float(np.median(times) * 1e3),
+        "accelerator": sim.accelerator,
+    }
+    if task.get("reference") is not None:
+        x = np.array(zs) @ sim.B.T
+        mass = sim._M.diagonal()
+        size = float(np.ptp(sim.mesh.p, axis=1).max())
+        row.update(trajectory_errors(x, task["reference"], mass, sim.mesh.p.T.ravel(), size, sim.dim, B=sim.B))
+    return row
+
+
+def modal_convergence(cases=((40, 1), (80, 2), (160, 4)), length=40.0, height=1.0) -> list[dict]:
+    """P1 against P2 frequencies of a clamped 2D beam (nu = 0), with solve times.
+
+    The beam is slender (40 x 1) so that Euler-Bernoulli theory itself is
+    good to about 0.3 % (shear deformation) for the first two frequencies.
+
+    Errors of the first two bending frequencies against Euler-Bernoulli, and of
+    the first four against the finest P2 mesh (twice the last case).
+    """
+    from .mesh import beam2d, vertices_where
+    from .modal import linear_modal_analysis
+
+    beta = np.array([1.8751040687119611, 4.6940911329739180])
+    omega_eb = beta**2 * np.sqrt(height**2 / (12 * length**4))  # E = 1, rho = 1
+
+    def solve(nx, ny, element):
+        mesh = beam2d(length, height, nx, ny)
+        clock = time.perf_counter()
+        values, modes = linear_modal_analysis(
+            mesh, 4, mu=0.5, lam=0.0, rho=1.0, fixed=vertices_where(mesh, "x == min"), element=element
+        )
+        return np.sqrt(values), time.perf_counter() - clock, modes.shape[0]
+
+    nx, ny = cases[-1]
+    fine, _, _ = solve(2 * nx, 2 * ny, "P2")
+    rows = []
+    for nx, ny in cases:
+        for element in ("P1", "P2"):
+            omega, seconds, dofs = solve(nx, ny, element)
+            rows.append(
+                {
+                    "element": element,
+                    "cells": f"{nx}x{ny}",
+                    "dofs": int(dofs),
+                    "seconds": seconds,
+                    "error_vs_euler_bernoulli": float(np.abs(omega[:2] / omega_eb - 1).max()),
+                    "error_vs_refined_p2": float(np.abs(omega / fine - 1).max()),
+                }
+            )
+    return rows
+
+
+def pareto_front(rows, cost="step_ms", error="trajectory_error") -> list[int]:
+    """Indices of the rows no other row beats in both cost and error, by cost."""
+    order = sorted(range(len(rows)), key=lambda i: (rows[i][cost], rows[i][error]))
+    front, best = [], np.inf
+    for i in order:
+        if rows[i][error] < best:
+            front.append(i)
+            best = rows[i][error]
+    return front
+
+
+def _describe(row) -> str:
+    it = f"{row['max_iterations']} iterations" if not row["rtol"] else f"rtol {row['rtol']:g}"
+    return f"{row['weights']} weights, {row['clusters']} clusters and {it}"
+
+
+def recommend(rows, thresholds=(0.01, 0.05, 0.10, 0.20)) -> list[str]:
+    """Plain sentences: the cheapest setting within each error threshold, and the defaults."""
+    same = [r for r in rows if r["resolution"] == 1.0 and "trajectory_error" in r]
+    lines = []
+    base = next((r for r in same if r["sweep"] == "base"), None)
+    if base:
+        lines.append(
+            f"{_describe(base)} give {100 * base['trajectory_error']:.2g} % trajectory error at "
+            f"{base['step_ms']:.3g} ms per step (the subspace alone allows {100 * base['subspace_error']:.2g} %)."
+        )
+        for key, label in (("weights", "weights"), ("clusters", "clusters")):
+            double = [r for r in same if r["sweep"] == key and r[key] == 2 * base[key]]
+            if not double and key == "weights":
+                double = [r for r in same if r["sweep"] == key and r[key] > base[key]]
+            if double:
+                r = double[0]
+                lines.append(
+                    f"{r[key]} {label} instead of {base[key]}: {100 * r['trajectory_error']:.2g} % at "
+                    f"{r['step_ms']:.3g} ms per step."
+                )
+    for limit in thresholds:
+        within = [r for r in same if r["trajectory_error"] <= limit]
+        if within:
+            r = min(within, key=lambda r: r["step_ms"])
+            lines.append(
+                f"Within {100 * limit:g} % trajectory error, the fastest setting measured is {_describe(r)}: "
+                f"{100 * r['trajectory_error']:.2g} % at {r['step_ms']:.3g} ms per step."
+            )
+        else:
+            lines.append(f"No setting measured reaches {100 * limit:g} % trajectory error.")
+    return lines
+
+
+def make_executor(workers: int = 1, scheduler: str | None = None):
+    """The executor a study (or a gait search) runs on.
+
+    Parameters
+    ----------
+    workers : int
+        Processes of the local pool.
+    scheduler : str, optional
+        Address of a dask.distributed scheduler (``tcp://host:8786``): then
+        its executor (needs the ``distributed`` extra).
+
+    Returns
+    -------
+    executor : concurrent.futures.Executor
+    close : callable
+        Shuts down what was started.
+    """
+    if scheduler:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise ValueError("--scheduler needs dask.distributed: pip install 'skfem_modal[distributed]'") from None
+        client = Client(scheduler)
+        return client.get_executor(), client.close
+    import multiprocessing
+
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    return pool, pool.shutdown
+
+
+def run_study(
+    data: dict,
+    out_dir,
+    *,
+    preset: str = "quick",
+    base_dir: str | None = None,
+    executor: Executor | None = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: bool = False,
+) -> dict:
+    """Run an accuracy/cost study of a scene and write its report.
+
+    Parameters
+    ----------
+    data : dict
+        The scene (as a dict, e.g. ``FLOATING_CATERPILLAR``).
+    out_dir : str or path-like
+    preset : {"quick", "full"}
+    base_dir : str, optional
+        Where the scene's relative paths start.
+    executor : concurrent.futures.Executor, optional
+        Default: :func:`make_executor` with ``workers`` / ``scheduler``.
+    progress : bool
+        Print a line per finished run.
+
+    Returns
+    -------
+    report : dict
+        ``rows``, ``modal``, ``pareto`` (indices), ``recommendation`` (sentences)
+        and the paths written (``study.csv``, ``modal.csv``, ``study.md``,
+        ``pareto.png`` when matplotlib is there).
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    from .scene import Scene
+
+    Scene.from_dict(data, base_dir=base_dir)  # every error before any work
+    cfg = PRESETS[preset]
+    steps = cfg["steps"]
+    out_dir = os.fspath(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    say = print if progress else (lambda *a, **k: None)
+    own = executor is None
+    close = None
+    if own:
+        executor, close = make_executor(workers, scheduler)
+    started = time.perf_counter()
+    try:
+        resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
+        scenes = {f: resolution_scene(data, f) for f in resolutions}
+        ref_futures = {f: executor.submit(run_reference, scenes[f], base_dir, steps) for f in resolutions}
+        references = {}
+        for f, fut in ref_futures.items():
+            references[f] = fut.result()
+            say(
+                f"reference at resolution {f:g}: {references[f]['vertices']} vertices, "
+                f"{references[f]['iterations']:.0f} iterations a step, "
+                f"{1e3 * references[f]['seconds_per_step']:.1f} ms a step"
+            )
+        base = data.get("subspace", {})
+        base_weights, base_clusters = base.get("weights", 8), base.get("clusters", 20)
+        tasks = [("base", "base", {}, 1.0)]
+        tasks += [("weights", f"weights={w}", {"weights": w}, 1.0) for w in cfg["weights"] if w != base_weights]
+        tasks += [("clusters", f"clusters={c}", {"clusters": c}, 1.0) for c in cfg["clusters"] if c != base_clusters]
+        tasks += [("iterations", f"iterations={k}", {"iterations": k}, 1.0) for k in cfg["iterations"]]
+        tasks += [("rtol", f"rtol={t:g}", {"rtol": t}, 1.0) for t in cfg["rtol"]]
+        tasks += [("grid", f"weights={w},clusters={c}", {"weights": w, "clusters": c}, 1.0) for w, c in cfg["grid"]]
+        tasks += [("resolution", f"resolution={f:g}", {}, f) for f in resolutions if f != 1.0]
+        futures = [
+            executor.submit(
+                run_reduced,
+                {
+                    "scene": scenes[f],
+                    "base_dir": base_dir,
+                    "steps": steps,
+                    "overrides": over,
+                    "sweep": sweep,
+                    "label": label,
+                    "resolution": f,
+                    "reference": references[f]["x"],
+                },
+            )
+            for sweep, label, over, f in tasks
+        ]
+        rows = []
+        for fut in futures:
+            row = fut.result()
+            rows.append(row)
+            say(f"{row['label']:28s} {100 * row['trajectory_error']:8.3f} % error  {row['step_ms']:7.3f} ms/step")
+        modal_rows = modal_convergence(tuple(cfg["modal"]))
+    finally:
+        if own and close is not None:
+            close()
+    elapsed = time.perf_counter() - started
+    same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
+    front = [same[i] for i in pareto_front([rows[i] for i in same])]
+    lines = recommend(rows)
+    meta = {
+        "scene": data.get("name", "scene"),
+        "preset": preset,
+        "steps": steps,
+        "machine": f"{platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}",
+        "date": time.strftime("%Y-%m-%d"),
+        "seconds": elapsed,
+        "references": {str(f): {k: v for k, v in r.items() if k != "x"} for f, r in references.items()},
+    }
+    paths = _write_report(out_dir, rows, modal_rows, front, lines, meta)
+    return {"rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines, "meta": meta, **paths}
+
+
+_COLUMNS = [
+    "sweep", "label", "resolution", "vertices", "weights", "subspace", "clusters", "max_iterations", "rtol",
+    "iterations_mean", "precompute_s", "step_ms", "trajectory_error", "subspace_error", "solver_error",
+    "com_error", "worst_vertex_error", "accelerator",
+]  # fmt: skip
+
+
+def _write_report(out_dir, rows, modal_rows, front, lines, meta) -> dict:
+    paths = {}
+    paths["csv"] = os.path.join(out_dir, "study.csv")
+    with open(paths["csv"], "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=_COLUMNS)
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: r.get(k) for k in _COLUMNS})
+    paths["modal_csv"] = os.path.join(out_dir, "modal.csv")
+    with open(paths["modal_csv"], "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(modal_rows[0]))
+        writer.writeheader()
+        writer.writerows(modal_rows)
+    with open(os.path.join(out_dir, "study.json"), "w") as f:
+        json.dump(
+            {"meta": meta, "rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines}, f, indent=2
+        )
+    md = [f"# Accuracy and cost: {meta['scene']}", ""]
+    md.append(
+        f"{meta['preset']} study, {meta['steps']} steps, {meta['machine']}, {meta['date']}; "
+        f"{meta['seconds']:.0f} s in all."
+    )
+    md.append("")
+    for f, ref in meta["references"].items():
+        md.append(
+            f"- full-space reference at resolution {f}: {ref['vertices']} vertices, "
+            f"{ref['iterations']:.0f} iterations a step, {1e3 * ref['seconds_per_step']:.1f} ms a step"
+        )
+    md += ["", "## Recommendation", ""] + [f"- {line}" for line in lines]
+    md += ["", "## Error against milliseconds per step", ""]
+    md.append(
+        "| run | vertices | subspace | clusters | iterations/step | precompute s | ms/step | trajectory % "
+        "| subspace % | solver % | COM | worst vertex | Pareto |"
+    )
+    md.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for i, r in enumerate(rows):
+        md.append(
+            f"| {r['label']} | {r['vertices']} | {r['subspace']} | {r['clusters']} | {r['iterations_mean']:.1f} "
+            f"| {r['precompute_s']:.2f} | {r['step_ms']:.3f} | {100 * r['trajectory_error']:.3g} "
+            f"| {100 * r['subspace_error']:.3g} | {100 * r['solver_error']:.3g} | {r['com_error']:.1e} "
+            f"| {r['worst_vertex_error']:.1e} | {'*' if i in front else ''} |"
+        )
+    md += ["", "## Modal frequencies: P1 against P2 (clamped beam 40 x 1, nu = 0)", ""]
+    md.append("| element | cells | DOFs | seconds | error vs Euler-Bernoulli | error vs refined P2 |")
+    md.append("|---|---|---|---|---|---|")
+    for r in modal_rows:
+        md.append(
+            f"| {r['element']} | {r['cells']} | {r['dofs']} | {r['seconds']:.3f} "
+            f"| {100 * r['error_vs_euler_bernoulli']:.3g} % | {100 * r['error_vs_refined_p2']:.3g} % |"
+        )
+    paths["markdown"] = os.path.join(out_dir, "study.md")
+    with open(paths["markdown"], "w") as f:
+        f.write("\n".join(md) + "\n")
+    try:
+        paths["png"] = _plot(out_dir, rows, front, meta)
+    except ImportError:
+        pass
+    return paths
+
+
+def _plot(out_dir, rows, front, meta) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    markers = {
+        "base": "*",
+        "weights": "o",
+        "clusters": "s",
+        "iterations": "^",
+        "rtol": "v",
+        "grid": ".",
+        "resolution": "D",
+    }
+    for sweep, marker in markers.items():
+        pts = [r for r in rows if r["sweep"] == sweep]
+        if pts:
+            ax.scatter(
+                [r["step_ms"] for r in pts],
+                [100 * r["trajectory_error"] for r in pts],
+                marker=marker,
+                s=60 if sweep == "base" else 30,
+                label=sweep,
+            )
+    f = sorted(front, key=lambda i: rows[i]["step_ms"])
+    ax.plot(
+        [rows[i]["step_ms"] for i in f],
+        [100 * rows[i]["trajectory_error"] for i in f],
+        "k--",
+        lw=1,
+        label="Pareto front",
+    )
+    for i in f:
+        ax.annotate(
+            rows[i]["label"],
+            (rows[i]["step_ms"], 100 * rows[i]["trajectory_error"]),
+            fontsize=6,
+            xytext=(3, 3),
+            textcoords="offset points",
+        )
+    ax.set_xlabel("milliseconds per step")
+    ax.set_ylabel("trajectory error (%)")
+    ax.set_yscale("log")
+    ax.set_title(f"{meta['scene']}: accuracy against cost", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = os.path.join(out_dir, "pareto.png")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

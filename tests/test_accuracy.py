@@ -1,0 +1,200 @@
+"""The full-space reference and the accuracy/cost study."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+import skfem_modal as sm
+from skfem_modal import study
+from skfem_modal.muscles import sine_gait
+from skfem_modal.reference import FullSpaceSimulator
+from skfem_modal.sim import ModalMuscle
+
+
+@pytest.fixture(scope="module")
+def small():
+    mesh = sm.caterpillar(nx=8, ny=5)
+    _, modes = sm.linear_modal_analysis(mesh, 5)
+    return mesh, modes[:, 3:]
+
+
+def test_reference_step_is_the_energy_minimum(small):
+    mesh, D = small
+    full = FullSpaceSimulator(
+        mesh,
+        D,
+        mu=1e3,
+        gamma=2e3,
+        rho=1.0,
+        h=0.01,
+        gravity=[0.3, -1.0],
+        pinned=[0],
+        damping_mass=0.5,
+        rtol=1e-14,
+        max_iter=100_000,
+    )
+    assert full.effects == ("elasticity", "inertia", "muscles", "gravity", "pinned", "damping")
+    x, _, _ = full.rest_state()
+    x_dot = np.random.default_rng(0).standard_normal(x.size) * 0.1
+    a = 0.4 * sm.actuation_limits(mesh, D)
+    x_step = full.step(x, x_dot, a)
+    assert full.iterations < 100_000
+    fun = lambda y: full.energy(y, x, x_dot, a, gradient=True)  # noqa: E731
+    best = scipy.optimize.minimize(fun, x, jac=True, method="BFGS", options={"gtol": 1e-11, "maxiter": 20_000})
+    assert np.linalg.norm(best.x - x_step) <= 1e-6 * np.linalg.norm(x_step)
+    # and the gradient there vanishes
+    assert np.linalg.norm(fun(x_step)[1]) <= 1e-8 * np.linalg.norm(fun(x)[1])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("push_out", [0.0, 1.0])
+def test_full_basis_reduced_simulator_equals_the_reference(dim, push_out):
+    mesh = sm.caterpillar(nx=8, ny=5) if dim == 2 else sm.creature(cell=0.3)
+    n_rigid = 3 if dim == 2 else 6
+    _, modes = sm.linear_modal_analysis(mesh, n_rigid + 2)
+    D = modes[:, n_rigid:]
+    ceilings = sm.actuation_limits(mesh, D)
+    up = dim - 1
+    kw = dict(
+        mu=1e4,
+        gamma=2e4,
+        rho=1e3,
+        h=0.01,
+        gravity=[0.0] * up + [-9.8],
+        ground=float(mesh.p[up].min()) - 0.05,
+        push_out=push_out,
+        stickiness=0.6,
+    )
+    full = FullSpaceSimulator(mesh, D, max_iter=7, tol=0.0, rtol=0.0, **kw)
+    nT = mesh.t.shape[1]
+    # a full basis and one passive cluster per element: the same computation
+    reduced = ModalMuscle(
+        mesh,
+        np.eye(mesh.p.size),
+        D,
+        np.arange(nT),
+        contact_vertices=full.contact_vertices,
+        max_iter=7,
+        tol=0.0,
+        **kw,
+    )
+    x, x_dot, _ = full.rest_state()
+    z, z_dot, _ = reduced.rest_state()
+    worst = 0.0
+    for i in range(60):
+        a = sine_gait(i * 0.01, 0.8 * ceilings, [0.3, 0.5], [0.0, 0.2])
+        x_next = full.step(x, x_dot, a)
+        x_dot, x = (x_next - x) / 0.01, x_next
+        z_next = reduced.step(z, z_dot, a)
+        z_dot, z = (z_next - z) / 0.01, z_next
+        worst = max(worst, np.abs(reduced.positions(z) - full.positions(x)).max())
+    assert np.abs(full.positions(x) - mesh.p.T).max() > 0.1  # it moved, landed and crawled
+    assert worst <= 1e-8
+
+
+def test_error_measures():
+    rng = np.random.default_rng(1)
+    rest = rng.random(8)
+    x_ref = rest + 0.1 * rng.standard_normal((5, 8))
+    B = rng.standard_normal((8, 3))
+    x = (B @ rng.standard_normal((3, 5))).T
+    mass = rng.random(8) + 0.5
+    e = study.trajectory_errors(x, x_ref, mass, rest, 1.0, 2, B=B)
+    # the projection is the best any trajectory in the subspace can do
+    assert e["subspace_error"] <= e["trajectory_error"]
+    # and the triangle inequality holds between the three
+    assert e["trajectory_error"] <= e["subspace_error"] + e["solver_error"] + 1e-12
+    exact = study.trajectory_errors(x_ref, x_ref, mass, rest, 1.0, 2)
+    assert exact["trajectory_error"] == 0 and exact["worst_vertex_error"] == 0 and exact["com_error"] == 0
+
+
+def test_resolution_scene():
+    data = study.resolution_scene(study.FLOATING_CATERPILLAR, 2.0)
+    assert data["mesh"]["params"] == {"nx": 139, "ny": 67}
+    assert study.resolution_scene({"mesh": {"shape": "creature"}}, 2.0)["mesh"]["params"]["cell"] == 0.05
+    with pytest.raises(ValueError, match="a mesh from a file has no resolution"):
+        study.resolution_scene({"mesh": {"file": "x.msh"}}, 2.0)
+
+
+def test_pareto_front():
+    rows = [
+        dict(step_ms=1, trajectory_error=0.5),
+        dict(step_ms=2, trajectory_error=0.6),
+        dict(step_ms=3, trajectory_error=0.1),
+        dict(step_ms=0.5, trajectory_error=0.9),
+    ]
+    assert study.pareto_front(rows) == [3, 0, 2]
+
+
+def test_modal_convergence_p2_beats_p1():
+    rows = study.modal_convergence(((40, 1), (80, 2)))
+    p1 = [r for r in rows if r["element"] == "P1"]
+    p2 = [r for r in rows if r["element"] == "P2"]
+    assert all(b["error_vs_refined_p2"] < a["error_vs_refined_p2"] for a, b in zip(p1, p2))
+    assert p1[1]["error_vs_refined_p2"] < p1[0]["error_vs_refined_p2"]  # P1 converges
+    assert p2[-1]["error_vs_euler_bernoulli"] < 0.01
+
+
+@pytest.fixture(scope="module")
+def quick_study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    return study.run_study(study.FLOATING_CATERPILLAR, out, preset="quick", workers=1), out
+
+
+@pytest.mark.slow
+def test_quick_study_errors_shrink_with_subspace_and_clusters(quick_study):
+    report, out = quick_study
+    rows = report["rows"]
+    base = next(r for r in rows if r["sweep"] == "base")
+
+    def series(key):
+        pts = [r for r in rows if r["sweep"] == key] + [base]
+        return [r["trajectory_error"] for r in sorted(pts, key=lambda r: r[key])]
+
+    weights, clusters = series("weights"), series("clusters")
+    # the trend: more weights and more clusters, less error (to within 2 % of a
+    # neighbour's value where the subspace has stopped limiting)
+    assert all(b <= a * 1.02 for a, b in zip(weights, weights[1:])), weights
+    assert all(b <= a * 1.02 for a, b in zip(clusters, clusters[1:])), clusters
+    assert weights[-1] < 0.5 * weights[0] and clusters[-1] < 0.5 * clusters[0]
+    iterations = [
+        r["trajectory_error"]
+        for r in sorted((r for r in rows if r["sweep"] == "iterations"), key=lambda r: r["max_iterations"])
+    ]
+    assert iterations[-1] < iterations[0]
+    # the subspace error bounds the error from below; the solver error is the rest
+    for r in rows:
+        assert r["subspace_error"] <= r["trajectory_error"] + 1e-12
+    assert report["meta"]["seconds"] < 120  # the quick preset's promise, on 2 cores
+
+
+@pytest.mark.slow
+def test_quick_study_writes_its_report(quick_study):
+    report, out = quick_study
+    rows = list(csv.DictReader(open(out / "study.csv")))
+    assert len(rows) == len(report["rows"]) and {"step_ms", "trajectory_error", "precompute_s"} <= set(rows[0])
+    text = (out / "study.md").read_text()
+    assert "## Recommendation" in text and "weights, 20 clusters and 10 iterations give" in text
+    assert "P1 against P2" in text
+    assert (out / "pareto.png").stat().st_size > 5000
+    assert json.loads((out / "study.json").read_text())["pareto"] == report["pareto"]
+    assert report["pareto"], "the Pareto front is never empty"
+
+
+@pytest.mark.slow
+def test_study_runs_on_dask_like_on_the_local_pool(tmp_path, monkeypatch):
+    distributed = pytest.importorskip("dask.distributed", reason="dask is in the distributed extra")
+    tiny = dict(
+        steps=20, weights=[4], clusters=[8], iterations=[3], rtol=[], resolution=[1.0], grid=[], modal=[(20, 1)]
+    )
+    monkeypatch.setitem(study.PRESETS, "tiny", tiny)
+    scene = dict(study.FLOATING_CATERPILLAR, mesh={"shape": "caterpillar", "params": {"nx": 24, "ny": 12}})
+    local = study.run_study(scene, tmp_path / "local", preset="tiny", workers=2)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True) as cluster:
+        remote = study.run_study(scene, tmp_path / "dask", preset="tiny", scheduler=cluster.scheduler_address)
+    for a, b in zip(local["rows"], remote["rows"]):
+        assert a["label"] == b["label"]
+        assert a["trajectory_error"] == pytest.approx(b["trajectory_error"], rel=1e-9)
