@@ -229,6 +229,63 @@ def cmd_study(args) -> int:
     return EXIT_OK
 
 
+def cmd_optimize(args) -> int:
+    from .optimize import GaitSpace, run_search
+    from .scene import DEFAULT_SCENE
+
+    if args.scene is None:
+        data, base_dir = DEFAULT_SCENE, None
+    else:
+        import tomllib
+
+        from .scene import Scene
+
+        Scene.from_toml(args.scene)  # every scene error before anything runs
+        with open(args.scene, "rb") as f:
+            data = tomllib.load(f)
+        base_dir = os.path.dirname(os.path.abspath(args.scene))
+    axes = {"x": 0, "y": 1, "z": 2}
+    sign = -1.0 if args.direction.startswith("-") else 1.0
+    axis = axes.get(args.direction.lstrip("+-"))
+    if axis is None:
+        raise ValueError(f"--direction must be x, y or z with an optional sign, got {args.direction!r}")
+    from .scene import Scene as _Scene
+
+    scene = _Scene.from_dict(data, base_dir=base_dir)
+    if axis >= scene.dim:
+        raise ValueError(f"--direction {args.direction} is not an axis of this {scene.dim}D scene")
+    direction = np.zeros(scene.dim)
+    direction[axis] = sign
+    space = GaitSpace(scene.config["muscles"]["count"], args.amplitude_max, *args.period_range)
+    say = (lambda *a: None) if args.quiet else print
+    say(
+        f"CMA-ES over {3 * space.m} gait parameters: {args.generations} generations of {args.popsize}, "
+        f"seed {args.seed}, writing to {args.out}"
+    )
+    result = run_search(
+        data,
+        args.out,
+        generations=args.generations,
+        popsize=args.popsize,
+        seed=args.seed,
+        steps=args.steps,
+        base_dir=base_dir,
+        direction=direction,
+        space=space,
+        resume=args.resume,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.quiet,
+    )
+    best = result["best"]
+    say(
+        f"best: travel {best['travel']:.4g} (fitness {best['fitness']:.4g}) in generation {best['generation']}; "
+        f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
+    )
+    say(f"wrote {result['best_scene']} (play it: skfem-modal run {result['best_scene']}), {result['history_csv']}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skfem-modal",
@@ -295,6 +352,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the sweep on")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("optimize", help="search the gait that travels furthest (CMA-ES)")
+    p.add_argument("scene", nargs="?", help="scene .toml (default: the built-in caterpillar crawl)")
+    p.add_argument("--generations", type=int, default=20)
+    p.add_argument("--popsize", type=int, default=12)
+    p.add_argument("--seed", type=int, default=0, help="the same seed gives the same search")
+    p.add_argument("--steps", type=int, help="rollout length in steps (default: the scene's)")
+    p.add_argument("--direction", default="x", help="travel direction: x, -x, y, ... (default x)")
+    p.add_argument("--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the ceiling")
+    p.add_argument("--period-range", type=float, nargs=2, default=(0.3, 2.0), metavar=("MIN", "MAX"))
+    p.add_argument("--out", default="search", help="output directory (default: search)")
+    p.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
+    p.add_argument("--workers", type=int, default=2, help="processes of the local pool (default 2)")
+    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_optimize)
 
     p = sub.add_parser("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")

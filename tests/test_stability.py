@@ -1,9 +1,8 @@
 """Hard cases stay numerically stable (the cases are in hard_cases.py)."""
 
+import hard_cases as H
 import numpy as np
 import pytest
-
-import hard_cases as H
 
 # stated tolerances, relative to the body's size (2 units here)
 PENETRATION_TOL = 1e-6
