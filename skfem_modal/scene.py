@@ -138,6 +138,13 @@ SCHEMA: dict[str, Any] = {
             check=_at_least_one,
         ),
         "clusters": Key("int", 20, "Rotation clusters of elements for the passive energy.", check=_at_least_one),
+        "cluster_weights": Key(
+            "int",
+            None,
+            "Cluster on the first this many skinning weights (default: weights), so clusters stay the same "
+            "while the subspace size changes.",
+            check=_at_least_one,
+        ),
         "active_clusters": Key("int", 1, "Rotation clusters for the muscle energy.", check=_at_least_one),
         "seed": Key("int", 0, "Seed of the k-means clustering (same seed, same clusters)."),
     },
@@ -583,6 +590,7 @@ class Scene:
             n_muscles=c["muscles"]["count"],
             muscle_signs=c["muscles"]["signs"],
             n_weights=c["subspace"]["weights"],
+            cluster_weights=c["subspace"]["cluster_weights"],
             n_clusters=c["subspace"]["clusters"],
             n_active_clusters=c["subspace"]["active_clusters"],
             seed=c["subspace"]["seed"],

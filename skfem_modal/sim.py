@@ -782,6 +782,7 @@ class ModalMuscle:
         n_muscles: int = 4,
         muscle_signs=None,
         n_weights: int = 8,
+        cluster_weights: int | None = None,
         n_clusters: int = 20,
         mu=1e5,
         gamma=None,
@@ -816,7 +817,8 @@ class ModalMuscle:
         multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
         ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
         clusters are spectral clusters of the weights (``seed``); one active
-        cluster (or ``n_active_clusters`` spectral clusters); with a
+        cluster (or ``n_active_clusters`` spectral clusters), clustering
+        on the first ``cluster_weights`` weights (default ``n_weights``); with a
         ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
         (all boundary vertices if ``n_contacts`` is None). With ``pinned``
         vertices the muscles are the modes of the body clamped there.
@@ -864,7 +866,10 @@ class ModalMuscle:
             found = None if parallel else modes()
             clock = time.perf_counter()
             say("skinning eigenmodes")
-            _, weights, B = skinning_eigenmodes(mesh, n_weights)
+            k = max(n_weights, cluster_weights or n_weights)
+            _, weights, B = skinning_eigenmodes(mesh, k)
+            if k > n_weights:
+                B = B[:, : n_weights * (mesh.p.shape[0] + 1) * mesh.p.shape[0]]
             timings["skinning_eigenmodes"] = time.perf_counter() - clock
             clock = time.perf_counter()
             say("orthonormalise")
@@ -872,10 +877,11 @@ class ModalMuscle:
             timings["orthonormalize"] = time.perf_counter() - clock
             clock = time.perf_counter()
             say("clusters")
-            labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+            cw = weights[:, : cluster_weights or n_weights]
+            labels = spectral_clusters(mesh, cw, n_clusters, seed=seed)
             active = None
             if n_active_clusters > 1:
-                active = spectral_clusters(mesh, weights, n_active_clusters, seed=seed)
+                active = spectral_clusters(mesh, cw, n_active_clusters, seed=seed)
             timings["clusters"] = time.perf_counter() - clock
 
             def muscles():
@@ -910,5 +916,5 @@ class ModalMuscle:
                 accelerator=accelerator,
             )
         sim.timings = {**timings, **sim.timings}
-        sim.weights = weights
+        sim.weights = weights[:, :n_weights]
         return sim

@@ -237,7 +237,10 @@ def run_reduced(task: dict) -> dict:
     data = _steps_scene(task["scene"], task["steps"])
     over = task["overrides"]
     if "weights" in over:
-        data.setdefault("subspace", {})["weights"] = over["weights"]
+        sub = data.setdefault("subspace", {})
+        # the clusters stay those of the scene's own weights: only the subspace changes
+        sub.setdefault("cluster_weights", sub.get("weights", 8))
+        sub["weights"] = over["weights"]
     if "clusters" in over:
         data.setdefault("subspace", {})["clusters"] = over["clusters"]
     if "iterations" in over:
@@ -265,6 +268,7 @@ def run_reduced(task: dict) -> dict:
         "resolution": task.get("resolution", 1.0),
         "vertices": int(sim.mesh.p.shape[1]),
         "weights": scene.config["subspace"]["weights"],
+        "cluster_weights": scene.config["subspace"]["cluster_weights"] or scene.config["subspace"]["weights"],
         "subspace": int(sim.B.shape[1]),
         "clusters": int(sim.n_clusters),
         "max_iterations": sim.max_iter,
@@ -515,9 +519,9 @@ def run_study(
 
 
 _COLUMNS = [
-    "sweep", "label", "resolution", "vertices", "weights", "subspace", "clusters", "max_iterations", "rtol",
-    "iterations_mean", "precompute_s", "step_ms", "trajectory_error", "subspace_error", "solver_error",
-    "com_error", "worst_vertex_error", "accelerator",
+    "sweep", "label", "resolution", "vertices", "weights", "cluster_weights", "subspace", "clusters",
+    "max_iterations", "rtol", "iterations_mean", "precompute_s", "step_ms", "trajectory_error",
+    "subspace_error", "solver_error", "com_error", "worst_vertex_error", "accelerator",
 ]  # fmt: skip
 
 

@@ -150,15 +150,20 @@ def test_quick_study_errors_shrink_with_subspace_and_clusters(quick_study):
     rows = report["rows"]
     base = next(r for r in rows if r["sweep"] == "base")
 
-    def series(key):
+    def series(key, error="trajectory_error"):
         pts = [r for r in rows if r["sweep"] == key] + [base]
-        return [r["trajectory_error"] for r in sorted(pts, key=lambda r: r[key])]
+        return [r[error] for r in sorted(pts, key=lambda r: r[key])]
 
-    weights, clusters = series("weights"), series("clusters")
-    # the trend: more weights and more clusters, less error (to within 2 % of a
-    # neighbour's value where the subspace has stopped limiting)
-    assert all(b <= a * 1.02 for a, b in zip(weights, weights[1:])), weights
-    assert all(b <= a * 1.02 for a, b in zip(clusters, clusters[1:])), clusters
+    # The trend. More clusters: less error, strictly. More weights: the best
+    # error the subspace allows falls strictly; the error of the run falls
+    # until the clusters and iterations, not the subspace, limit it (then it
+    # stays within 5 % of its neighbour's).
+    clusters = series("clusters")
+    assert all(b < a for a, b in zip(clusters, clusters[1:])), clusters
+    best = series("weights", "subspace_error")
+    assert all(b < a for a, b in zip(best, best[1:])), best
+    weights = series("weights")
+    assert all(b <= a * 1.05 for a, b in zip(weights, weights[1:])), weights
     assert weights[-1] < 0.5 * weights[0] and clusters[-1] < 0.5 * clusters[0]
     iterations = [
         r["trajectory_error"]
