@@ -1,0 +1,85 @@
+"""How precompute and step time scale: mesh size, subspace size, clusters, contact points.
+
+    python benchmarks/bench_scaling.py
+
+Step times are medians over 100 steps of the tutorial's scenes (floating, or
+crawling for the contact points), numpy and, when installed, numba; precompute
+is ``ModalMuscle.from_mesh`` in one thread.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import skfem_modal as sm  # noqa: E402
+from skfem_modal import _accel  # noqa: E402
+from skfem_modal.muscles import sine_gait  # noqa: E402
+from skfem_modal.sim import ModalMuscle  # noqa: E402
+
+GAIT = ([0.45, 0.35, 0.25, 0.15], [1.2, 0.8, 1.0, 0.6], [0.0, 0.25, 0.5, 0.1])
+
+
+def step_ms(sim, steps=100):
+    z, z_dot, _ = sim.rest_state()
+    sim.step(z, z_dot, np.zeros(sim.n_muscles))
+    amps = np.asarray(GAIT[0]) * sim.ceilings
+    times = []
+    for i in range(steps):
+        a = sine_gait(i * sim.h, amps, GAIT[1], GAIT[2])
+        start = time.perf_counter()
+        z_next = sim.step(z, z_dot, a)
+        times.append(time.perf_counter() - start)
+        z_dot, z = (z_next - z) / sim.h, z_next
+    return 1e3 * float(np.median(times))
+
+
+def build(mesh, accelerator="numpy", **kw):
+    kw = {"n_muscles": 4, "mu": 1e6, "rho": 1e3, "h": 0.01, "parallel": False, **kw}
+    start = time.perf_counter()
+    sim = ModalMuscle.from_mesh(mesh, accelerator=accelerator, **kw)
+    return sim, time.perf_counter() - start
+
+
+def row(label, **kw):
+    mesh = kw.pop("mesh", None) or sm.caterpillar()
+    sim, pre = build(mesh, **kw)
+    out = (
+        f"| {label} | {mesh.p.shape[1]} | {sim.B.shape[1]} | {sim.n_clusters} | {sim.contact_vertices.size} "
+        f"| {pre:.2f} | {step_ms(sim):.3f} |"
+    )
+    if _accel.AVAILABLE:
+        fast, _ = build(mesh, accelerator="numba", **kw)
+        out += f" {step_ms(fast):.3f} |"
+    print(out, flush=True)
+
+
+def main():
+    print(
+        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
+        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}"
+    )
+    print(
+        "| sweep | vertices | subspace | clusters | contact points | precompute s | step ms (numpy) |"
+        + (" step ms (numba) |" if _accel.AVAILABLE else "")
+    )
+    print("|---|---|---|---|---|---|---|" + ("---|" if _accel.AVAILABLE else ""))
+    for nx, ny in [(35, 17), (70, 34), (140, 68), (280, 136)]:
+        row(f"mesh nx={nx}", mesh=sm.caterpillar(nx=nx, ny=ny))
+    for w in (4, 8, 16, 24):
+        row(f"weights={w}", n_weights=w)
+    for c in (5, 20, 80, 320):
+        row(f"clusters={c}", n_clusters=c)
+    mesh = sm.caterpillar()
+    ground = float(mesh.p[1].min()) - 0.15
+    for p in (10, 30, 100, 300):
+        row(f"contacts={p} (crawl)", mesh=mesh, gravity=[0.0, -9.8], ground=ground, n_contacts=p)
+
+
+if __name__ == "__main__":
+    main()
