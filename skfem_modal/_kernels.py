@@ -235,3 +235,118 @@ def rotations3(F9, q):
         bad = ~ok
         R[bad] = rotations3_flat(F9[bad])
     return R, q
+
+
+@numba.njit(cache=True, fastmath=False)
+def _converged(z_next, z_iter, z_start, tol2, rtol2):  # pragma: no cover - compiled
+    """The stopping rules: 1 stop, 0 go on, -1 non-finite."""
+    change2 = 0.0
+    motion2 = 0.0
+    for i in range(z_next.shape[0]):
+        d = z_next[i] - z_iter[i]
+        change2 += d * d
+        m = z_next[i] - z_start[i]
+        motion2 += m * m
+    if not change2 < np.inf:
+        return -1
+    if change2 < tol2:
+        return 1
+    if rtol2 > 0.0 and change2 <= rtol2 * motion2:
+        return 1
+    return 0
+
+
+@numba.njit(cache=True, fastmath=False)
+def iterate3(G, W, c, z, q, warm, max_iter, tol2, rtol2):  # pragma: no cover - compiled
+    """All local/global iterations of a 3D step without contact.
+
+    ``F = G z`` (9 rows a cluster), the rotations by :func:`_top_quaternion`
+    (warm-started from ``q``, updated in place), ``z = c + W vec(R)``, until
+    a stopping rule holds.
+
+    Returns
+    -------
+    z : ndarray, shape (r,)
+    iterations : int
+    status : int
+        0 done; 1 a rotation was not certified (the caller redoes the step);
+        2 the state became non-finite.
+    """
+    n = G.shape[0] // 9
+    N = np.empty((4, 4))
+    out = np.empty(4)
+    work = np.empty((19, 5))
+    g = np.empty(9)
+    R = np.empty(n * 9)
+    z_iter = z.copy()
+    for it in range(1, max_iter + 1):
+        F = np.dot(G, z_iter)
+        for k in range(n):
+            big = 0.0
+            for i in range(9):
+                big = max(big, abs(F[9 * k + i]))
+            scale = 1.0 / big if big > 0.0 else 1.0
+            for i in range(9):
+                g[i] = F[9 * k + i] * scale
+            N[0, 0] = g[0] + g[4] + g[8]
+            N[1, 1] = g[0] - g[4] - g[8]
+            N[2, 2] = -g[0] + g[4] - g[8]
+            N[3, 3] = -g[0] - g[4] + g[8]
+            N[0, 1] = N[1, 0] = g[7] - g[5]
+            N[0, 2] = N[2, 0] = g[2] - g[6]
+            N[0, 3] = N[3, 0] = g[3] - g[1]
+            N[1, 2] = N[2, 1] = g[1] + g[3]
+            N[1, 3] = N[3, 1] = g[2] + g[6]
+            N[2, 3] = N[3, 2] = g[5] + g[7]
+            if not _top_quaternion(N, q[k], warm or it > 1, out, work):
+                return z_iter, it, 1
+            a, b, cq, d = out[0], out[1], out[2], out[3]
+            q[k, 0], q[k, 1], q[k, 2], q[k, 3] = a, b, cq, d
+            o = 9 * k
+            R[o + 0] = a * a + b * b - cq * cq - d * d
+            R[o + 1] = 2.0 * (b * cq - a * d)
+            R[o + 2] = 2.0 * (b * d + a * cq)
+            R[o + 3] = 2.0 * (b * cq + a * d)
+            R[o + 4] = a * a - b * b + cq * cq - d * d
+            R[o + 5] = 2.0 * (cq * d - a * b)
+            R[o + 6] = 2.0 * (b * d - a * cq)
+            R[o + 7] = 2.0 * (cq * d + a * b)
+            R[o + 8] = a * a - b * b - cq * cq + d * d
+        z_next = c + np.dot(W, R)
+        state = _converged(z_next, z_iter, z, tol2, rtol2)
+        z_iter = z_next
+        if state == -1:
+            return z_iter, it, 2
+        if state == 1:
+            break
+    return z_iter, it, 0
+
+
+@numba.njit(cache=True, fastmath=False)
+def iterate2(G, W, c, z, max_iter, tol2, rtol2):  # pragma: no cover - compiled
+    """All local/global iterations of a 2D step without contact.
+
+    ``(c, s) = G z`` (2 rows a cluster), normalised, ``z = c + W (c, s)``.
+    Returns ``(z, iterations, status)`` with status 0 done, 2 non-finite.
+    """
+    z_iter = z.copy()
+    for it in range(1, max_iter + 1):
+        cs = np.dot(G, z_iter)
+        for k in range(cs.shape[0] // 2):
+            x = cs[2 * k]
+            y = cs[2 * k + 1]
+            nrm = np.hypot(x, y)
+            if nrm == 0.0:
+                cs[2 * k] = 1.0
+                cs[2 * k + 1] = 0.0
+            else:
+                cs[2 * k] = x / nrm
+                cs[2 * k + 1] = y / nrm
+        z_next = c + np.dot(W, cs)
+        state = _converged(z_next, z_iter, z, tol2, rtol2)
+        z_iter = z_next
+        if state == -1:
+            return z_iter, it, 2
+        if state == 1:
+            break
+    return z_iter, it, 0

@@ -31,7 +31,19 @@ from .contact import GroundContact
 from .fem import _gravity, _jacobian, _mass, _positive, scalar_basis, vector_dofs
 from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
 from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
-from .rotations import HORN, QUAT_TO_R, ROT2, dominant_quaternions, rotations2_flat, rotations3_flat
+from .rotations import (
+    HORN,
+    HORN_SHIFTED,
+    QQ_TO_R_TRACE,
+    QUAT_TO_R,
+    ROT2,
+    SHIFT,
+    certify_dominant,
+    dominant_quaternions,
+    rotations2_flat,
+    rotations3_flat,
+    squarings_for,
+)
 from .subspace import com_operator, mass_orthonormalize, project, skinning_eigenmodes
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes"]
@@ -335,6 +347,7 @@ class ModalMuscle:
         clock = time.perf_counter()
         J = _jacobian(mesh, "P1")
         M = _mass(mesh, rho_e, True, "P1", True)
+        self._M = M
         MB = M @ B
         self.BMB = B.T @ MB
         self.timings["mass"] = time.perf_counter() - clock
@@ -430,19 +443,21 @@ class ModalMuscle:
             self._WA = np.einsum("rs,kcs->krc", H_inv, self._A)
             self._G[nc * dd :] = self._A[0]
             self._W[:, nc * dd :] = self._WA[0]
-        # The step works on rotation *features* that are linear in F: (c, s) =
-        # (F00 + F11, F10 - F01) in 2D, Horn's 4x4 matrix in 3D; and on the
-        # rotation's own parameters ((c, s) in 2D, q q^T in 3D), which R is
-        # linear in. Folding those maps into G and W saves two products per
-        # iteration.
-        self._feature = ROT2 if dim == 2 else HORN.T  # F -> features, (nf, dd)
-        self._unfeature = ROT2 if dim == 2 else QUAT_TO_R  # rotation parameters -> R, (nrot, dd)
-        self._Gf = self._to_features(self._G)
-        self._Wf = self._to_rotations(self._W)
-        if m:
-            self._Af = np.stack([self._to_features(Ak) for Ak in self._A])
-            self._WAf = np.stack([self._to_rotations(Wk) for Wk in self._WA])
-        self._q = None  # 3D: the last quaternions, a warm start for the next ones
+        if dim == 2:
+            # The 2D step works on the rotation *features* (c, s) = (F00 + F11,
+            # F10 - F01), linear in F, and R is linear in (c, s): folding both
+            # maps into G and W saves two products per iteration. (In 3D,
+            # Horn's 16 entries would make the products larger than F's 9.)
+            self._Gf = self._to_features(self._G)
+            self._Wf = self._to_rotations(self._W)
+            if m:
+                self._Af = np.stack([self._to_features(Ak) for Ak in self._A])
+                self._WAf = np.stack([self._to_rotations(Wk) for Wk in self._WA])
+        self._q = None  # 3D, compiled: the last quaternions, a warm start for the next ones
+        # 3D, numpy: each cluster's power-method shift and the squarings, both
+        # from the last step's matrices
+        self._shift = None
+        self._squarings = 4
         self._rest_const = 0.5 * dim * float(w_mu.sum())
         self.timings["factor"] = time.perf_counter() - clock
 
@@ -479,9 +494,12 @@ class ModalMuscle:
             )
             effects.append("contact")
         self.stickiness, self.push_out = stickiness, push_out
-        # the operators the step uses: rotation features, or (compiled 3D) F itself
-        if self.accelerator == "numba" and dim == 3:
+        # the operators the step uses: rotation features in 2D, F itself in 3D
+        # (Horn's matrix has 16 entries to F's 9: the products are cheaper in F)
+        if dim == 3:
             G_step, W_step, A_step, WA_step = self._G, self._W.copy(), self._A, self._WA
+            if self.accelerator == "numpy":
+                G_step, A_step = self._shifted_operators(nc, na)
         else:
             G_step, W_step = self._Gf, self._Wf
             A_step, WA_step = (self._Af, self._WAf) if m else (None, None)
@@ -491,10 +509,10 @@ class ModalMuscle:
             W_step = np.vstack([W_step, Je @ W_step])
             if m:
                 WA_step = np.concatenate([WA_step, np.einsum("pr,krc->kpc", Je, WA_step)], axis=1)
-        self._step_ops = (A_step, WA_step, G_step, W_step)
+        self._step_ops = (A_step, WA_step, np.ascontiguousarray(G_step), np.ascontiguousarray(W_step))
+        self._activation_views = {}
         self.effects = tuple(effects)
         self._com = com_operator(mesh, B, rho_e)
-        self._M = M
         self._rotations = rotations2_flat if dim == 2 else rotations3_flat
         self.iterations = 0
         self.timings["effects"] = time.perf_counter() - clock
@@ -508,17 +526,39 @@ class ModalMuscle:
     def tol(self, value) -> None:
         self._tol2 = _positive_scalar(value, "tol", allow_zero=True) ** 2
 
+    def _shifted_operators(self, nc: int, na: int):
+        """3D, numpy: cluster operators that give ``(F / w, s)`` per cluster.
+
+        ``w`` is the cluster's ``|F|`` at rest (so entries stay near 1 and
+        powers of Horn's matrix neither overflow nor underflow), ``s`` the
+        power method's shift, fed by a trailing 1 appended to ``z`` (its
+        entries are written each step). Returns ``G`` (clusters x 10, r + 1)
+        and the muscle operators ``A`` (m + 1, active clusters x 10, r + 1).
+        """
+        r = self.B.shape[1]
+        n = nc + na
+        rest = self._G @ project(self.mesh.p.T, self.B, self._M)
+        w = np.sqrt(np.einsum("ij,ij->i", rest.reshape(n, 9), rest.reshape(n, 9)))
+        w = np.where(w > 0.0, w, 1.0)
+        G = np.zeros((n, 10, r + 1))
+        G[:, :9, :r] = self._G.reshape(n, 9, r) / w[:, None, None]
+        m = self.n_muscles
+        A = None
+        if m:
+            A = np.zeros((m + 1, na, 10, r + 1))
+            A[:, :, :9, :r] = self._A.reshape(m + 1, na, 9, r) / w[nc:, None, None]
+            A = A.reshape(m + 1, na * 10, r + 1)
+        return G.reshape(n * 10, r + 1), A
+
     def _to_features(self, G: np.ndarray) -> np.ndarray:
         """Cluster rows of ``F`` (dd each) -> rows of features (nf each)."""
-        dd = self.dim * self.dim
-        blocks = G.reshape(-1, dd, G.shape[-1])
-        return np.einsum("fj,kjr->kfr", self._feature, blocks).reshape(-1, G.shape[-1])
+        blocks = G.reshape(-1, 4, G.shape[-1])
+        return np.einsum("fj,kjr->kfr", ROT2, blocks).reshape(-1, G.shape[-1])
 
     def _to_rotations(self, W: np.ndarray) -> np.ndarray:
         """Cluster columns acting on ``vec(R)`` -> columns acting on rotation parameters."""
-        dd = self.dim * self.dim
-        blocks = W.reshape(W.shape[0], -1, dd)
-        return np.einsum("rkj,pj->rkp", blocks, self._unfeature).reshape(W.shape[0], -1)
+        blocks = W.reshape(W.shape[0], -1, 4)
+        return np.einsum("rkj,pj->rkp", blocks, ROT2).reshape(W.shape[0], -1)
 
     # ------------------------------------------------------------------ state
     def rest_state(self):
@@ -576,16 +616,29 @@ class ModalMuscle:
         """Write the muscle rows of the operators for activation ``a``."""
         if not self.n_muscles:
             return
-        if features:
-            A, WA, G, W = self._step_ops
-        else:
-            A, WA, G, W = self._A, self._WA, self._G, self._W
-        m = A.shape[0] - 1
-        rows = G.shape[0] - A.shape[1]
-        cols = W.shape[1] - WA.shape[2]
-        # one small product each: the operators are affine in a
-        G[rows:] = (a @ A[1:].reshape(m, -1)).reshape(A.shape[1:]) + A[0]
-        W[:, cols:] = (a @ WA[1:].reshape(m, -1)).reshape(WA.shape[1:]) + WA[0]
+        views = self._activation_views.get(features)
+        if views is None:
+            if features:
+                A, WA, G, W = self._step_ops
+            else:
+                A, WA, G, W = self._A, self._WA, self._G, self._W
+            m = A.shape[0] - 1
+            rows = G.shape[0] - A.shape[1]
+            cols = W.shape[1] - WA.shape[2]
+            views = (
+                np.ascontiguousarray(A[1:].reshape(m, -1)),
+                A[0].reshape(-1),
+                G[rows:].reshape(-1),  # contiguous rows: a view
+                np.ascontiguousarray(WA[1:].reshape(m, -1)),
+                WA[0],
+                W[:, cols:],
+            )
+            self._activation_views[features] = views
+        A1, A0, G_rows, WA1, WA0, W_cols = views
+        # the operators are affine in a: one small product each
+        np.matmul(a, A1, out=G_rows)
+        G_rows += A0
+        np.add((a @ WA1).reshape(WA0.shape), WA0, out=W_cols)
 
     def step(self, z, z_dot, a=None) -> np.ndarray:
         """Advance one time step.
@@ -645,6 +698,12 @@ class ModalMuscle:
 
     def _iterate2(self, c, z, contact):
         _, _, Gf, Wf = self._step_ops
+        if self._accel is not None and contact is None:
+            # compiled, all iterations in one call
+            z_next, it, status = self._accel.iterate2(Gf, Wf, c, z, self.max_iter, self._tol2, self.rtol**2)
+            if status == 2:
+                raise SimulationError("the state became non-finite")
+            return z_next, it
         tol2, r = self._tol2, z.size
         compiled = self._accel.normalize_cs if self._accel is not None else None
         z_iter = z
@@ -671,20 +730,125 @@ class ModalMuscle:
         return z_iter, it
 
     def _iterate3(self, c, z, contact):
+        if self._accel is not None:
+            return self._iterate3_compiled(c, z, contact)
+        result = self._iterate3_squarings(c, z, contact)
+        if result is None:
+            # some rotation was not certified: redo the step, each rotation checked as it is made
+            result = self._iterate3_checked(c, z, contact)
+        return result
+
+    def _shift_from(self, F10: np.ndarray) -> None:
+        """Each cluster's shift ``|N(F)| / (2 sqrt 2)``, from its rows ``(F / w, s)``, shape (n, 10)."""
+        F9 = F10[:, :9]
+        self._shift = SHIFT * 2.0 * np.sqrt(np.einsum("ij,ij->i", F9, F9))
+
+    def _iterate3_squarings(self, c, z, contact):
+        """3D iterations with uncertified rotations, certified together at the end.
+
+        Each rotation is the top eigenvector of the shifted Horn matrix ``P``,
+        read off ``P^(2^k)`` normalised by its trace (``q q^T`` up to
+        ``ratio^(2^k)``), with ``k`` from the ratio of the last step's
+        matrices. One batched check at the end (:func:`certify_dominant`)
+        accepts all rotations of the step or none (then returns None). This
+        takes a dozen numpy calls an iteration where certifying each rotation
+        as it is made takes three dozen.
+        """
+        _, _, G, W = self._step_ops
+        r = z.size
+        n = G.shape[0] // 10
+        z_iter = np.empty(r + 1)
+        z_iter[:r] = z
+        z_iter[r] = 1.0
+        if self._shift is None:
+            G[9::10, r] = 0.0
+            self._shift_from((G @ z_iter).reshape(n, 10))
+        G[9::10, r] = self._shift
+        P0s = np.empty((self.max_iter, n, 16))
+        Rs = np.empty((self.max_iter, n, 9))
+        z_next = np.empty(r + 1)
+        z_next[r] = 1.0
+        tol2, squarings = self._tol2, self._squarings
+        for it in range(self.max_iter):
+            P = np.matmul((G @ z_iter).reshape(n, 10), HORN_SHIFTED, out=P0s[it]).reshape(n, 4, 4)
+            for _ in range(squarings):
+                P = P @ P
+            RT = P.reshape(n, 16) @ QQ_TO_R_TRACE
+            R = np.divide(RT[:, :9], RT[:, 9:], out=Rs[it])
+            y = W @ R.reshape(-1)
+            y += c
+            if contact is not None:
+                y = contact.correct(y)
+            z_next[:r] = y[:r]
+            diff = z_next[:r] - z_iter[:r]
+            change2 = diff @ diff
+            z_iter, z_next = z_next, z_iter
+            if change2 < tol2:
+                break
+            if not change2 < np.inf:
+                # an uncertified rotation may be what went wrong: the checked path decides
+                self._shift = None
+                return None
+            if self._stop(change2, z_iter[:r], z):
+                break
+        k = it + 1
+        ok, ratio = certify_dominant(P0s[:k].reshape(-1, 16), Rs[:k].reshape(-1, 9), squarings)
+        if not ok:
+            self._squarings = min(squarings + 1, 8)
+            self._shift = None
+            return None
+        # with a margin: the matrices change from step to step, and a miss costs a redone step
+        self._squarings = squarings_for(min(1.25 * ratio, 1.0))
+        # the next step's shifts, from the last matrices: |N|^2 = |P|^2 - 4 s^2 (N has zero trace)
+        last = P0s[it]
+        self._shift = SHIFT * np.sqrt(np.maximum(np.einsum("ij,ij->i", last, last) - 4 * self._shift**2, 0.0))
+        return z_iter[:r].copy(), k
+
+    def _iterate3_checked(self, c, z, contact):
+        """3D iterations, each rotation certified as it is made (the robust path)."""
+        tol2, r = self._tol2, z.size
+        _, _, G, W = self._step_ops
+        n = G.shape[0] // 10
+        q = None
+        z_iter = z
+        G[9::10, r] = 0.0
+        G_F = G[:, :r]  # the rows give F / w: the same rotations
+        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
+            F10 = (G_F @ z_iter).reshape(n, 10)
+            q = dominant_quaternions((F10[:, :9] @ HORN).reshape(n, 4, 4), q)
+            y = c + W @ ((q[:, :, None] * q[:, None, :]).reshape(n, 16) @ QUAT_TO_R).ravel()
+            if contact is not None:
+                y = contact.correct(y)
+            z_next = y[:r]
+            diff = z_next - z_iter
+            change2 = diff @ diff
+            z_iter = z_next
+            if change2 < tol2 or self._stop(change2, z_next, z):
+                break
+        self._shift_from(F10)
+        return z_iter, it
+
+    def _iterate3_compiled(self, c, z, contact):
+        if contact is None:
+            # all iterations in one call; a rotation the kernel cannot certify
+            # sends the step to the loop below, which finishes it with numpy
+            _, _, G, W = self._step_ops
+            warm = self._q is not None
+            q = self._q.copy() if warm else np.zeros((G.shape[0] // 9, 4))
+            z_next, it, status = self._accel.iterate3(G, W, c, z, q, warm, self.max_iter, self._tol2, self.rtol**2)
+            if status == 2:
+                raise SimulationError("the state became non-finite")
+            if status == 0:
+                self._q = q
+                return z_next, it
         tol2, r = self._tol2, z.size
         q = self._q
         z_iter = z
-        # compiled, the kernel builds Horn's matrix from F and returns R, so
-        # the products use the smaller F-space operators
         _, _, G, W = self._step_ops
-        compiled = self._accel.rotations3 if self._accel is not None else None
+        compiled = self._accel.rotations3
         for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
-            if compiled is not None:
-                R, q = compiled((G @ z_iter).reshape(-1, 9), q)
-                y = c + W @ R.ravel()
-            else:
-                q = dominant_quaternions((G @ z_iter).reshape(-1, 4, 4), q)
-                y = c + W @ (q[:, :, None] * q[:, None, :]).ravel()
+            R, q = compiled((G @ z_iter).reshape(-1, 9), q)
+            y = c + W @ R.ravel()
             if contact is not None:
                 y = contact.correct(y)
             z_next = y[:r]
