@@ -200,8 +200,8 @@ def certify_dominant(P0: np.ndarray, R9: np.ndarray, squarings: int):
     ratio : float
         The largest ratio (the contraction of one power), inf if any failed.
     """
-    O = R9 @ _R_TO_QQ + _QQ_CONST  # q q^T, for the rotation R(q)
-    mu = np.einsum("ij,ij->i", P0, O)  # both symmetric: tr(P O)
+    qq = R9 @ _R_TO_QQ + _QQ_CONST  # q q^T, for the rotation R(q)
+    mu = np.einsum("ij,ij->i", P0, qq)  # both symmetric: tr(P O)
     p2 = np.einsum("ij,ij->i", P0, P0)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         ratio2 = (p2 - mu * mu) / (mu * mu)
