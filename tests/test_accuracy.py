@@ -193,7 +193,15 @@ def test_quick_study_writes_its_report(quick_study):
 def test_study_runs_on_dask_like_on_the_local_pool(tmp_path, monkeypatch):
     distributed = pytest.importorskip("dask.distributed", reason="dask is in the distributed extra")
     tiny = dict(
-        steps=20, weights=[4], clusters=[8], iterations=[3], rtol=[], resolution=[1.0], grid=[], modal=[(20, 1)]
+        steps=20,
+        weights=[4],
+        clusters=[8],
+        iterations=[3],
+        rtol=[],
+        resolution=[1.0],
+        grid=[],
+        modal=[(20, 1)],
+        timing_rounds=1,
     )
     monkeypatch.setitem(study.PRESETS, "tiny", tiny)
     scene = dict(study.FLOATING_CATERPILLAR, mesh={"shape": "caterpillar", "params": {"nx": 24, "ny": 12}})
@@ -203,3 +211,17 @@ def test_study_runs_on_dask_like_on_the_local_pool(tmp_path, monkeypatch):
     for a, b in zip(local["rows"], remote["rows"]):
         assert a["label"] == b["label"]
         assert a["trajectory_error"] == pytest.approx(b["trajectory_error"], rel=1e-9)
+
+
+def test_step_times_one_per_task(monkeypatch):
+    # each task's time is the lowest of its per-round medians; a fake clock
+    # that advances 1 ms per reading makes every timed step 1 ms long
+    scene = dict(study.FLOATING_CATERPILLAR, mesh={"shape": "caterpillar", "params": {"nx": 24, "ny": 12}})
+    tasks = [
+        {"scene": scene, "base_dir": None, "steps": 30, "overrides": over, "sweep": "", "label": ""}
+        for over in ({"iterations": 1}, {"iterations": 20})
+    ]
+    ticks = iter(np.arange(0.0, 1e3, 1e-3))
+    monkeypatch.setattr(study.time, "perf_counter", lambda: next(ticks))
+    ms = study.time_steps(tasks, rounds=2, steps=30)
+    assert ms == pytest.approx([1.0, 1.0])
