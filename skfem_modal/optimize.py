@@ -158,7 +158,7 @@ def rollout(task: dict) -> dict:
             "builds": _WORKER_BUILDS,
         }
     travel = float((sim.com(z) - start) @ np.asarray(task["direction"], float))
-    penalty = task["tip_weight"] * size * max(0.0, max_tilt - task["tip_limit"]) / np.pi
+    penalty = float(task["tip_weight"] * size * max(0.0, max_tilt - task["tip_limit"]) / np.pi)
     return {
         "fitness": travel - penalty,
         "travel": travel,
@@ -354,7 +354,7 @@ def run_search(
                     "steps": steps,
                     "gait": space.gait(u),
                     "direction": direction.tolist(),
-                    "tip_limit": np.radians(tip_limit_degrees),
+                    "tip_limit": float(np.radians(tip_limit_degrees)),
                     "tip_weight": tip_weight,
                 }
                 for u in points

@@ -449,8 +449,28 @@ def make_executor(workers: int = 1, scheduler: str | None = None):
         return client.get_executor(), client.close
     import multiprocessing
 
+    # Each worker process gets one BLAS thread, as dask's workers do: the
+    # processes share the cores, and a result does not depend on the executor
+    # (threaded BLAS sums in another order). Workers start when tasks come,
+    # so the setting holds until the pool is closed.
+    saved = {name: os.environ.get(name) for name in _ONE_THREAD}
+    os.environ.update({name: "1" for name in _ONE_THREAD})
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
-    return pool, pool.shutdown
+
+    def close():
+        try:
+            pool.shutdown()
+        finally:
+            for name, value in saved.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+
+    return pool, close
+
+
+_ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def run_study(

@@ -1,6 +1,7 @@
 """Gait search: deterministic, resumable, the same on a dask cluster as on the local pool."""
 
 import copy
+import csv
 import json
 import tomllib
 
@@ -49,7 +50,10 @@ def test_search_writes_a_playable_best_gait(local, tmp_path):
         assert data["muscles"]["gait"][key] == pytest.approx(best["gait"][key], rel=1e-15)
     summary = run_scene(Scene.from_dict(data), None)
     assert summary["com"]["travel"][0] == pytest.approx(best["travel"], rel=1e-9, abs=1e-12)
-    assert len(open(local["history_csv"]).read().splitlines()) == 3
+    rows = list(csv.DictReader(open(local["history_csv"])))
+    assert len(rows) == 2
+    for row, h in zip(rows, local["history"]):  # plain numbers, read back exactly
+        assert float(row["best_fitness"]) == h["best_fitness"] and float(row["sigma"]) == h["sigma"]
 
 
 def test_precompute_once_per_worker(local):
@@ -112,3 +116,19 @@ def test_cli_optimize(tmp_path, capsys):
     assert (tmp_path / "out" / "best_gait.toml").exists()
     assert main(["optimize", str(scene), "--direction", "w", "--out", str(tmp_path / "o2")]) == 2
     assert "--direction must be x, y or z" in capsys.readouterr().err
+
+
+def test_local_pool_workers_use_one_blas_thread(monkeypatch):
+    import os
+
+    from skfem_modal.study import make_executor
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")
+    monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    pool, close = make_executor(1)
+    try:
+        assert pool.submit(os.getenv, "OMP_NUM_THREADS").result() == "1"
+        assert pool.submit(os.getenv, "MKL_NUM_THREADS").result() == "1"
+    finally:
+        close()
+    assert os.environ["OMP_NUM_THREADS"] == "4" and "MKL_NUM_THREADS" not in os.environ
