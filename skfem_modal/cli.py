@@ -272,6 +272,8 @@ def cmd_optimize(args) -> int:
         base_dir=base_dir,
         direction=direction,
         space=space,
+        samples=args.samples,
+        jitter=args.jitter,
         resume=args.resume,
         workers=args.workers,
         scheduler=args.scheduler,
@@ -279,7 +281,9 @@ def cmd_optimize(args) -> int:
     )
     best = result["best"]
     say(
-        f"best: travel {best['travel']:.4g} (fitness {best['fitness']:.4g}) in generation {best['generation']}; "
+        f"best: travel {best['travel']:.4g} (fitness {best['fitness']:.4g}"
+        + (f", travel spread {best['travel_spread']:.3g} over {args.samples} samples" if args.samples > 1 else "")
+        + f") in generation {best['generation']}; "
         f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
     )
     say(f"wrote {result['best_scene']} (play it: skfem-modal run {result['best_scene']}), {result['history_csv']}")
@@ -362,6 +366,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--direction", default="x", help="travel direction: x, -x, y, ... (default x)")
     p.add_argument("--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the ceiling")
     p.add_argument("--period-range", type=float, nargs=2, default=(0.3, 2.0), metavar=("MIN", "MAX"))
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=1,
+        help="rollouts per candidate: its gait and jittered copies, fitness their mean (default 1)",
+    )
+    p.add_argument("--jitter", type=float, default=0.01, help="relative size of the copies' changes (default 0.01)")
     p.add_argument("--out", default="search", help="output directory (default: search)")
     p.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
     p.add_argument("--workers", type=int, default=2, help="processes of the local pool (default 2)")

@@ -16,6 +16,14 @@ and the world's up axis. With the defaults (limit 60 degrees, weight 10) a
 creature that ends upside down loses several body lengths of travel, so
 tipping over never pays.
 
+Travel over ground contact is chaotic: a gait 1 % away from a good one can
+travel a fraction as far. With ``samples = K > 1`` a candidate's fitness is
+the mean over K rollouts, the gait itself and K - 1 copies with every
+amplitude and period scaled by ``1 + jitter * N(0, 1)`` and every phase
+shifted by ``jitter * N(0, 1)`` (the draws fixed by the seed, the generation
+and the candidate), so the search prefers gaits that keep working near
+where they were found.
+
 Each rollout is a task; every worker process builds the scene's simulator
 once (precompute once per worker, then reused by all its rollouts). Each
 generation is checkpointed (the CMA-ES state, numpy's random state, the
@@ -249,6 +257,8 @@ def run_search(
     sigma0: float = 0.2,
     tip_limit_degrees: float = 60.0,
     tip_weight: float = 10.0,
+    samples: int = 1,
+    jitter: float = 0.01,
     resume: bool = False,
     executor=None,
     workers: int = 1,
@@ -279,6 +289,11 @@ def run_search(
         CMA-ES initial step in the unit cube.
     tip_limit_degrees, tip_weight : float
         The tipping penalty (see the module docs).
+    samples : int
+        Rollouts per candidate; more than one averages over jittered copies
+        of its gait (see the module docs).
+    jitter : float
+        Relative size of those copies' changes.
     resume : bool
         Continue from the checkpoint in ``out_dir``.
     executor : concurrent.futures.Executor, optional
@@ -289,7 +304,9 @@ def run_search(
     Returns
     -------
     result : dict
-        ``best`` (gait, fitness, travel), ``history`` (rows), ``generations``
+        ``best`` (gait, fitness, travel: the gait's own rollout, and
+        ``travel_spread``, the standard deviation over its samples),
+        ``history`` (rows), ``generations``
         done, ``rollouts``, ``seconds``, and the paths ``history_csv``,
         ``best_scene`` (``best_gait.toml``) and ``plot`` (``fitness.png``).
     """
@@ -305,6 +322,10 @@ def run_search(
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
     if generations < 1 or popsize < 2:
         raise ValueError(f"need generations >= 1 and popsize >= 2, got {generations} and {popsize}")
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    if not 0.0 <= jitter < 0.5:
+        raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
     dim = scene.dim
     direction = np.eye(dim)[0] if direction is None else np.asarray(direction, float)
     if direction.shape != (dim,) or not np.linalg.norm(direction) > 0:
@@ -322,8 +343,9 @@ def run_search(
     if resume and os.path.isfile(checkpoint):
         with open(checkpoint, "rb") as f:
             state = pickle.load(f)
-        if state["seed"] != seed or state["popsize"] != popsize or state["steps"] != steps:
-            raise ValueError("the checkpoint was made with another seed, popsize or rollout length")
+        made = (state["seed"], state["popsize"], state["steps"], state.get("samples", 1), state.get("jitter", jitter))
+        if made != (seed, popsize, steps, samples, jitter):
+            raise ValueError("the checkpoint was made with another seed, popsize, rollout length, samples or jitter")
         es, history, done = state["es"], state["history"], state["generation"]
         np.random.set_state(state["numpy_random"])
     else:
@@ -347,34 +369,39 @@ def run_search(
         this_call = 0
         while done < generations and (stop_after is None or this_call < stop_after):
             points = es.ask()
+            gaits = [space.gait(u) for u in points]
             tasks = [
                 {
                     "scene": data,
                     "base_dir": base_dir,
                     "steps": steps,
-                    "gait": space.gait(u),
+                    "gait": gait if k == 0 else _jittered(gait, jitter, (seed, done, i, k)),
                     "direction": direction.tolist(),
                     "tip_limit": float(np.radians(tip_limit_degrees)),
                     "tip_weight": tip_weight,
                 }
-                for u in points
+                for i, gait in enumerate(gaits)
+                for k in range(samples)
             ]
-            results = list(executor.map(rollout, tasks))
-            rollouts += len(results)
-            es.tell(points, [-r["fitness"] for r in results])  # CMA-ES minimises
+            flat = list(executor.map(rollout, tasks))
+            rollouts += len(flat)
+            results = [flat[i * samples : (i + 1) * samples] for i in range(len(points))]
+            fitness = [float(np.mean([r["fitness"] for r in group])) for group in results]
+            es.tell(points, [-f for f in fitness])  # CMA-ES minimises
             done += 1
             this_call += 1
-            best = int(np.argmax([r["fitness"] for r in results]))
+            best = int(np.argmax(fitness))
             history.append(
                 {
                     "generation": done,
-                    "best_fitness": results[best]["fitness"],
-                    "best_travel": results[best]["travel"],
-                    "mean_fitness": float(np.mean([r["fitness"] for r in results])),
+                    "best_fitness": fitness[best],
+                    "best_travel": results[best][0]["travel"],
+                    "best_travel_spread": float(np.std([r["travel"] for r in results[best]])),
+                    "mean_fitness": float(np.mean(fitness)),
                     "sigma": float(es.sigma),
-                    "gait": tasks[best]["gait"],
-                    "workers": sorted({r["pid"] for r in results}),
-                    "builds": max(r["builds"] for r in results),
+                    "gait": gaits[best],
+                    "workers": sorted({r["pid"] for r in flat}),
+                    "builds": max(r["builds"] for r in flat),
                 }
             )
             state = {
@@ -384,6 +411,8 @@ def run_search(
                 "seed": seed,
                 "popsize": popsize,
                 "steps": steps,
+                "samples": samples,
+                "jitter": jitter,
                 "numpy_random": np.random.get_state(),
             }
             _write_atomic(checkpoint, lambda f, s=state: pickle.dump(s, f))
@@ -398,6 +427,7 @@ def run_search(
             "gait": overall["gait"],
             "fitness": overall["best_fitness"],
             "travel": overall["best_travel"],
+            "travel_spread": overall.get("best_travel_spread", 0.0),
             "generation": overall["generation"],
         },
         "history": history,
@@ -409,19 +439,34 @@ def run_search(
     return result
 
 
+def _jittered(gait: dict, jitter: float, key) -> dict:
+    """A copy of a gait with amplitudes and periods scaled, phases shifted, by ``jitter`` N(0, 1) draws."""
+    rng = np.random.default_rng(list(key))
+    m = len(gait["amplitude"])
+    scale = 1.0 + jitter * rng.standard_normal((2, m))
+    return {
+        "amplitude": (np.asarray(gait["amplitude"]) * scale[0]).tolist(),
+        "period": (np.asarray(gait["period"]) * np.abs(scale[1])).tolist(),
+        "phase": ((np.asarray(gait["phase"]) + jitter * rng.standard_normal(m)) % 1.0).tolist(),
+    }
+
+
 def _write_search(out_dir, data, steps, history, overall) -> dict:
     paths = {"history_csv": os.path.join(out_dir, "history.csv")}
     with open(paths["history_csv"], "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["generation", "best_fitness", "best_travel", "mean_fitness", "sigma", "best_gait"])
+        writer.writerow(
+            ["generation", "best_fitness", "best_travel", "best_travel_spread", "mean_fitness", "sigma", "best_gait"]
+        )
         for h in history:
             writer.writerow(
                 [
                     h["generation"],
-                    repr(h["best_fitness"]),
-                    repr(h["best_travel"]),
-                    repr(h["mean_fitness"]),
-                    repr(h["sigma"]),
+                    repr(float(h["best_fitness"])),
+                    repr(float(h["best_travel"])),
+                    repr(float(h.get("best_travel_spread", 0.0))),
+                    repr(float(h["mean_fitness"])),
+                    repr(float(h["sigma"])),
                     json.dumps(h["gait"]),
                 ]
             )

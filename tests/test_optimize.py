@@ -132,3 +132,21 @@ def test_local_pool_workers_use_one_blas_thread(monkeypatch):
     finally:
         close()
     assert os.environ["OMP_NUM_THREADS"] == "4" and "MKL_NUM_THREADS" not in os.environ
+
+
+def test_samples_average_jittered_copies(tmp_path):
+    result = search(tmp_path / "a", workers=1, samples=3, jitter=0.02)
+    assert result["rollouts"] == 2 * 4 * 3
+    best = result["best"]
+    # the best gait's own rollout is the travel reported; the fitness is the mean of its samples
+    data = tomllib.loads(open(result["best_scene"]).read())
+    summary = run_scene(Scene.from_dict(data), None)
+    assert summary["com"]["travel"][0] == pytest.approx(best["travel"], rel=1e-9, abs=1e-12)
+    assert best["travel_spread"] > 0.0
+    assert best["fitness"] != pytest.approx(best["travel"], rel=1e-12)
+    again = search(tmp_path / "b", workers=1, samples=3, jitter=0.02)
+    assert again["best"] == best
+    with pytest.raises(ValueError, match="samples or jitter"):
+        search(tmp_path / "a", workers=1, samples=2, jitter=0.02, resume=True)
+    with pytest.raises(ValueError, match="samples must be a positive integer"):
+        search(tmp_path / "c", samples=0)
