@@ -166,15 +166,41 @@ def _laplacian_hessian(mesh, grads, weights, B) -> np.ndarray:
     cols = np.broadcast_to(t[None, :, :], vals.shape).ravel()
     L = sps.csr_matrix((vals.ravel(), (rows, cols)), shape=(n, n))
     Bv = B.reshape(n, dim, -1)
-    H = sum(Bv[:, i].T @ (L @ Bv[:, i]) for i in range(dim))
+    r = B.shape[1]
+    H = np.zeros((r, r))
+    # a few columns at a time: the temporaries stay near 16 MB on any mesh
+    width = max(1, int(1e6 // max(n, 1)))
+    for i in range(dim):
+        for start in range(0, r, width):
+            block = np.ascontiguousarray(Bv[:, i, start : start + width])
+            H[:, start : start + width] += Bv[:, i].T @ (L @ block)
     return (H + H.T) / 2
 
 
+def _gram(B, weights) -> np.ndarray:
+    """``B^T diag(w) B``, a few rows at a time (no copy of ``B``)."""
+    N, r = B.shape
+    out = np.zeros((r, r))
+    rows = max(1, int(2e6 // max(r, 1)))
+    for start in range(0, N, rows):
+        Bc = B[start : start + rows]
+        out += (Bc * weights[start : start + rows, None]).T @ Bc
+    return (out + out.T) / 2
+
+
 def _through(TJ, B) -> np.ndarray:
-    """``TJ @ B`` for a sparse ``TJ`` with few rows: densified when small (BLAS is faster)."""
-    if TJ.shape[0] * TJ.shape[1] <= 2e7:
-        return TJ.toarray() @ B
-    return np.asarray(TJ @ B)
+    """``TJ @ B`` for a sparse ``TJ`` with few rows.
+
+    Densified a few rows at a time (a dense product is twice as fast as the
+    sparse one here), so the dense copy stays near 16 MB on any mesh.
+    """
+    TJ = TJ.tocsr()
+    rows, N = TJ.shape
+    out = np.empty((rows, B.shape[1]))
+    chunk = max(1, int(2e6 // max(N, 1)))
+    for start in range(0, rows, chunk):
+        out[start : start + chunk] = TJ[start : start + chunk].toarray() @ B
+    return out
 
 
 class ModalMuscle:
@@ -348,8 +374,7 @@ class ModalMuscle:
         J = _jacobian(mesh, "P1")
         M = _mass(mesh, rho_e, True, "P1", True)
         self._M = M
-        MB = M @ B
-        self.BMB = B.T @ MB
+        self.BMB = _gram(B, M.diagonal())  # M is lumped: diagonal
         self.timings["mass"] = time.perf_counter() - clock
 
         # passive ARAP: cluster sums of mu vol F, and its Hessian B^T J^T (mu vol) J B

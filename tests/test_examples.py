@@ -44,3 +44,13 @@ def test_creature_crawl_example(tmp_path):
     assert horizontal > 0.1 and depth < 0.01
     frame = meshio.read(tmp_path / "creature" / "frame_00000.vtu")
     assert "tetra" in frame.cells_dict
+
+
+def test_searched_gait_travels_what_docs_optimize_says():
+    # the gait of examples/caterpillar_crawl_searched.toml, found by the search in docs/optimize.md
+    from skfem_modal.run import run_scene
+    from skfem_modal.scene import Scene
+
+    summary = run_scene(Scene.from_toml(EXAMPLES / "caterpillar_crawl_searched.toml"), None)
+    assert summary["com"]["travel"][0] == pytest.approx(-14.966, abs=1e-3)
+    assert summary["ground"]["worst_penetration_contacts"] < 0.01

@@ -192,7 +192,9 @@ def test_scene_reference_documents_every_key():
         assert f"| `{key}` |" in text
 
 
-@pytest.mark.parametrize("name", ["caterpillar_crawl", "caterpillar_float", "creature_crawl", "beam_pinned"])
+@pytest.mark.parametrize(
+    "name", ["caterpillar_crawl", "caterpillar_crawl_searched", "caterpillar_float", "creature_crawl", "beam_pinned"]
+)
 def test_example_scenes_validate(name):
     scene = Scene.from_toml(EXAMPLES / f"{name}.toml")
     assert scene.n_steps >= 100
