@@ -1,0 +1,170 @@
+"""Where a step's time goes: each operation of an iteration timed alone.
+
+    python benchmarks/profile_step.py
+
+For the three scenes of bench_step.py (numpy path; the numba path runs a
+floating step's iterations in one compiled call), the operations of one
+local/global iteration and of the per-step set-up are each timed in a tight
+loop on the simulator's own arrays, and set against the measured step. The
+sum of the parts times the iteration count should come close to the step:
+what is left is Python's own overhead between the calls.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+import timeit
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_step  # noqa: E402
+
+from skfem_modal.muscles import sine_gait  # noqa: E402
+from skfem_modal.rotations import HORN_SHIFTED, QQ_TO_R_TRACE, certify_dominant  # noqa: E402
+from skfem_modal.sim import ModalMuscle  # noqa: E402
+
+
+def us(func, number=2000):
+    return min(timeit.repeat(func, number=number, repeat=5)) / number * 1e6
+
+
+def build(scene):
+    return ModalMuscle(
+        scene["mesh"],
+        scene["B"],
+        scene["D"],
+        scene["labels"],
+        mu=scene["mu"],
+        gamma=scene["mu"],
+        rho=1e3,
+        h=scene["h"],
+        gravity=scene.get("gravity"),
+        contact_vertices=scene.get("contacts"),
+        ground=scene.get("ground"),
+        accelerator="numpy",
+    )
+
+
+def run(sim, scene, steps=None):
+    """Step through the scene; returns the median step in us, the mean iterations and a mid-run state."""
+    z, z_dot, _ = sim.rest_state()
+    amp, per, ph = scene["gait"]
+    times, its, mid = [], [], None
+    steps = steps or scene["steps"]
+    for i in range(steps):
+        a = sine_gait(i * sim.h, amp, per, ph)
+        start = time.perf_counter()
+        z_next = sim.step(z, z_dot, a)
+        times.append(time.perf_counter() - start)
+        its.append(sim.iterations)
+        z_dot, z = (z_next - z) / sim.h, z_next
+        if i == steps // 2:
+            mid = (z.copy(), z_dot.copy(), a)
+    return float(np.median(times) * 1e6), float(np.mean(its)), mid
+
+
+def parts_2d(sim, z, z_dot, a):
+    _, _, G, W = sim._step_ops
+    c = sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext
+    if sim._contact is not None:
+        c = np.concatenate([c, sim._contact.Je @ c])
+    cs = (G @ z).reshape(-1, 2)
+    y = c + W @ cs.ravel()
+    iteration = {
+        "G z (rotation features)": lambda: G @ z,
+        "normalise (c, s): hypot, divide": lambda: cs / np.hypot(cs[:, 0], cs[:, 1])[:, None],
+        "W (c, s) + c": lambda: c + W @ cs.ravel(),
+        "change of z: difference, dot": lambda: (y[: z.size] - z) @ (y[: z.size] - z),
+    }
+    if sim._contact is not None:
+        contact = sim._contact
+        contact.start_step(z)
+        iteration["contact projection"] = lambda: contact.correct(y)
+    per_step = {
+        "activation: operator rows": lambda: sim._set_activation(a),
+        "right-hand side c": lambda: sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext,
+    }
+    return iteration, per_step
+
+
+def parts_3d(sim, z, z_dot, a):
+    _, _, G, W = sim._step_ops
+    r = z.size
+    n = G.shape[0] // 10
+    c = sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext
+    za = np.append(z, 1.0)
+    F10 = (G @ za).reshape(n, 10)
+    P0 = F10 @ HORN_SHIFTED
+    P = P0.reshape(n, 4, 4)
+
+    def power():
+        Q = P
+        for _ in range(sim._squarings):
+            Q = Q @ Q
+        return Q
+
+    Q = power()
+    out = np.empty((n, 9))
+
+    def rotations():
+        RT = Q.reshape(n, 16) @ QQ_TO_R_TRACE
+        return np.divide(RT[:, :9], RT[:, 9:], out=out)
+
+    RT = Q.reshape(n, 16) @ QQ_TO_R_TRACE
+    R = RT[:, :9] / RT[:, 9:]
+    k = 8
+    P0s = np.repeat(P0[None], k, axis=0).reshape(-1, 16)
+    Rs = np.repeat(R[None], k, axis=0).reshape(-1, 9)
+    iteration = {
+        "G z (scaled F and shift)": lambda: G @ za,
+        "Horn matrices": lambda: F10 @ HORN_SHIFTED,
+        f"{sim._squarings} squarings of {n} 4x4 matrices": power,
+        "R and trace from q q^T, divide": rotations,
+        "W R + c": lambda: W @ R.ravel() + c,
+        "change of z: difference, dot": lambda: (za[:r] - z) @ (za[:r] - z),
+    }
+    per_step = {
+        "activation: operator rows": lambda: sim._set_activation(a),
+        "right-hand side c": lambda: sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext,
+        f"certificate of {k} iterations' rotations": lambda: certify_dominant(P0s, Rs, sim._squarings),
+    }
+    return iteration, per_step
+
+
+def main():
+    print(
+        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, numpy {np.__version__}, "
+        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, numpy path"
+    )
+    for scene in bench_step.scenes():
+        sim = build(scene)
+        step_us, iterations, (z, z_dot, a) = run(sim, scene)
+        parts = parts_2d if sim.dim == 2 else parts_3d
+        iteration, per_step = parts(sim, z, z_dot, a)
+        print(f"\n{scene['name']}: step {step_us:.1f} us, {iterations:.2f} iterations a step")
+        total_iter = 0.0
+        for name, func in iteration.items():
+            t = us(func)
+            total_iter += t
+            print(f"  per iteration  {name:42s} {t:7.2f} us")
+        total_step = 0.0
+        for name, func in per_step.items():
+            t = us(func)
+            total_step += t
+            print(f"  per step       {name:42s} {t:7.2f} us")
+        parts_total = total_iter * iterations + total_step
+        print(
+            f"  parts: {total_iter:.1f} us x {iterations:.2f} iterations + {total_step:.1f} us = {parts_total:.0f} us "
+            f"of {step_us:.0f} us ({100 * parts_total / step_us:.0f} %)"
+        )
+
+
+if __name__ == "__main__":
+    main()
