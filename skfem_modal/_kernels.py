@@ -57,8 +57,8 @@ def _solve4(A, b, x, M):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, fastmath=False)
-def _certified(N, q, size, fro, Nq):  # pragma: no cover - compiled
-    """Is q (unit) the top eigenvector of N to round-off? Returns (ok, rayleigh)."""
+def _rayleigh(N, q, Nq):  # pragma: no cover - compiled
+    """For a unit q: the Rayleigh quotient q.N q and the squared residual |N q - (q.N q) q|^2."""
     rq = 0.0
     for i in range(4):
         acc = 0.0
@@ -70,6 +70,13 @@ def _certified(N, q, size, fro, Nq):  # pragma: no cover - compiled
     for i in range(4):
         d = Nq[i] - rq * q[i]
         res += d * d
+    return rq, res
+
+
+@numba.njit(cache=True, fastmath=False)
+def _certified(N, q, size, fro, Nq):  # pragma: no cover - compiled
+    """Is q (unit) the top eigenvector of N to round-off? Returns (ok, rayleigh)."""
+    rq, res = _rayleigh(N, q, Nq)
     # an eigenvalue above |F| can only be the top one (the second is at
     # most the largest singular value)
     return res <= (1e-12 * size) ** 2 and rq > fro * (1.0 + 1e-12), rq
@@ -153,17 +160,7 @@ def _top_quaternion(N, q0, warm, out, work):  # pragma: no cover - compiled
     nrm = np.sqrt(nrm)
     for i in range(4):
         out[i] /= nrm + 1e-300
-    rq = 0.0
-    for i in range(4):
-        acc = 0.0
-        for k in range(4):
-            acc += N[i, k] * out[k]
-        Nq[i] = acc
-        rq += out[i] * acc
-    res = 0.0
-    for i in range(4):
-        d = Nq[i] - rq * out[i]
-        res += d * d
+    _, res = _rayleigh(N, out, Nq)
     return res <= (1e-12 * size) ** 2 and nrm > 1e-150
 
 

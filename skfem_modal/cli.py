@@ -198,20 +198,27 @@ def cmd_info(args) -> int:
     return EXIT_OK
 
 
+def _scene_data(path, default):
+    """A scene file's dict and the folder its relative paths start from (``default`` without a file).
+
+    The file is checked first: every scene error before anything runs.
+    """
+    if path is None:
+        return default, None
+    import tomllib
+
+    from .scene import Scene
+
+    Scene.from_toml(path)
+    with open(path, "rb") as f:
+        data = tomllib.load(f)
+    return data, os.path.dirname(os.path.abspath(path))
+
+
 def cmd_study(args) -> int:
     from .study import FLOATING_CATERPILLAR, run_study
 
-    if args.scene is None:
-        data, base_dir = FLOATING_CATERPILLAR, None
-    else:
-        import tomllib
-
-        from .scene import Scene
-
-        Scene.from_toml(args.scene)  # every scene error before anything runs
-        with open(args.scene, "rb") as f:
-            data = tomllib.load(f)
-        base_dir = os.path.dirname(os.path.abspath(args.scene))
+    data, base_dir = _scene_data(args.scene, FLOATING_CATERPILLAR)
     say = (lambda *a: None) if args.quiet else print
     say(f"study ({'quick' if args.quick else 'full'}) of {data.get('name', args.scene)}; writing to {args.out}")
     report = run_study(
@@ -233,17 +240,7 @@ def cmd_optimize(args) -> int:
     from .optimize import GaitSpace, run_search
     from .scene import DEFAULT_SCENE
 
-    if args.scene is None:
-        data, base_dir = DEFAULT_SCENE, None
-    else:
-        import tomllib
-
-        from .scene import Scene
-
-        Scene.from_toml(args.scene)  # every scene error before anything runs
-        with open(args.scene, "rb") as f:
-            data = tomllib.load(f)
-        base_dir = os.path.dirname(os.path.abspath(args.scene))
+    data, base_dir = _scene_data(args.scene, DEFAULT_SCENE)
     axes = {"x": 0, "y": 1, "z": 2}
     sign = -1.0 if args.direction.startswith("-") else 1.0
     axis = axes.get(args.direction.lstrip("+-"))

@@ -721,29 +721,17 @@ class ModalMuscle:
             return change2 <= self.rtol**2 * (motion @ motion)
         return False
 
-    def _iterate2(self, c, z, contact):
-        _, _, Gf, Wf = self._step_ops
-        if self._accel is not None and contact is None:
-            # compiled, all iterations in one call
-            z_next, it, status = self._accel.iterate2(Gf, Wf, c, z, self.max_iter, self._tol2, self.rtol**2)
-            if status == 2:
-                raise SimulationError("the state became non-finite")
-            return z_next, it
+    def _loop(self, c, z, contact, local):
+        """Local/global iterations in Python: ``z = c + W local(z)`` until a stopping rule holds.
+
+        ``local(z)`` returns the rotation parameters the step's ``W`` acts on
+        (``(c, s)`` per cluster in 2D, ``vec(R)`` in 3D), flat.
+        """
+        W = self._step_ops[3]
         tol2, r = self._tol2, z.size
-        compiled = self._accel.normalize_cs if self._accel is not None else None
         z_iter = z
         for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
-            cs = (Gf @ z_iter).reshape(-1, 2)
-            if compiled is not None:
-                compiled(cs)
-            else:
-                norm = np.hypot(cs[:, 0], cs[:, 1])
-                if not norm.all():
-                    # a zero target: every rotation is optimal, take the identity
-                    cs[norm == 0.0, 0] = 1.0
-                    norm[norm == 0.0] = 1.0
-                cs /= norm[:, None]
-            y = c + Wf @ cs.ravel()
+            y = c + W @ local(z_iter)
             if contact is not None:
                 y = contact.correct(y)
             z_next = y[:r]
@@ -753,6 +741,32 @@ class ModalMuscle:
             if change2 < tol2 or self._stop(change2, z_next, z):
                 break
         return z_iter, it
+
+    def _iterate2(self, c, z, contact):
+        G = self._step_ops[2]
+        if self._accel is not None and contact is None:
+            # compiled, all iterations in one call
+            z_next, it, status = self._accel.iterate2(
+                G, self._step_ops[3], c, z, self.max_iter, self._tol2, self.rtol**2
+            )
+            if status == 2:
+                raise SimulationError("the state became non-finite")
+            return z_next, it
+        compiled = self._accel.normalize_cs if self._accel is not None else None
+
+        def local(z_iter):
+            cs = (G @ z_iter).reshape(-1, 2)
+            if compiled is not None:
+                return compiled(cs).ravel()
+            norm = np.hypot(cs[:, 0], cs[:, 1])
+            if not norm.all():
+                # a zero target: every rotation is optimal, take the identity
+                cs[norm == 0.0, 0] = 1.0
+                norm[norm == 0.0] = 1.0
+            cs /= norm[:, None]
+            return cs.ravel()
+
+        return self._loop(c, z, contact, local)
 
     def _iterate3(self, c, z, contact):
         if self._accel is not None:
@@ -831,33 +845,27 @@ class ModalMuscle:
 
     def _iterate3_checked(self, c, z, contact):
         """3D iterations, each rotation certified as it is made (the robust path)."""
-        tol2, r = self._tol2, z.size
-        _, _, G, W = self._step_ops
+        r = z.size
+        G = self._step_ops[2]
         n = G.shape[0] // 10
-        q = None
-        z_iter = z
-        G[9::10, r] = 0.0
-        G_F = G[:, :r]  # the rows give F / w: the same rotations
-        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
+        G_F = G[:, :r]  # without the shift column: rows give (F / w, 0), the same rotations
+        state = {"q": None}
+
+        def local(z_iter):
             F10 = (G_F @ z_iter).reshape(n, 10)
-            q = dominant_quaternions((F10[:, :9] @ HORN).reshape(n, 4, 4), q)
-            y = c + W @ ((q[:, :, None] * q[:, None, :]).reshape(n, 16) @ QUAT_TO_R).ravel()
-            if contact is not None:
-                y = contact.correct(y)
-            z_next = y[:r]
-            diff = z_next - z_iter
-            change2 = diff @ diff
-            z_iter = z_next
-            if change2 < tol2 or self._stop(change2, z_next, z):
-                break
-        self._shift_from(F10)
-        return z_iter, it
+            q = state["q"] = dominant_quaternions((F10[:, :9] @ HORN).reshape(n, 4, 4), state["q"])
+            state["F10"] = F10
+            return ((q[:, :, None] * q[:, None, :]).reshape(n, 16) @ QUAT_TO_R).ravel()
+
+        result = self._loop(c, z, contact, local)
+        self._shift_from(state["F10"])
+        return result
 
     def _iterate3_compiled(self, c, z, contact):
+        G, W = self._step_ops[2:]
         if contact is None:
             # all iterations in one call; a rotation the kernel cannot certify
             # sends the step to the loop below, which finishes it with numpy
-            _, _, G, W = self._step_ops
             warm = self._q is not None
             q = self._q.copy() if warm else np.zeros((G.shape[0] // 9, 4))
             z_next, it, status = self._accel.iterate3(G, W, c, z, q, warm, self.max_iter, self._tol2, self.rtol**2)
@@ -866,24 +874,13 @@ class ModalMuscle:
             if status == 0:
                 self._q = q
                 return z_next, it
-        tol2, r = self._tol2, z.size
-        q = self._q
-        z_iter = z
-        _, _, G, W = self._step_ops
-        compiled = self._accel.rotations3
-        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
-            R, q = compiled((G @ z_iter).reshape(-1, 9), q)
-            y = c + W @ R.ravel()
-            if contact is not None:
-                y = contact.correct(y)
-            z_next = y[:r]
-            diff = z_next - z_iter
-            change2 = diff @ diff
-            z_iter = z_next
-            if change2 < tol2 or self._stop(change2, z_next, z):
-                break
-        self._q = q
-        return z_iter, it
+        rotations3 = self._accel.rotations3
+
+        def local(z_iter):
+            R, self._q = rotations3((G @ z_iter).reshape(-1, 9), self._q)
+            return R.ravel()
+
+        return self._loop(c, z, contact, local)
 
     # ----------------------------------------------------------------- energy
     def energy(self, z_next, z, z_dot, a=None, gradient: bool = False):
