@@ -56,9 +56,18 @@ def read_run(run_dir) -> dict:
     }
 
 
+def _headless_vtk() -> None:
+    # Without an X display VTK first tries X, warns "bad X server connection"
+    # and only then falls back to EGL: ask for EGL straight away (a choice the
+    # user made in the environment wins)
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
 @functools.lru_cache(maxsize=1)
 def gl_available() -> bool:
     """Whether pyvista can render off-screen here (probed in a subprocess)."""
+    _headless_vtk()
     probe = (
         "import pyvista as pv\n"
         "p = pv.Plotter(off_screen=True, window_size=(64, 64))\n"
@@ -179,6 +188,7 @@ def _matplotlib_frames(frames, ground, up, size=(640, 360)):
 
 def _pyvista_frames(frames, ground, up, size=(640, 360)):
     """RGB images of the frames, rendered off-screen with pyvista."""
+    _headless_vtk()
     import pyvista as pv
 
     meshes = [pv.read(p) for _, p in frames]

@@ -50,6 +50,8 @@ class Progress:
         self.count = 0
         self._bar = None
         self._next = 0
+        self._tty = sys.stderr.isatty()
+        self._printed = -1
         if not enabled:
             return
         try:
@@ -66,16 +68,30 @@ class Progress:
         if self._bar is not None:
             self._bar.update(n)
         elif self.count >= self._next:
-            print(f"\r{self.desc}: {self.count}/{self.total}", end="", file=sys.stderr, flush=True)
-            self._next += max(1, self.total // 20)
+            self._print()
+            # a terminal line is rewritten in place; a log file gets a line a tenth of the way
+            self._next += max(1, self.total // (20 if self._tty else 10))
+
+    def _print(self) -> None:
+        end = "" if self._tty else "\n"
+        print(
+            f"\r{self.desc}: {self.count}/{self.total}" if self._tty else f"{self.desc}: {self.count}/{self.total}",
+            end=end,
+            file=sys.stderr,
+            flush=True,
+        )
+        self._printed = self.count
 
     def close(self) -> None:
         if not self.enabled:
             return
         if self._bar is not None:
             self._bar.close()
-        else:
-            print(f"\r{self.desc}: {self.count}/{self.total}", file=sys.stderr, flush=True)
+            return
+        if self._printed != self.count:
+            self._print()
+        if self._tty:
+            print(file=sys.stderr, flush=True)
 
 
 def _stage_printer(enabled: bool):

@@ -170,3 +170,21 @@ def test_cli_render_with_matplotlib(default_run, capsys):
 
     gif = Image.open(default_run / "animation.gif")
     assert gif.n_frames == 6
+
+
+def test_progress_without_tqdm_writes_lines_to_a_log(monkeypatch, capsys):
+    import sys
+
+    from skfem_modal.run import Progress
+
+    monkeypatch.setitem(sys.modules, "tqdm", None)  # the fallback, as without the extra
+    bar = Progress(45, "steps")
+    for _ in range(45):
+        bar.update()
+    bar.close()
+    lines = capsys.readouterr().err.splitlines()
+    # not a terminal: whole lines, about one a tenth of the way, ending at the total
+    assert "\r" not in "".join(lines)
+    assert 10 <= len(lines) <= 14
+    assert lines[-1] == "steps: 45/45"
+    assert len(set(lines)) == len(lines)
