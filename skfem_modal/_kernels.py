@@ -164,45 +164,58 @@ def _top_quaternion(N, q0, warm, out, work):  # pragma: no cover - compiled
     return res <= (1e-12 * size) ** 2 and nrm > 1e-150
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _closest_rotation(F, k, q, warm, R, N, g, out, work):  # pragma: no cover - compiled
+    """Closest rotation number ``k``: ``F[9k:9k+9]`` (row-major) -> ``R[9k:9k+9]`` and ``q[k]``.
+
+    ``q[k]`` is read as the warm start when ``warm``; ``N``, ``g``, ``out``
+    and ``work`` are scratch (indices, not slices: no array views are made
+    in the innermost loop). Returns whether the quaternion was certified.
+    """
+    o = 9 * k
+    # the rotation does not change with a positive scale: entries in [-1, 1]
+    # so that no square can overflow or underflow
+    big = 0.0
+    for i in range(9):
+        big = max(big, abs(F[o + i]))
+    scale = 1.0 / big if big > 0.0 else 1.0
+    for i in range(9):
+        g[i] = F[o + i] * scale
+    # Horn's matrix: tr(R(q)^T F) = q^T N q
+    N[0, 0] = g[0] + g[4] + g[8]
+    N[1, 1] = g[0] - g[4] - g[8]
+    N[2, 2] = -g[0] + g[4] - g[8]
+    N[3, 3] = -g[0] - g[4] + g[8]
+    N[0, 1] = N[1, 0] = g[7] - g[5]
+    N[0, 2] = N[2, 0] = g[2] - g[6]
+    N[0, 3] = N[3, 0] = g[3] - g[1]
+    N[1, 2] = N[2, 1] = g[1] + g[3]
+    N[1, 3] = N[3, 1] = g[2] + g[6]
+    N[2, 3] = N[3, 2] = g[5] + g[7]
+    ok = _top_quaternion(N, q[k], warm, out, work)
+    a, b, c, d = out[0], out[1], out[2], out[3]
+    q[k, 0], q[k, 1], q[k, 2], q[k, 3] = a, b, c, d
+    R[o + 0] = a * a + b * b - c * c - d * d
+    R[o + 1] = 2.0 * (b * c - a * d)
+    R[o + 2] = 2.0 * (b * d + a * c)
+    R[o + 3] = 2.0 * (b * c + a * d)
+    R[o + 4] = a * a - b * b + c * c - d * d
+    R[o + 5] = 2.0 * (c * d - a * b)
+    R[o + 6] = 2.0 * (b * d - a * c)
+    R[o + 7] = 2.0 * (c * d + a * b)
+    R[o + 8] = a * a - b * b - c * c + d * d
+    return ok
+
+
 @numba.njit(cache=True, fastmath=False)
 def _rotation_kernel(F, q, warm, R, ok):  # pragma: no cover - compiled
+    """Rotations of flat row-major matrices ``F`` (9 n) into flat ``R`` (9 n)."""
     N = np.empty((4, 4))
     out = np.empty(4)
     work = np.empty((19, 5))
     g = np.empty(9)
-    for k in range(F.shape[0]):
-        # the rotation does not change with a positive scale: entries in [-1, 1]
-        # so that no square can overflow or underflow
-        big = 0.0
-        for i in range(9):
-            big = max(big, abs(F[k, i]))
-        scale = 1.0 / big if big > 0.0 else 1.0
-        for i in range(9):
-            g[i] = F[k, i] * scale
-        f = g
-        # Horn's matrix: tr(R(q)^T F) = q^T N q
-        N[0, 0] = f[0] + f[4] + f[8]
-        N[1, 1] = f[0] - f[4] - f[8]
-        N[2, 2] = -f[0] + f[4] - f[8]
-        N[3, 3] = -f[0] - f[4] + f[8]
-        N[0, 1] = N[1, 0] = f[7] - f[5]
-        N[0, 2] = N[2, 0] = f[2] - f[6]
-        N[0, 3] = N[3, 0] = f[3] - f[1]
-        N[1, 2] = N[2, 1] = f[1] + f[3]
-        N[1, 3] = N[3, 1] = f[2] + f[6]
-        N[2, 3] = N[3, 2] = f[5] + f[7]
-        ok[k] = _top_quaternion(N, q[k], warm, out, work)
-        a, b, c, d = out[0], out[1], out[2], out[3]
-        q[k, 0], q[k, 1], q[k, 2], q[k, 3] = a, b, c, d
-        R[k, 0] = a * a + b * b - c * c - d * d
-        R[k, 1] = 2.0 * (b * c - a * d)
-        R[k, 2] = 2.0 * (b * d + a * c)
-        R[k, 3] = 2.0 * (b * c + a * d)
-        R[k, 4] = a * a - b * b + c * c - d * d
-        R[k, 5] = 2.0 * (c * d - a * b)
-        R[k, 6] = 2.0 * (b * d - a * c)
-        R[k, 7] = 2.0 * (c * d + a * b)
-        R[k, 8] = a * a - b * b - c * c + d * d
+    for k in range(q.shape[0]):
+        ok[k] = _closest_rotation(F, k, q, warm, R, N, g, out, work)
 
 
 def rotations3(F9, q):
@@ -225,7 +238,7 @@ def rotations3(F9, q):
         q = np.zeros((n, 4))
     R = np.empty((n, 9))
     ok = np.empty(n, dtype=np.bool_)
-    _rotation_kernel(F9, q, warm, R, ok)
+    _rotation_kernel(np.ascontiguousarray(F9).reshape(-1), q, warm, R.reshape(-1), ok)
     if not ok.all():
         from .rotations import rotations3_flat
 
@@ -279,36 +292,8 @@ def iterate3(G, W, c, z, q, warm, max_iter, tol2, rtol2):  # pragma: no cover - 
     for it in range(1, max_iter + 1):
         F = np.dot(G, z_iter)
         for k in range(n):
-            big = 0.0
-            for i in range(9):
-                big = max(big, abs(F[9 * k + i]))
-            scale = 1.0 / big if big > 0.0 else 1.0
-            for i in range(9):
-                g[i] = F[9 * k + i] * scale
-            N[0, 0] = g[0] + g[4] + g[8]
-            N[1, 1] = g[0] - g[4] - g[8]
-            N[2, 2] = -g[0] + g[4] - g[8]
-            N[3, 3] = -g[0] - g[4] + g[8]
-            N[0, 1] = N[1, 0] = g[7] - g[5]
-            N[0, 2] = N[2, 0] = g[2] - g[6]
-            N[0, 3] = N[3, 0] = g[3] - g[1]
-            N[1, 2] = N[2, 1] = g[1] + g[3]
-            N[1, 3] = N[3, 1] = g[2] + g[6]
-            N[2, 3] = N[3, 2] = g[5] + g[7]
-            if not _top_quaternion(N, q[k], warm or it > 1, out, work):
+            if not _closest_rotation(F, k, q, warm or it > 1, R, N, g, out, work):
                 return z_iter, it, 1
-            a, b, cq, d = out[0], out[1], out[2], out[3]
-            q[k, 0], q[k, 1], q[k, 2], q[k, 3] = a, b, cq, d
-            o = 9 * k
-            R[o + 0] = a * a + b * b - cq * cq - d * d
-            R[o + 1] = 2.0 * (b * cq - a * d)
-            R[o + 2] = 2.0 * (b * d + a * cq)
-            R[o + 3] = 2.0 * (b * cq + a * d)
-            R[o + 4] = a * a - b * b + cq * cq - d * d
-            R[o + 5] = 2.0 * (cq * d - a * b)
-            R[o + 6] = 2.0 * (b * d - a * cq)
-            R[o + 7] = 2.0 * (cq * d + a * b)
-            R[o + 8] = a * a - b * b - cq * cq + d * d
         z_next = c + np.dot(W, R)
         state = _converged(z_next, z_iter, z, tol2, rtol2)
         z_iter = z_next
