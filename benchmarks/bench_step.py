@@ -106,8 +106,9 @@ def scenes():
     ]
 
 
-def run_ours(scene, accelerator):
-    sim = ModalMuscle(
+def build(scene, accelerator):
+    """Our simulator on the scene's inputs."""
+    return ModalMuscle(
         scene["mesh"],
         scene["B"],
         scene["D"],
@@ -121,6 +122,10 @@ def run_ours(scene, accelerator):
         ground=scene.get("ground"),
         accelerator=accelerator,
     )
+
+
+def run_ours(scene, accelerator):
+    sim = build(scene, accelerator)
     z, z_dot, _ = sim.rest_state()
     sim.step(z, z_dot, np.zeros(sim.n_muscles))  # compile / warm up
     amp, per, ph = scene["gait"]

@@ -28,7 +28,6 @@ import bench_step  # noqa: E402
 
 from skfem_modal.muscles import sine_gait  # noqa: E402
 from skfem_modal.rotations import HORN_SHIFTED, QQ_TO_R_TRACE, certify_dominant  # noqa: E402
-from skfem_modal.sim import ModalMuscle  # noqa: E402
 
 
 def us(func, number=2000):
@@ -36,20 +35,7 @@ def us(func, number=2000):
 
 
 def build(scene):
-    return ModalMuscle(
-        scene["mesh"],
-        scene["B"],
-        scene["D"],
-        scene["labels"],
-        mu=scene["mu"],
-        gamma=scene["mu"],
-        rho=1e3,
-        h=scene["h"],
-        gravity=scene.get("gravity"),
-        contact_vertices=scene.get("contacts"),
-        ground=scene.get("ground"),
-        accelerator="numpy",
-    )
+    return bench_step.build(scene, "numpy")
 
 
 def run(sim, scene, steps=None):
