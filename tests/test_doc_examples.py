@@ -1,0 +1,76 @@
+"""The Python examples of the README and docs run as written and do what they say."""
+
+import math
+import os
+import re
+
+import meshio
+import numpy as np
+
+from skfem_modal.cli import main
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir)
+
+
+def python_blocks(name):
+    text = open(os.path.join(ROOT, name), encoding="utf-8").read()
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+def run_block(code, name):
+    namespace = {}
+    exec(compile(code, name, "exec"), namespace)
+    return namespace
+
+
+def test_readme_python_example(tmp_path, monkeypatch, capsys):
+    (code,) = python_blocks("README.md")
+    monkeypatch.chdir(tmp_path)  # it writes modes.vtu
+    namespace = run_block(code, "README.md")
+    printed = capsys.readouterr().out.splitlines()
+    # the eigenvalues its comment quotes: the tutorial's modes 3-6
+    quoted = [float(v) for v in re.search(r"# \[([0-9. ]+)\]", code).group(1).split()]
+    shown = [float(v) for v in printed[0].strip("[]").split()]
+    np.testing.assert_allclose(shown, quoted, rtol=1e-5)
+    assert printed[1] == "3"
+    assert "('elasticity', 'inertia', 'muscles', 'gravity', 'contact')" in printed
+    sim, z = namespace["sim"], namespace["z"]
+    travel = sim.com(z) - sim.com(sim.rest_state()[0])
+    assert abs(travel[0] - (-4.438)) < 0.01
+    assert namespace["x"].shape == (1719, 2)
+    assert (tmp_path / "modes.vtu").is_file()
+
+
+def test_getting_started_python_example(tmp_path, monkeypatch, capsys):
+    (code,) = python_blocks("docs/getting_started.md")
+    assert '"examples/creature_crawl.toml"' in code and '"creature_run"' in code
+    monkeypatch.chdir(ROOT)
+    code = code.replace('"creature_run"', repr(str(tmp_path / "creature_run")))
+    namespace = run_block(code, "getting_started.md")
+    summary = namespace["summary"]
+    printed = capsys.readouterr().out.strip()
+    travel = [float(v) for v in re.match(r"\[(.*)\] ", printed).group(1).replace(",", " ").split()]
+    np.testing.assert_allclose(travel, summary["com"]["travel"], rtol=1e-6)
+    # the creature walks (0.53 along -x, a quarter of its length) under gravity and ground contact
+    assert summary["status"] == "completed" and len(travel) == 3 and abs(travel[0]) > 0.1
+    step_ms = summary["timings"]["step_ms"]["median"]
+    assert math.isfinite(step_ms) and step_ms > 0
+    assert (tmp_path / "creature_run" / "frames.pvd").is_file()
+    z, z_dot, a = namespace["z"], namespace["z_dot"], namespace["a"]
+    assert z.shape == z_dot.shape == (namespace["sim"].B.shape[1],) and a.shape == (4,)
+
+
+def test_outputs_python_example(tmp_path, monkeypatch):
+    (code,) = python_blocks("docs/outputs.md")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--out", "out", "--quiet"]) == 0
+    namespace = run_block(code, "outputs.md")
+    frame, grid, run = namespace["frame"], namespace["grid"], namespace["run"]
+    assert frame.point_data["displacement"].shape == (1719, 3)
+    assert float(np.ravel(frame.field_data["time"])[0]) == 4.5  # every 5th step written: the last
+    # the time series' last frame is the run's last state
+    assert namespace["reader"].time_values[-1] == 4.5
+    last = meshio.read(run["frames"][-1][1])
+    np.testing.assert_array_equal(grid.point_data["displacement"], last.point_data["displacement"])
+    times, com = run["com"]
+    assert times[-1] == 4.5 and com.shape == (451, 2)
