@@ -32,6 +32,8 @@ __all__ = [
     "rotations3_flat",
     "dominant_quaternions",
     "certify_dominant",
+    "certify_squarings",
+    "next_squarings",
     "squarings_for",
     "HORN",
     "HORN_SHIFTED",
@@ -273,3 +275,79 @@ def polar_rotations(F) -> np.ndarray:
     flat = F.reshape(-1, d * d)
     R = rotations2_flat(flat) if d == 2 else rotations3_flat(flat)
     return R.reshape(F.shape)
+
+
+def certify_squarings(traces: np.ndarray, shift, tol: float = 1e-13):
+    """Check rotations read off repeated squares of shifted Horn matrices, from traces.
+
+    ``P = N + s I`` with ``N`` symmetric and traceless (a Horn matrix), and
+    ``t_j = tr(P^(2^j))``, ``j = 1..k``. For ``j >= 1`` the power is positive
+    semi-definite with eigenvalues ``mu_i = |lambda_i|^(2^j)``, and
+    ``rho_j = 1 - t_(j+1) / t_j^2 = 2 sum_(i<l) mu_i mu_l / (sum mu)^2``
+    (``t_(j+1)`` is ``|P^(2^j)|_F^2``) measures how far it is from rank one:
+    the weight of the other eigenvalues next to the largest,
+    ``eps_j = sum_(i>1) mu_i / mu_1``, is at most ``rho_j (1 + eps_j)^2 / 2``
+    and close to ``rho_j / 2``; one more squaring squares it at least
+    (``eps_(j+1) <= eps_j^2``). So the rotation read off ``P^(2^k)`` is the
+    closest one to ``tol`` when ``rho_(k-1) <= 2 sqrt(tol)`` and the
+    dominant eigenvalue is the top one. That holds when ``s > |N|_F / sqrt(12)``
+    (for a traceless 4 x 4 matrix ``|lambda_min| - lambda_max <= |N|_F / sqrt(3)``),
+    that is ``t_1 = |N|^2 + 4 s^2 < 16 s^2``. Non-finite values fail.
+
+    Parameters
+    ----------
+    traces : ndarray, shape (k, ...)
+        ``t_1 .. t_k`` for any number of matrices, ``k >= 2``.
+    shift : float or ndarray, shape (...)
+        Each matrix's ``s``.
+    tol : float
+
+    Returns
+    -------
+    ok : bool
+        The weights are within ``tol``.
+    top : bool
+        The shift proves the dominant eigenvalue is the top one (if not, that
+        is for the caller to check, e.g. ``tr(P P^(2^k)) > 0``).
+    rho : ndarray, shape (k - 1,)
+        The largest ``rho_j`` over the matrices, ``j = 1..k-1``.
+
+    Examples
+    --------
+    >>> N = np.diag([3.0, -0.8, -1.0, -1.2])  # traceless; |N| / sqrt(12) = 1.003
+    >>> P = N + 1.1 * np.eye(4)
+    >>> t = np.array([np.trace(np.linalg.matrix_power(P, 2**j)) for j in (1, 2, 3, 4)])
+    >>> ok, top, rho = certify_squarings(t, 1.1)  # four squarings
+    >>> bool(ok), bool(top), bool(rho[0] > rho[1] > rho[2] > 0)
+    (True, True, True)
+    >>> certify_squarings(t[:2], 1.1)[0]  # two are not enough
+    False
+    """
+    k = traces.shape[0]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        rho = 1.0 - (traces[1:] / np.square(traces[:-1])).reshape(k - 1, -1).min(axis=1)
+        ok = bool(rho[-1] <= 2.0 * np.sqrt(tol))
+        top = bool((traces[0] < 16.0 * np.square(shift)).all())
+    return ok, top, rho
+
+
+def next_squarings(rho: np.ndarray, least: int = 2, most: int = 8, growth: float = 1.1, tol: float = 1e-13) -> int:
+    """Squarings for the next, similar, matrices from this step's ``rho_j``, ``j = 1..k-1``.
+
+    ``rho_j`` (:func:`certify_squarings`) scales like the ``2^j``-th power of
+    the dominance ratio; ``growth`` allows that ratio to grow so much before
+    the next step. One squaring fewer (``k - 1``) when ``rho_(k-2)`` would
+    still pass, one more when ``rho_(k-1)`` is close to failing.
+
+    >>> next_squarings(np.array([1e-2, 1e-4, 6e-7])), next_squarings(np.array([1e-4, 1e-8, 1e-16]))
+    (5, 3)
+    >>> next_squarings(np.array([1e-3, 1e-6, 1e-12]))
+    4
+    """
+    k = len(rho) + 1
+    bound = 2.0 * np.sqrt(tol)
+    if not rho[-1] <= bound / growth ** (2 ** (k - 1)):
+        return min(k + 1, most)
+    if k > least and rho[-2] <= bound / growth ** (2 ** (k - 2)):
+        return k - 1
+    return k

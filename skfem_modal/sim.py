@@ -27,6 +27,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from . import _accel
+from ._kron3 import KroneckerStep3
 from .contact import GroundContact
 from .fem import _gravity, _jacobian, _mass, _positive, scalar_basis, vector_dofs
 from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
@@ -536,6 +537,24 @@ class ModalMuscle:
                 WA_step = np.concatenate([WA_step, np.einsum("pr,krc->kpc", Je, WA_step)], axis=1)
         self._step_ops = (A_step, WA_step, np.ascontiguousarray(G_step), np.ascontiguousarray(W_step))
         self._activation_views = {}
+        # 3D, numpy, no contact: the step in Kronecker form when the subspace
+        # moves x, y and z alike (skinning bases do); None otherwise
+        self._kron = None
+        if dim == 3 and self.accelerator == "numpy" and self._contact is None:
+            Pz = self._K_inertia if self._P_z is None else self._P_z
+            Pv = h * self._K_inertia if self._P_v is None else self._P_v
+            self._kron = KroneckerStep3.build(
+                self._G,
+                self._W,
+                self._A if m else None,
+                self._WA if m else None,
+                Pz,
+                Pv,
+                self._c_ext,
+                self._rest_scale(nc + na),
+                na,
+                self.max_iter,
+            )
         self.effects = tuple(effects)
         self._com = com_operator(mesh, B, rho_e)
         self._rotations = rotations2_flat if dim == 2 else rotations3_flat
@@ -562,9 +581,7 @@ class ModalMuscle:
         """
         r = self.B.shape[1]
         n = nc + na
-        rest = self._G @ project(self.mesh.p.T, self.B, self._M)
-        w = np.sqrt(np.einsum("ij,ij->i", rest.reshape(n, 9), rest.reshape(n, 9)))
-        w = np.where(w > 0.0, w, 1.0)
+        w = self._rest_scale(n)
         G = np.zeros((n, 10, r + 1))
         G[:, :9, :r] = self._G.reshape(n, 9, r) / w[:, None, None]
         m = self.n_muscles
@@ -574,6 +591,12 @@ class ModalMuscle:
             A[:, :, :9, :r] = self._A.reshape(m + 1, na, 9, r) / w[nc:, None, None]
             A = A.reshape(m + 1, na * 10, r + 1)
         return G.reshape(n * 10, r + 1), A
+
+    def _rest_scale(self, n: int) -> np.ndarray:
+        """3D: each cluster's ``|F|`` at rest (1 where it is 0), shape (n,)."""
+        rest = (self._G @ project(self.mesh.p.T, self.B, self._M)).reshape(n, 9)
+        w = np.sqrt(np.einsum("ij,ij->i", rest, rest))
+        return np.where(w > 0.0, w, 1.0)
 
     def _to_features(self, G: np.ndarray) -> np.ndarray:
         """Cluster rows of ``F`` (dd each) -> rows of features (nf each)."""
@@ -688,8 +711,17 @@ class ModalMuscle:
         r = self.B.shape[1]
         if z.shape != (r,) or np.shape(z_dot) != (r,):
             raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {np.shape(z_dot)}")
-        self._set_activation(self._activation(a))
+        a = self._activation(a)
         z_dot = np.asarray(z_dot, dtype=np.float64)
+        if self._kron is not None:
+            with np.errstate(over="ignore", invalid="ignore"):
+                result = self._kron.step(z, z_dot, a, self._tol2, self.rtol)
+            if result is not None:
+                z_next, self.iterations = result
+                return z_next
+            # a rotation failed its certificate (or the state blew up): the
+            # step is redone below, each rotation checked as it is made
+        self._set_activation(a)
         if self._P_z is None:
             c = self._K_inertia @ (z + self.h * z_dot) + self._c_ext
         else:
@@ -771,7 +803,8 @@ class ModalMuscle:
     def _iterate3(self, c, z, contact):
         if self._accel is not None:
             return self._iterate3_compiled(c, z, contact)
-        result = self._iterate3_squarings(c, z, contact)
+        # the Kronecker step hands back only the steps it could not certify
+        result = None if self._kron is not None else self._iterate3_squarings(c, z, contact)
         if result is None:
             # some rotation was not certified: redo the step, each rotation checked as it is made
             result = self._iterate3_checked(c, z, contact)

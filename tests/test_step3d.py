@@ -2,7 +2,8 @@
 
 Its trajectory must be the one of the path that certifies each rotation as it
 is made (:meth:`ModalMuscle._iterate3_checked`), on easy and hard motions, and
-a step whose rotations fail the check must be redone that way.
+a step whose rotations fail the check must be redone that way. Both fast
+forms are covered: the Kronecker form (skinning bases) and the general one.
 """
 
 import numpy as np
@@ -96,6 +97,7 @@ def simulators(scale=1.0):
 def run_pair(sims, steps, amplitude, monkeypatch, z_dot0=None):
     """Step both simulators; the second certifies each rotation as it is made."""
     checked = sims[1]
+    checked._kron = None
     monkeypatch.setattr(checked, "_iterate3_squarings", lambda c, z, contact: None)
     redone = []
     original = sims[0]._iterate3_checked
@@ -121,19 +123,30 @@ def run_pair(sims, steps, amplitude, monkeypatch, z_dot0=None):
     return states[0][0], states[1][0], len(redone)
 
 
-def test_same_trajectory_as_rotations_checked_one_by_one(monkeypatch):
+def squarings(sim):
+    return sim._kron.squarings if sim._kron is not None else sim._squarings
+
+
+@pytest.mark.parametrize("kronecker", [True, False])
+def test_same_trajectory_as_rotations_checked_one_by_one(kronecker, monkeypatch):
     sims = simulators()
+    assert sims[0]._kron is not None  # a skinning basis: the Kronecker form
+    if not kronecker:
+        sims[0]._kron = None
     fast, checked, redone = run_pair(sims, 80, 0.6, monkeypatch)
     assert np.all(np.isfinite(fast))
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
     assert redone <= 2  # at most the start: the squarings adapt to the motion
-    assert 2 <= sims[0]._squarings <= 8
+    assert 2 <= squarings(sims[0]) <= 8
 
 
-def test_hard_motion_redoes_uncertified_steps(monkeypatch):
+@pytest.mark.parametrize("kronecker", [True, False])
+def test_hard_motion_redoes_uncertified_steps(kronecker, monkeypatch):
     # activations three times the ceilings and a violent spin: clusters
     # invert and strain hard, so some steps must be redone rotation by rotation
     sims = simulators()
+    if not kronecker:
+        sims[0]._kron = None
     r = sims[0].B.shape[1]
     rng = np.random.default_rng(3)
     z_dot0 = 50.0 * rng.standard_normal(r)
@@ -167,3 +180,131 @@ def test_blow_up_is_reported_in_3d(accelerator):
         for _ in range(5):
             z_next = sim.step(z, z_dot, np.full(sim.n_muscles, 1e300))
             z_dot, z = (z_next - z) / sim.h, z_next
+
+
+def powers_of(P0, s):
+    powers = [P0]
+    for _ in range(s):
+        powers.append(powers[-1] @ powers[-1])
+    return np.stack(powers)
+
+
+def traces_of(powers):
+    return np.einsum("jnii->jn", powers[1:])
+
+
+def test_squarings_certificate_measures_the_weight_off_the_top():
+    from skfem_modal.rotations import certify_squarings
+
+    F = near_rotations(300, 0.2, seed=4)
+    N = (F @ HORN).reshape(-1, 4, 4)
+    shift = 1.07 * np.sqrt(np.einsum("nij,nij->n", N, N) / 12)
+    P0 = N + shift[:, None, None] * np.eye(4)
+    lam = np.linalg.eigvalsh(P0)
+    for s in (2, 3, 5, 7):
+        ok, top, rho = certify_squarings(traces_of(powers_of(P0, s)), shift)
+        assert top
+        # exact: the other eigenvalues' weight next to the top one, 2^j-th powers
+        for j, r in enumerate(rho, start=1):
+            mu = np.abs(lam) ** (2**j)
+            eps = mu[:, :3].sum(axis=1) / mu[:, 3]
+            # eps <= rho (1 + eps)^2 / 2 for each matrix
+            assert eps.max() <= (r * (1 + eps) ** 2 / 2).max() * (1 + 1e-9) + 1e-15
+            if eps.max() > 1e-10:
+                assert r <= 2.0 * eps.max() * (1 + 1e-6)
+        # what ok promises: the last power's weight within 1e-13
+        mu = np.abs(lam) ** (2**s)
+        eps = (mu[:, :3].sum(axis=1) / mu[:, 3]).max()
+        assert not ok or eps <= 1e-13
+        assert ok == (s == 7)  # strains of 0.2: 2^5 powers are not enough for some
+
+
+def test_squarings_certificate_needs_the_shift_or_the_sign():
+    from skfem_modal.rotations import certify_squarings
+
+    # det F < 0 with a tiny shift: the most negative eigenvalue dominates, the
+    # powers are rank one along the wrong eigenvector, and the shift proves nothing
+    F = np.diag([1.0, 0.9, -0.8]).reshape(1, 9)
+    P0 = (np.hstack([F, [[0.01]]]) @ HORN_SHIFTED).reshape(1, 4, 4)
+    P0 = P0 / np.abs(P0).max()
+    ok, top, rho = certify_squarings(traces_of(powers_of(P0, 8)), 0.01 / np.abs(P0).max())
+    assert ok and not top
+    powers = powers_of(P0, 8)
+    assert np.einsum("nab,nab->n", powers[0], powers[8]).min() < 0  # the caller's check fails
+    traces = traces_of(powers)
+    traces[-1, 0] = np.nan  # an overflow propagates to the last power
+    assert not certify_squarings(traces, 10.0)[0]
+
+
+def test_kronecker_form_only_for_bases_that_move_coordinates_alike():
+    from skfem_modal._kron3 import separable_columns, separable_rows, separable_square
+
+    sim = simulators()[0]
+    assert sim._kron is not None
+    assert separable_rows(sim._G) is not None and separable_columns(sim._W) is not None
+    assert separable_square(sim._K_inertia) is not None
+    # mixing the coordinates of z by a generic rotation keeps the subspace
+    # but not the factored form: the general step takes over, same answer
+    r = sim.B.shape[1]
+    Q, _ = np.linalg.qr(np.random.default_rng(5).standard_normal((r, r)))
+    mixed = ModalMuscle(
+        sim.mesh,
+        sim.B @ Q,
+        sim.D,
+        sim.labels,
+        mu=1e5,
+        gamma=1e5,
+        rho=1e3,
+        h=0.01,
+        accelerator="numpy",
+        active_labels=sim.active_labels,
+    )
+    plain = ModalMuscle(
+        sim.mesh,
+        sim.B,
+        sim.D,
+        sim.labels,
+        mu=1e5,
+        gamma=1e5,
+        rho=1e3,
+        h=0.01,
+        accelerator="numpy",
+        active_labels=sim.active_labels,
+    )
+    assert mixed._kron is None and plain._kron is not None
+    z, z_dot, _ = plain.rest_state()
+    w, w_dot = Q.T @ z, Q.T @ z_dot
+    for i in range(30):
+        a = 0.5 * plain.ceilings * np.sin(2 * np.pi * i * 0.01 / np.array([0.3, 0.5, 0.7]))
+        z_next, w_next = plain.step(z, z_dot, a), mixed.step(w, w_dot, a)
+        assert plain.iterations == mixed.iterations
+        z, z_dot, w, w_dot = z_next, (z_next - z) / 0.01, w_next, (w_next - w) / 0.01
+    assert np.abs(Q @ w - z).max() <= 1e-9 * np.abs(z).max()
+
+
+@pytest.mark.parametrize("rtol", [0.0, 1e-3])
+def test_kronecker_step_with_damping_pins_gravity_and_relative_stopping(rtol, monkeypatch):
+    mesh = creature(cell=0.2)
+    top = np.flatnonzero(mesh.p[2] >= mesh.p[2].max() - 1e-9)
+    sims = [
+        ModalMuscle.from_mesh(
+            mesh,
+            n_muscles=3,
+            n_weights=5,
+            n_clusters=10,
+            mu=1e5,
+            rho=1e3,
+            h=0.01,
+            gravity=[0.0, 0.0, -9.8],
+            pinned=top,
+            damping_mass=0.5,
+            damping_stiffness=1e-3,
+            rtol=rtol,
+            accelerator="numpy",
+        )
+        for _ in range(2)
+    ]
+    assert sims[0]._kron is not None and {"gravity", "pinned", "damping"} <= set(sims[0].effects)
+    fast, checked, redone = run_pair(sims, 40, 0.6, monkeypatch)
+    assert redone <= 2
+    assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()

@@ -1,0 +1,337 @@
+"""The 3D numpy step in Kronecker form, for subspaces that move x, y and z alike.
+
+A linear-blend-skinning basis (and its mass-orthonormalised form) is
+``B = U kron I3``: coordinate ``(s, b)`` of ``z`` moves only coordinate ``b``
+of the vertices, by the scalar field ``U[:, s]``. Then every reduced operator
+of the step factors the same way, and with ``Z = z.reshape(K, 3)``:
+
+* the cluster matrices are ``F_c^T = Y_c Z`` (``Y_c`` of shape (3, K)): one
+  (4 n, K + 1) x (K + 1, 4) product for all clusters, instead of
+  (9 n, 3 K) x (3 K,), a sixth of the memory traffic;
+* the global solve is ``Z' = sum_c V_c R_c^T + C``: one (K + 1, 4 n + 3) x
+  (4 n + 3, 4) product;
+* the start-of-step right-hand side is ``C = P_z Z + P_v Z_dot + C_ext``
+  with ``K x K`` blocks.
+
+Each cluster's data sits in a 4 x 4 block: ``[[F^T, 0], [0, s]]`` for the
+cluster matrix and its power-method shift ``s``, ``[[R^T, 0], [0, 1]]`` for
+the rotation; ``Z`` carries a trailing ``[0, 0, 0, 1]`` row and the rotations
+three ``[I3, 0]`` rows, which feed the shifts and ``C`` through the same
+products. An iteration is then nine numpy calls: the cluster matrices, their
+shifted Horn matrices ``P``, 4 or 5 squarings, the rotations with their traces
+from the last power, a division, and the global product. The stopping test
+(the reference's ``|z_k - z_(k-1)| < tol``) costs two more; for the iterations
+the last step says will not stop, it is done afterwards, in one batch, on the
+stored iterates, which gives the same answer.
+
+The rotations are certified once a step (:func:`certify_squarings`): the
+powers are kept, and their traces say how far each is from rank one; the
+shift, kept just above ``|N| / sqrt(12)``, says the dominant eigenvalue is
+the top one. A step that fails is handed back (``None``) to the simulator,
+which redoes it with every rotation checked as it is made.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .rotations import HORN, QUAT_TO_R, certify_squarings, next_squarings
+
+__all__ = ["KroneckerStep3", "separable_rows", "separable_columns", "separable_square"]
+
+MAX_SQUARINGS = 8
+
+# index 4 e + d of a 4 x 4 block holds F^T[e, d] = F[d, e] (row-major F: 3 d + e)
+_BLOCK = [(4 * e + d, 3 * d + e) for d in range(3) for e in range(3)]
+
+# [[F^T, 0], [0, s]] (16 values) -> N(F) + s I (16 values)
+HORN_BLOCK = np.zeros((16, 16))
+for _b, _f in _BLOCK:
+    HORN_BLOCK[_b] = HORN[_f]
+HORN_BLOCK[15] = np.eye(4).ravel()
+
+# q q^T (16 values) -> t [[R^T, 0], [0, 1]] and t = tr(q q^T) (17 values)
+QQ_TO_BLOCK_TRACE = np.zeros((16, 17))
+for _b, _f in _BLOCK:
+    QQ_TO_BLOCK_TRACE[:, _b] = QUAT_TO_R[:, _f]
+QQ_TO_BLOCK_TRACE[:, 15] = np.eye(4).ravel()
+QQ_TO_BLOCK_TRACE[:, 16] = np.eye(4).ravel()
+
+
+def _close(X, Y, rtol):
+    scale = np.abs(X).max(initial=0.0)
+    return np.abs(X - Y).max(initial=0.0) <= rtol * scale
+
+
+def separable_rows(G, rtol=1e-11):
+    """Cluster rows of ``vec(F)`` as ``F_c^T = Y_c Z``, if the operator factors.
+
+    Parameters
+    ----------
+    G : ndarray, shape (q * 9, 3 K)
+        Rows: row-major ``F`` of each of ``q`` clusters; columns: ``z``, with
+        ``z[3 s + b]`` moving coordinate ``b``.
+    rtol : float
+        Largest deviation from the factored form, relative to ``max |G|``.
+
+    Returns
+    -------
+    Y : ndarray, shape (q, 3, K), or None
+        ``F_c[d, e] = sum_s Y[c, e, s] z[3 s + d]``; None if ``G`` does not factor.
+    """
+    q, K = G.shape[0] // 9, G.shape[1] // 3
+    if G.shape != (9 * q, 3 * K):
+        return None
+    G5 = G.reshape(q, 3, 3, K, 3)  # cluster, d, e, s, b
+    Y = G5[:, :, :, :, 0][:, 0].copy()
+    if not _close(G5, np.einsum("db,ces->cdesb", np.eye(3), Y), rtol):
+        return None
+    return Y
+
+
+def separable_columns(W, rtol=1e-11):
+    """Cluster columns of ``vec(R)`` as ``Z = sum_c V_c R_c^T``, if the operator factors.
+
+    Parameters
+    ----------
+    W : ndarray, shape (3 K, q * 9)
+    rtol : float
+
+    Returns
+    -------
+    V : ndarray, shape (K, q, 3), or None
+        ``z[3 s + d] = sum_(c, e) V[s, c, e] R_c[d, e]``.
+    """
+    K, q = W.shape[0] // 3, W.shape[1] // 9
+    if W.shape != (3 * K, 9 * q):
+        return None
+    W5 = W.reshape(K, 3, q, 3, 3)  # s, b, cluster, d, e
+    V = W5[:, 0, :, 0, :].copy()
+    if not _close(W5, np.einsum("bd,sce->sbcde", np.eye(3), V), rtol):
+        return None
+    return V
+
+
+def separable_square(P, rtol=1e-11):
+    """``P = P_s kron I3`` (interleaved), if it is: ``P_s`` of shape (K, K), or None."""
+    K = P.shape[0] // 3
+    if P.shape != (3 * K, 3 * K):
+        return None
+    P4 = P.reshape(K, 3, K, 3)
+    Ps = P4[:, 0, :, 0].copy()
+    if not _close(P4, np.einsum("ab,st->satb", np.eye(3), Ps), rtol):
+        return None
+    return Ps
+
+
+def _row_blocks(Y, scale):
+    """(q, 3, K) -> the (q, 4, K + 1) row blocks ``[[Y / w, 0], [0, shift]]`` (shift left 0)."""
+    q, _, K = Y.shape
+    blocks = np.zeros((q, 4, K + 1))
+    blocks[:, :3, :K] = Y / scale[:, None, None]
+    return blocks
+
+
+def _column_blocks(V):
+    """(K, q, 3) -> the (K, 4 q) columns acting on ``[[R^T, 0], [0, 1]]`` blocks."""
+    K, q, _ = V.shape
+    blocks = np.zeros((K, q, 4))
+    blocks[:, :, :3] = V
+    return blocks.reshape(K, 4 * q)
+
+
+class KroneckerStep3:
+    """Buffers and state of the Kronecker-form 3D step (see the module docstring).
+
+    Built by :meth:`build`, which returns None when the operators do not
+    factor; :meth:`step` runs one step.
+
+    Attributes
+    ----------
+    squarings : int
+        Squarings of the shifted Horn matrices in the next step, chosen from
+        the last step's powers.
+    """
+
+    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter):
+        n, _, K = Y.shape
+        m = YA.shape[0] - 1 if YA is not None else 0
+        self.K, self.n, self.m, self.max_iter = K, n, m, max_iter
+        self.nc = n - n_active
+        nc = self.nc
+        self.Yt = _row_blocks(Y, scale).reshape(4 * n, K + 1)
+        self.shift_column = self.Yt[3::4, K]
+        self.Wt = np.zeros((K + 1, 4 * n + 3))
+        self.Wt[:K, : 4 * n] = _column_blocks(V)
+        self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
+        self.C_slot = self.Wt[:K, 4 * n :]
+        if m:
+            rows = np.stack([_row_blocks(YA[k], scale[nc:]).reshape(-1) for k in range(m + 1)])
+            self.A1, self.A0 = np.ascontiguousarray(rows[1:]), rows[0].copy()
+            cols = np.stack([_column_blocks(VA[k]).reshape(-1) for k in range(m + 1)])
+            self.WA1, self.WA0 = np.ascontiguousarray(cols[1:]), cols[0].reshape(K, -1).copy()
+            self.Yt_active = self.Yt[4 * nc :].reshape(-1)  # contiguous rows: a view
+            self.Wt_active = self.Wt[:K, 4 * nc : 4 * n]
+            self.WA_product = np.empty(self.WA1.shape[1])
+        # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
+        self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
+        self.C_input = np.zeros((2 * K + 3, 3))
+        self.C_input[2 * K :] = np.eye(3)
+        # iterates Z (with the trailing row), rotations (with the I3 rows), powers
+        self.Z = np.zeros((max_iter + 1, K + 1, 4))
+        self.Z[:, K, 3] = 1.0
+        self.R = np.zeros((max_iter, 4 * n + 3, 4))
+        self.R[:, 4 * n :, :3] = np.eye(3)
+        self.powers = np.empty((max_iter, MAX_SQUARINGS + 1, n, 4, 4))
+        self.F = np.empty((4 * n, 4))
+        self.RT = np.empty((max_iter, n, 17))  # t R^T blocks and t = tr(P^(2^s)), per iteration
+        self.traces = np.empty((MAX_SQUARINGS, max_iter, n))
+        self.diff = np.empty((K + 1, 4))
+        self.shift = None
+        self.squarings = 4
+        self._predicted = max_iter  # iterations the last step took
+        F16 = self.F.reshape(n, 16)
+        self._views = [
+            (
+                self.Z[i],
+                self.Z[i + 1],
+                F16,
+                self.powers[i, 0].reshape(n, 16),
+                list(self.powers[i]),
+                [P.reshape(n, 16) for P in self.powers[i]],
+                self.R[i],
+                self.R[i, : 4 * n].reshape(n, 16),
+                self.RT[i],
+                self.RT[i, :, :16],
+                self.RT[i, :, 16:],
+            )
+            for i in range(max_iter)
+        ]
+
+    @classmethod
+    def build(cls, G, W, A, WA, Pz, Pv, c_ext, scale, n_active, max_iter):
+        """The Kronecker step for these operators, or None if they do not factor.
+
+        Parameters
+        ----------
+        G : ndarray, shape (n * 9, r)
+            Cluster rows of row-major ``F`` (passive, then active clusters).
+        W : ndarray, shape (r, n * 9)
+            ``z = W vec(R) + c``.
+        A, WA : ndarray, shape (m + 1, n_active * 9, r) and (m + 1, r, n_active * 9)
+            The active clusters' rows and columns, affine in the activation:
+            ``A[0] + sum_k a_k A[k + 1]``. ``m = 0``: no muscles.
+        Pz, Pv : ndarray, shape (r, r)
+            ``c = Pz z + Pv z_dot + c_ext``.
+        c_ext : ndarray, shape (r,)
+        scale : ndarray, shape (n,)
+            Each cluster's ``|F|`` at rest: rows are divided by it, so that
+            the powers neither overflow nor underflow.
+        n_active : int
+        max_iter : int
+        """
+        Y, V = separable_rows(G), separable_columns(W)
+        Pz_s, Pv_s = separable_square(Pz), separable_square(Pv)
+        if Y is None or V is None or Pz_s is None or Pv_s is None:
+            return None
+        YA = VA = None
+        if A is not None and A.shape[0] > 1:
+            YA = [separable_rows(Ak) for Ak in A]
+            VA = [separable_columns(Wk) for Wk in WA]
+            if any(x is None for x in YA + VA):
+                return None
+            YA, VA = np.stack(YA), np.stack(VA)
+        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.asarray(c_ext, float), scale, n_active, max_iter)
+
+    def _iterate(self, i, s):
+        """Iteration ``i``: ``Z[i] -> Z[i + 1]`` with rotations from ``2^s``-th powers."""
+        Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace = self._views[i]
+        np.matmul(self.Yt, Z_old, self.F)
+        np.matmul(F16, HORN_BLOCK, P0)
+        for j in range(s):
+            np.matmul(P[j], P[j], P[j + 1])
+        np.matmul(P16[s], QQ_TO_BLOCK_TRACE, RT)
+        np.divide(RT16, trace, R16)
+        np.matmul(self.Wt, R, Z_new)
+
+    def step(self, z, z_dot, a, tol2, rtol):
+        """One step from ``(z, z_dot)`` under activation ``a``.
+
+        Parameters
+        ----------
+        z, z_dot : ndarray, shape (3 K,)
+        a : ndarray, shape (m,)
+        tol2 : float
+            Stop when ``|z_k - z_(k-1)|^2 < tol2``.
+        rtol : float
+            Also stop when ``|z_k - z_(k-1)| <= rtol |z_k - z|`` (0: off).
+
+        Returns
+        -------
+        (z_next, iterations), or None when a rotation failed the certificate
+        or the state became non-finite (the caller redoes the step).
+        """
+        K, n, s = self.K, self.n, self.squarings
+        if self.m:
+            np.matmul(a, self.A1, self.Yt_active)
+            np.add(self.Yt_active, self.A0, self.Yt_active)
+            np.matmul(a, self.WA1, self.WA_product)
+            np.add(self.WA_product.reshape(K, -1), self.WA0, self.Wt_active)
+        Z0 = z.reshape(K, 3)
+        self.C_input[:K] = Z0
+        self.C_input[K : 2 * K] = z_dot.reshape(K, 3)
+        np.matmul(self.C_operator, self.C_input, self.C_slot)
+        self.Z[0, :K, :3] = Z0
+        if self.shift is None:
+            # |F| / sqrt(3), the root mean square singular value: the best
+            # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0)
+            self.shift_column[:] = 0.0
+            np.matmul(self.Yt, self.Z[0], self.F)
+            F16 = self.F.reshape(n, 16)
+            self.shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
+        self.shift_column[:] = self.shift
+        # the iterations the last step says will not stop run unchecked; the
+        # stopping rule is applied to them afterwards, on the stored iterates
+        unchecked = 0 if rtol else max(self._predicted - 1, 0)
+        stop = None
+        for i in range(unchecked):
+            self._iterate(i, s)
+        if unchecked:
+            steps = self.Z[1 : unchecked + 1] - self.Z[:unchecked]
+            change2 = np.einsum("kij,kij->k", steps, steps)
+            below = change2 < tol2
+            if below.any():
+                stop = int(below.argmax())
+        if stop is None:
+            diff, flat = self.diff, self.diff.reshape(-1)
+            for i in range(unchecked, self.max_iter):
+                self._iterate(i, s)
+                np.subtract(self.Z[i + 1], self.Z[i], diff)
+                change2 = float(np.dot(flat, flat))
+                if change2 < tol2:
+                    break
+                if not change2 < np.inf:
+                    return None
+                if rtol:
+                    motion = self.Z[i + 1, :K, :3] - Z0
+                    if change2 <= rtol**2 * float(np.vdot(motion, motion)):
+                        break
+            stop = i
+        k = stop + 1
+        traces = self.traces[:s, :k]
+        np.einsum("kjnii->jkn", self.powers[:k, 1:s], out=traces[: s - 1])
+        traces[s - 1] = self.RT[:k, :, 16]
+        ok, top, rho = certify_squarings(traces, self.shift)
+        if ok and not top:
+            ok = bool(np.einsum("knab,knab->kn", self.powers[:k, 0], self.powers[:k, s]).min() > 0.0)
+        if not ok:
+            self.squarings = min(s + 1, MAX_SQUARINGS)
+            self.shift = None
+            return None
+        self._predicted = k
+        self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
+        # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
+        # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
+        np.sqrt(traces[0, stop], self.shift)
+        self.shift *= 1.05 / 4.0
+        return self.Z[k, :K, :3].ravel(), k
