@@ -57,6 +57,8 @@ for _b, _f in _BLOCK:
 QQ_TO_BLOCK_TRACE[:, 15] = np.eye(4).ravel()
 QQ_TO_BLOCK_TRACE[:, 16] = np.eye(4).ravel()
 
+EYE16 = np.eye(4).ravel()  # the trace of a row-major 4 x 4 block, as a dot product
+
 
 def _close(X, Y, rtol):
     scale = np.abs(X).max(initial=0.0)
@@ -167,12 +169,13 @@ class KroneckerStep3:
         self.C_slot = self.Wt[:K, 4 * n :]
         if m:
             rows = np.stack([_row_blocks(YA[k], scale[nc:]).reshape(-1) for k in range(m + 1)])
-            self.A1, self.A0 = np.ascontiguousarray(rows[1:]), rows[0].copy()
             cols = np.stack([_column_blocks(VA[k]).reshape(-1) for k in range(m + 1)])
-            self.WA1, self.WA0 = np.ascontiguousarray(cols[1:]), cols[0].reshape(K, -1).copy()
+            # one product for both: a @ [rows | columns], then the constant parts
+            self.A_all = np.hstack([rows[1:], cols[1:]])
+            self.A_product = np.empty(self.A_all.shape[1])
+            self.A0, self.WA0 = rows[0].copy(), cols[0].reshape(K, -1).copy()
             self.Yt_active = self.Yt[4 * nc :].reshape(-1)  # contiguous rows: a view
             self.Wt_active = self.Wt[:K, 4 * nc : 4 * n]
-            self.WA_product = np.empty(self.WA1.shape[1])
         # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
         self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
         self.C_input = np.zeros((2 * K + 3, 3))
@@ -243,17 +246,6 @@ class KroneckerStep3:
             YA, VA = np.stack(YA), np.stack(VA)
         return cls(Y, V, YA, VA, Pz_s, Pv_s, np.asarray(c_ext, float), scale, n_active, max_iter)
 
-    def _iterate(self, i, s):
-        """Iteration ``i``: ``Z[i] -> Z[i + 1]`` with rotations from ``2^s``-th powers."""
-        Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace = self._views[i]
-        np.matmul(self.Yt, Z_old, self.F)
-        np.matmul(F16, HORN_BLOCK, P0)
-        for j in range(s):
-            np.matmul(P[j], P[j], P[j + 1])
-        np.matmul(P16[s], QQ_TO_BLOCK_TRACE, RT)
-        np.divide(RT16, trace, R16)
-        np.matmul(self.Wt, R, Z_new)
-
     def step(self, z, z_dot, a, tol2, rtol):
         """One step from ``(z, z_dot)`` under activation ``a``.
 
@@ -273,53 +265,63 @@ class KroneckerStep3:
         """
         K, n, s = self.K, self.n, self.squarings
         if self.m:
-            np.matmul(a, self.A1, self.Yt_active)
-            np.add(self.Yt_active, self.A0, self.Yt_active)
-            np.matmul(a, self.WA1, self.WA_product)
-            np.add(self.WA_product.reshape(K, -1), self.WA0, self.Wt_active)
+            np.dot(a, self.A_all, self.A_product)
+            np.add(self.A_product[: self.A0.size], self.A0, self.Yt_active)
+            np.add(self.A_product[self.A0.size :].reshape(K, -1), self.WA0, self.Wt_active)
         Z0 = z.reshape(K, 3)
         self.C_input[:K] = Z0
         self.C_input[K : 2 * K] = z_dot.reshape(K, 3)
-        np.matmul(self.C_operator, self.C_input, self.C_slot)
+        np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
         self.Z[0, :K, :3] = Z0
         if self.shift is None:
             # |F| / sqrt(3), the root mean square singular value: the best
-            # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0)
+            # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
+            # with a margin for the certificate (see below)
             self.shift_column[:] = 0.0
-            np.matmul(self.Yt, self.Z[0], self.F)
+            np.dot(self.Yt, self.Z[0], self.F)
             F16 = self.F.reshape(n, 16)
             self.shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
         self.shift_column[:] = self.shift
+        Yt, Wt, F = self.Yt, self.Wt, self.F
         # the iterations the last step says will not stop run unchecked; the
-        # stopping rule is applied to them afterwards, on the stored iterates
-        unchecked = 0 if rtol else max(self._predicted - 1, 0)
-        stop = None
-        for i in range(unchecked):
-            self._iterate(i, s)
-        if unchecked:
-            steps = self.Z[1 : unchecked + 1] - self.Z[:unchecked]
-            change2 = np.einsum("kij,kij->k", steps, steps)
-            below = change2 < tol2
-            if below.any():
-                stop = int(below.argmax())
-        if stop is None:
-            diff, flat = self.diff, self.diff.reshape(-1)
-            for i in range(unchecked, self.max_iter):
-                self._iterate(i, s)
-                np.subtract(self.Z[i + 1], self.Z[i], diff)
-                change2 = float(np.dot(flat, flat))
-                if change2 < tol2:
+        # stopping rule is applied to them afterwards, in one batch on the
+        # stored iterates (the same answer as testing each in turn)
+        unchecked = 0 if rtol else self._predicted - 1
+        diff, flat = self.diff, self.diff.reshape(-1)
+        stop = self.max_iter - 1
+        for i, (Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace) in enumerate(self._views):
+            # np.dot for the 2D products: the same BLAS call as matmul, less dispatch
+            np.dot(Yt, Z_old, F)
+            np.dot(F16, HORN_BLOCK, P0)
+            for j in range(s):
+                np.matmul(P[j], P[j], P[j + 1])
+            np.dot(P16[s], QQ_TO_BLOCK_TRACE, RT)
+            np.divide(RT16, trace, R16)
+            np.dot(Wt, R, Z_new)
+            if i < unchecked - 1:
+                continue
+            if i == unchecked - 1:
+                steps = (self.Z[1 : i + 2] - self.Z[: i + 1]).reshape(i + 1, 1, -1)
+                change2 = np.matmul(steps, steps.transpose(0, 2, 1)).ravel()
+                if change2.min() < tol2:
+                    stop = int((change2 < tol2).argmax())
                     break
-                if not change2 < np.inf:
-                    return None
-                if rtol:
-                    motion = self.Z[i + 1, :K, :3] - Z0
-                    if change2 <= rtol**2 * float(np.vdot(motion, motion)):
-                        break
-            stop = i
+                continue
+            np.subtract(Z_new, Z_old, diff)
+            change2 = float(np.dot(flat, flat))
+            if change2 < tol2:
+                stop = i
+                break
+            if not change2 < np.inf:
+                return None
+            if rtol:
+                motion = Z_new[:K, :3] - Z0
+                if change2 <= rtol**2 * float(np.vdot(motion, motion)):
+                    stop = i
+                    break
         k = stop + 1
         traces = self.traces[:s, :k]
-        np.einsum("kjnii->jkn", self.powers[:k, 1:s], out=traces[: s - 1])
+        np.matmul(self.powers[:k, 1:s].reshape(k, s - 1, n, 16), EYE16, traces[: s - 1].transpose(1, 0, 2))
         traces[s - 1] = self.RT[:k, :, 16]
         ok, top, rho = certify_squarings(traces, self.shift)
         if ok and not top:
