@@ -26,8 +26,9 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_step  # noqa: E402
 
+from skfem_modal._kron3 import EYE16, HORN_BLOCK, QQ_TO_BLOCK_TRACE  # noqa: E402
 from skfem_modal.muscles import sine_gait  # noqa: E402
-from skfem_modal.rotations import HORN_SHIFTED, QQ_TO_R_TRACE, certify_dominant  # noqa: E402
+from skfem_modal.rotations import certify_squarings, next_squarings  # noqa: E402
 
 
 def us(func, number=2000):
@@ -81,45 +82,50 @@ def parts_2d(sim, z, z_dot, a):
 
 
 def parts_3d(sim, z, z_dot, a):
-    _, _, G, W = sim._step_ops
-    r = z.size
-    n = G.shape[0] // 10
-    c = sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext
-    za = np.append(z, 1.0)
-    F10 = (G @ za).reshape(n, 10)
-    P0 = F10 @ HORN_SHIFTED
-    P = P0.reshape(n, 4, 4)
+    """The Kronecker-form step (skinning bases; see skfem_modal/_kron3.py)."""
+    kr = sim._kron
+    sim.step(z, z_dot, a)  # the buffers hold this step
+    K, n, s, k = kr.K, kr.n, kr.squarings, sim.iterations
+    Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace = kr._views[0]
 
     def power():
-        Q = P
-        for _ in range(sim._squarings):
-            Q = Q @ Q
-        return Q
+        for j in range(s):
+            np.matmul(P[j], P[j], P[j + 1])
 
-    Q = power()
-    out = np.empty((n, 9))
+    def activation():
+        np.dot(a, kr.A_all, kr.A_product)
+        np.add(kr.A_product[: kr.A0.size], kr.A0, kr.Yt_active)
+        np.add(kr.A_product[kr.A0.size :].reshape(K, -1), kr.WA0, kr.Wt_active)
 
-    def rotations():
-        RT = Q.reshape(n, 16) @ QQ_TO_R_TRACE
-        return np.divide(RT[:, :9], RT[:, 9:], out=out)
+    def right_hand_side():
+        kr.C_input[:K] = z.reshape(K, 3)
+        kr.C_input[K : 2 * K] = z_dot.reshape(K, 3)
+        np.matmul(kr.C_operator, kr.C_input, kr.C_slot)
+        kr.Z[0, :K, :3] = z.reshape(K, 3)
 
-    RT = Q.reshape(n, 16) @ QQ_TO_R_TRACE
-    R = RT[:, :9] / RT[:, 9:]
-    k = 8
-    P0s = np.repeat(P0[None], k, axis=0).reshape(-1, 16)
-    Rs = np.repeat(R[None], k, axis=0).reshape(-1, 9)
+    def batch_test():
+        steps = (kr.Z[1:k] - kr.Z[: k - 1]).reshape(k - 1, 1, -1)
+        return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
+
+    def certificate():
+        traces = kr.traces[:s, :k]
+        np.matmul(kr.powers[:k, 1:s].reshape(k, s - 1, n, 16), EYE16, traces[: s - 1].transpose(1, 0, 2))
+        traces[s - 1] = kr.RT[:k, :, 16]
+        return next_squarings(certify_squarings(traces, kr.shift)[2])
+
     iteration = {
-        "G z (scaled F and shift)": lambda: G @ za,
-        "Horn matrices": lambda: F10 @ HORN_SHIFTED,
-        f"{sim._squarings} squarings of {n} 4x4 matrices": power,
-        "R and trace from q q^T, divide": rotations,
-        "W R + c": lambda: W @ R.ravel() + c,
-        "change of z: difference, dot": lambda: (za[:r] - z) @ (za[:r] - z),
+        "Y Z: the clusters' F (Kronecker form)": lambda: np.dot(kr.Yt, Z_old, kr.F),
+        "Horn matrices and shifts": lambda: np.dot(F16, HORN_BLOCK, P0),
+        f"{s} squarings of {n} 4x4 matrices": power,
+        "R and traces from the last power": lambda: np.dot(P16[s], QQ_TO_BLOCK_TRACE, RT),
+        "divide by the traces": lambda: np.divide(RT16, trace, R16),
+        "V R^T + C (the global step)": lambda: np.dot(kr.Wt, R, Z_new),
     }
     per_step = {
-        "activation: operator rows": lambda: sim._set_activation(a),
-        "right-hand side c": lambda: sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext,
-        f"certificate of {k} iterations' rotations": lambda: certify_dominant(P0s, Rs, sim._squarings),
+        "activation: operator rows and columns": activation,
+        "right-hand side C, z in": right_hand_side,
+        f"stopping test of {k - 1} iterations, one batch": batch_test,
+        f"certificate of {k} iterations' rotations": certificate,
     }
     return iteration, per_step
 

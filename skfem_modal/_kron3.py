@@ -283,10 +283,12 @@ class KroneckerStep3:
             self.shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
         self.shift_column[:] = self.shift
         Yt, Wt, F = self.Yt, self.Wt, self.F
-        # the iterations the last step says will not stop run unchecked; the
-        # stopping rule is applied to them afterwards, in one batch on the
-        # stored iterates (the same answer as testing each in turn)
-        unchecked = 0 if rtol else self._predicted - 1
+        # as many iterations as the last step took (the count changes seldom
+        # from step to step) run unchecked; the stopping rule is applied to
+        # them afterwards, in one batch on the stored iterates: the same
+        # answer as testing each in turn, and any iterations past the stop
+        # are discarded
+        unchecked = 0 if rtol else self._predicted
         diff, flat = self.diff, self.diff.reshape(-1)
         stop = self.max_iter - 1
         for i, (Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace) in enumerate(self._views):
