@@ -247,30 +247,14 @@ def test_kronecker_form_only_for_bases_that_move_coordinates_alike():
     # but not the factored form: the general step takes over, same answer
     r = sim.B.shape[1]
     Q, _ = np.linalg.qr(np.random.default_rng(5).standard_normal((r, r)))
-    mixed = ModalMuscle(
-        sim.mesh,
-        sim.B @ Q,
-        sim.D,
-        sim.labels,
-        mu=1e5,
-        gamma=1e5,
-        rho=1e3,
-        h=0.01,
-        accelerator="numpy",
-        active_labels=sim.active_labels,
-    )
-    plain = ModalMuscle(
-        sim.mesh,
-        sim.B,
-        sim.D,
-        sim.labels,
-        mu=1e5,
-        gamma=1e5,
-        rho=1e3,
-        h=0.01,
-        accelerator="numpy",
-        active_labels=sim.active_labels,
-    )
+
+    def on_basis(B):
+        return ModalMuscle(
+            sim.mesh, B, sim.D, sim.labels, mu=1e5, gamma=1e5, rho=1e3, h=0.01, accelerator="numpy",
+            active_labels=sim.active_labels,
+        )  # fmt: skip
+
+    mixed, plain = on_basis(sim.B @ Q), on_basis(sim.B)
     assert mixed._kron is None and plain._kron is not None
     z, z_dot, _ = plain.rest_state()
     w, w_dot = Q.T @ z, Q.T @ z_dot
