@@ -86,11 +86,12 @@ def parts_3d(sim, z, z_dot, a):
     kr = sim._kron
     sim.step(z, z_dot, a)  # the buffers hold this step
     K, n, s, k = kr.K, kr.n, kr.squarings, sim.iterations
-    Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace = kr._views[0]
+    Z_old, Z_new, F16, P0, P16, R, R16, squarings = kr._views[0]
+    RT, RT16, trace = kr.RT, kr.RT[:, :16], kr.RT[:, 16:]
 
     def power():
-        for j in range(s):
-            np.matmul(P[j], P[j], P[j + 1])
+        for operands in squarings[s]:
+            np.matmul(*operands)
 
     def activation():
         np.dot(a, kr.A_all, kr.A_product)
@@ -108,9 +109,7 @@ def parts_3d(sim, z, z_dot, a):
         return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
 
     def certificate():
-        traces = kr.traces[:s, :k]
-        np.matmul(kr.powers[:k, 1:s].reshape(k, s - 1, n, 16), EYE16, traces[: s - 1].transpose(1, 0, 2))
-        traces[s - 1] = kr.RT[:k, :, 16]
+        traces = np.matmul(kr.powers[:k, 1 : s + 1].reshape(k, s, n, 16), EYE16).transpose(1, 0, 2)
         return next_squarings(certify_squarings(traces, kr.shift)[2])
 
     iteration = {

@@ -187,8 +187,7 @@ class KroneckerStep3:
         self.R[:, 4 * n :, :3] = np.eye(3)
         self.powers = np.empty((max_iter, MAX_SQUARINGS + 1, n, 4, 4))
         self.F = np.empty((4 * n, 4))
-        self.RT = np.empty((max_iter, n, 17))  # t R^T blocks and t = tr(P^(2^s)), per iteration
-        self.traces = np.empty((MAX_SQUARINGS, max_iter, n))
+        self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.diff = np.empty((K + 1, 4))
         self.shift = None
         self.squarings = 4
@@ -200,13 +199,14 @@ class KroneckerStep3:
                 self.Z[i + 1],
                 F16,
                 self.powers[i, 0].reshape(n, 16),
-                list(self.powers[i]),
                 [P.reshape(n, 16) for P in self.powers[i]],
                 self.R[i],
                 self.R[i, : 4 * n].reshape(n, 16),
-                self.RT[i],
-                self.RT[i, :, :16],
-                self.RT[i, :, 16:],
+                # the squarings' operands, for each number of squarings
+                [
+                    [(P, P, Q) for P, Q in zip(self.powers[i, :s], self.powers[i, 1 : s + 1])]
+                    for s in range(MAX_SQUARINGS + 1)
+                ],
             )
             for i in range(max_iter)
         ]
@@ -291,15 +291,17 @@ class KroneckerStep3:
         unchecked = 0 if rtol else self._predicted
         diff, flat = self.diff, self.diff.reshape(-1)
         stop = self.max_iter - 1
-        for i, (Z_old, Z_new, F16, P0, P, P16, R, R16, RT, RT16, trace) in enumerate(self._views):
+        RT, RT16, trace = self.RT, self.RT[:, :16], self.RT[:, 16:]
+        dot, matmul, divide = np.dot, np.matmul, np.divide
+        for i, (Z_old, Z_new, F16, P0, P16, R, R16, squarings) in enumerate(self._views):
             # np.dot for the 2D products: the same BLAS call as matmul, less dispatch
-            np.dot(Yt, Z_old, F)
-            np.dot(F16, HORN_BLOCK, P0)
-            for j in range(s):
-                np.matmul(P[j], P[j], P[j + 1])
-            np.dot(P16[s], QQ_TO_BLOCK_TRACE, RT)
-            np.divide(RT16, trace, R16)
-            np.dot(Wt, R, Z_new)
+            dot(Yt, Z_old, F)
+            dot(F16, HORN_BLOCK, P0)
+            for operands in squarings[s]:
+                matmul(*operands)
+            dot(P16[s], QQ_TO_BLOCK_TRACE, RT)
+            divide(RT16, trace, R16)
+            dot(Wt, R, Z_new)
             if i < unchecked - 1:
                 continue
             if i == unchecked - 1:
@@ -322,9 +324,7 @@ class KroneckerStep3:
                     stop = i
                     break
         k = stop + 1
-        traces = self.traces[:s, :k]
-        np.matmul(self.powers[:k, 1:s].reshape(k, s - 1, n, 16), EYE16, traces[: s - 1].transpose(1, 0, 2))
-        traces[s - 1] = self.RT[:k, :, 16]
+        traces = np.matmul(self.powers[:k, 1 : s + 1].reshape(k, s, n, 16), EYE16).transpose(1, 0, 2)
         ok, top, rho = certify_squarings(traces, self.shift)
         if ok and not top:
             ok = bool(np.einsum("knab,knab->kn", self.powers[:k, 0], self.powers[:k, s]).min() > 0.0)
