@@ -109,7 +109,7 @@ def parts_3d(sim, z, z_dot, a):
         return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
 
     def certificate():
-        traces = np.matmul(kr.powers[:k, 1 : s + 1].reshape(k, s, n, 16), EYE16).transpose(1, 0, 2)
+        traces = np.matmul(kr.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16)
         return next_squarings(certify_squarings(traces, kr.shift)[2])
 
     iteration = {

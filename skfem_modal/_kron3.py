@@ -185,7 +185,7 @@ class KroneckerStep3:
         self.Z[:, K, 3] = 1.0
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
-        self.powers = np.empty((max_iter, MAX_SQUARINGS + 1, n, 4, 4))
+        self.powers = np.empty((MAX_SQUARINGS + 1, max_iter, n, 4, 4))  # level first: the traces come out contiguous
         self.F = np.empty((4 * n, 4))
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.diff = np.empty((K + 1, 4))
@@ -198,13 +198,13 @@ class KroneckerStep3:
                 self.Z[i],
                 self.Z[i + 1],
                 F16,
-                self.powers[i, 0].reshape(n, 16),
-                [P.reshape(n, 16) for P in self.powers[i]],
+                self.powers[0, i].reshape(n, 16),
+                [P.reshape(n, 16) for P in self.powers[:, i]],
                 self.R[i],
                 self.R[i, : 4 * n].reshape(n, 16),
                 # the squarings' operands, for each number of squarings
                 [
-                    [(P, P, Q) for P, Q in zip(self.powers[i, :s], self.powers[i, 1 : s + 1])]
+                    [(P, P, Q) for P, Q in zip(self.powers[:s, i], self.powers[1 : s + 1, i])]
                     for s in range(MAX_SQUARINGS + 1)
                 ],
             )
@@ -324,10 +324,10 @@ class KroneckerStep3:
                     stop = i
                     break
         k = stop + 1
-        traces = np.matmul(self.powers[:k, 1 : s + 1].reshape(k, s, n, 16), EYE16).transpose(1, 0, 2)
+        traces = np.matmul(self.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16)
         ok, top, rho = certify_squarings(traces, self.shift)
         if ok and not top:
-            ok = bool(np.einsum("knab,knab->kn", self.powers[:k, 0], self.powers[:k, s]).min() > 0.0)
+            ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
         if not ok:
             self.squarings = min(s + 1, MAX_SQUARINGS)
             self.shift = None
