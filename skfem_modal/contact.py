@@ -100,10 +100,14 @@ class GroundContact:
             self.target = np.where(depth > 0, up_start + self.push_out * depth, self.ground)
             self.lift = self.target - up_start
             self.limit = self.target
+            # the positions the corrections aim at: the start, lifted out of the ground
+            self.p_target = self.p_start.copy()
+            self.p_target[self.up :: self.dim] += self.lift
         else:
             # reference rule: a point below ground may not move further down
             self.lift = 0.0
             self.limit = up_start
+            self.p_target = self.p_start
 
     def positions(self, z: np.ndarray) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""
@@ -137,8 +141,9 @@ class GroundContact:
             dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
-        # the correction of z and of every contact position, in one product
-        entry = (active, rows, np.vstack([dz, np.asarray(self.Je @ dz)]), factor)
+        # the correction of z and of every contact position, in one product,
+        # the tangential scaling folded in
+        entry = (active, rows, np.vstack([dz, np.asarray(self.Je @ dz)]) * factor)
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
@@ -167,7 +172,7 @@ class GroundContact:
         up_tent = p_tent[self.up :: self.dim]
         # below the plane at the current iterate and moving into it
         mask = (self.up_iter < self.ground) & (up_tent < self.limit)
-        if not mask.any():
+        if not np.count_nonzero(mask):  # a third of .any()'s cost, once an iteration
             self.active_count = 0
             self.up_iter = up_tent
             return y
@@ -176,18 +181,15 @@ class GroundContact:
         return y
 
     def _apply(self, y, r, mask):
-        active, rows, K, factor = self._projection(mask)
+        active, rows, K = self._projection(mask)
         self.active_count = active.size
-        residual = (self.p_start[rows] - y[r:][rows]) * factor
-        if self.push_out:
-            residual[self.up :: self.dim] += self.lift[active]
-        return y + K @ residual
+        return y + K @ (self.p_target - y[r:]).take(rows)
 
     def _correct_positions(self, y, r):
         """Position rule: no contact point ends below its target height."""
         tol = 1e-12 * max(1.0, abs(self.ground))
         mask = y[r + self.up :: self.dim] < self.target - tol
-        if not mask.any():
+        if not np.count_nonzero(mask):
             self.active_count = 0
             return y
         tentative = y

@@ -121,7 +121,7 @@ def rotations2_flat(F4: np.ndarray) -> np.ndarray:
     cs = F4 @ CS2
     norm = np.hypot(cs[:, 0], cs[:, 1])
     zero = norm == 0.0
-    if zero.any():
+    if np.count_nonzero(zero):
         # the zero matrix has every rotation as a maximiser; take the identity
         cs[zero, 0] = 1.0
         norm[zero] = 1.0
@@ -328,7 +328,7 @@ def certify_squarings(traces: np.ndarray, shift, tol: float = 1e-13):
     # non-finite trace gives NaN or inf, which fail the comparisons
     rho = 1.0 - (traces[1:] / np.square(traces[:-1])).reshape(k - 1, -1).min(axis=1)
     ok = bool(rho[-1] <= 2.0 * np.sqrt(tol))
-    top = bool(np.less(traces[0], 16.0 * np.square(shift)).all())
+    top = np.count_nonzero(np.less(traces[0], 16.0 * np.square(shift))) == traces[0].size
     return ok, top, rho
 
 

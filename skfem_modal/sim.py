@@ -484,6 +484,7 @@ class ModalMuscle:
         # from the last step's matrices
         self._shift = None
         self._squarings = 4
+        self._batched = self.max_iter  # iterations of the last batched step (see _loop)
         self._rest_const = 0.5 * dim * float(w_mu.sum())
         self.timings["factor"] = time.perf_counter() - clock
 
@@ -713,9 +714,14 @@ class ModalMuscle:
             raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {np.shape(z_dot)}")
         a = self._activation(a)
         z_dot = np.asarray(z_dot, dtype=np.float64)
+        # overflow in a blown-up state is reported as a SimulationError, not as warnings
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._advance(z, z_dot, a)
+
+    def _advance(self, z, z_dot, a):
+        """One step on validated input; returns ``z_next`` and sets ``iterations``."""
         if self._kron is not None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                result = self._kron.step(z, z_dot, a, self._tol2, self.rtol)
+            result = self._kron.step(z, z_dot, a, self._tol2, self.rtol)
             if result is not None:
                 z_next, self.iterations = result
                 return z_next
@@ -732,12 +738,10 @@ class ModalMuscle:
         if contact is not None:
             contact.start_step(z)
             c = np.concatenate([c, contact.Je @ c])
-        # overflow in a blown-up state is reported as a SimulationError below
-        with np.errstate(over="ignore", invalid="ignore"):
-            if self.dim == 2:
-                z_next, self.iterations = self._iterate2(c, z, contact)
-            else:
-                z_next, self.iterations = self._iterate3(c, z, contact)
+        if self.dim == 2:
+            z_next, self.iterations = self._iterate2(c, z, contact)
+        else:
+            z_next, self.iterations = self._iterate3(c, z, contact)
         return z_next
 
     def _stop(self, change2: float, z_next, z_start) -> bool:
@@ -753,25 +757,47 @@ class ModalMuscle:
             return change2 <= self.rtol**2 * (motion @ motion)
         return False
 
-    def _loop(self, c, z, contact, local):
+    def _loop(self, c, z, contact, local, batch=False):
         """Local/global iterations in Python: ``z = c + W local(z)`` until a stopping rule holds.
 
         ``local(z)`` returns the rotation parameters the step's ``W`` acts on
-        (``(c, s)`` per cluster in 2D, ``vec(R)`` in 3D), flat.
+        (``(c, s)`` per cluster in 2D, ``vec(R)`` in 3D), flat. With
+        ``batch`` (a ``local`` that takes any input, NaN included) as many
+        iterations as the last batched step took run without the stopping
+        test, which is then applied to them at once on the stored iterates:
+        the same answer, the same errors, two numpy calls fewer an iteration.
         """
         W = self._step_ops[3]
         tol2, r = self._tol2, z.size
+        unchecked = self._batched if batch and not self.rtol else 0
+        iterates = [z]
         z_iter = z
-        for it in range(1, self.max_iter + 1):  # noqa: B007 - the count is returned
+        for it in range(1, self.max_iter + 1):
             y = c + W @ local(z_iter)
             if contact is not None:
                 y = contact.correct(y)
             z_next = y[:r]
+            if it <= unchecked:
+                iterates.append(z_next)
+                z_iter = z_next
+                if it == unchecked:
+                    steps = np.diff(np.array(iterates), axis=0)
+                    change2 = np.einsum("ij,ij->i", steps, steps)
+                    stopped = ~(change2 >= tol2)  # converged, or not finite
+                    if np.count_nonzero(stopped):
+                        k = int(stopped.argmax())
+                        if not change2[k] < tol2:
+                            raise SimulationError("the state became non-finite")
+                        self._batched = k + 1
+                        return iterates[k + 1], k + 1
+                continue
             diff = z_next - z_iter
             change2 = diff @ diff
             z_iter = z_next
             if change2 < tol2 or self._stop(change2, z_next, z):
                 break
+        if batch:
+            self._batched = it
         return z_iter, it
 
     def _iterate2(self, c, z, contact):
@@ -791,14 +817,14 @@ class ModalMuscle:
             if compiled is not None:
                 return compiled(cs).ravel()
             norm = np.hypot(cs[:, 0], cs[:, 1])
-            if not norm.all():
+            if np.count_nonzero(norm) < norm.size:  # count_nonzero: a third of .all()'s cost
                 # a zero target: every rotation is optimal, take the identity
                 cs[norm == 0.0, 0] = 1.0
                 norm[norm == 0.0] = 1.0
             cs /= norm[:, None]
             return cs.ravel()
 
-        return self._loop(c, z, contact, local)
+        return self._loop(c, z, contact, local, batch=True)
 
     def _iterate3(self, c, z, contact):
         if self._accel is not None:

@@ -299,3 +299,32 @@ def test_non_finite_state_raises(tutorial):
     z_dot[0] = np.nan
     with pytest.raises(SimulationError, match="non-finite"):
         sim.step(z, z_dot, a)
+
+
+@pytest.mark.parametrize("contact", [False, True])
+def test_batched_stopping_test_gives_the_answer_of_testing_each_iteration(tutorial, contact):
+    # a loose tolerance, so the iteration counts vary from step to step; the
+    # numpy path tests the iterations it predicts in one batch afterwards
+    kw = dict(tol=2e-4, accelerator="numpy")
+    if contact:
+        mesh = tutorial["mesh"]
+        kw.update(gravity=[0.0, -9.8], ground=float(mesh.p[1].min()) - 0.05, contact_vertices=np.arange(0, 200, 7))
+    batched, each = floating(tutorial, **kw), floating(tutorial, **kw)
+    z, z_dot, _ = batched.rest_state()
+    w, w_dot = z.copy(), z_dot.copy()
+    counts = []
+    amplitudes = np.asarray(FLOAT_GAIT["amplitudes"]) * tutorial["ceilings"]
+    for i in range(60):
+        a = sine_gait(i * 0.02, amplitudes, FLOAT_GAIT["periods"], FLOAT_GAIT["phases"])
+        each._batched = 0  # test every iteration as it is made
+        z_next, w_next = batched.step(z, z_dot, a), each.step(w, w_dot, a)
+        assert batched.iterations == each.iterations
+        np.testing.assert_array_equal(z_next, w_next)
+        counts.append(batched.iterations)
+        z, z_dot, w, w_dot = z_next, (z_next - z) / 0.02, w_next, (w_next - w) / 0.02
+    assert len(set(counts)) >= 3  # the predictions were wrong now and then, both ways
+    # a state that turns non-finite inside the unchecked iterations is reported
+    z_dot = z_dot.copy()
+    z_dot[0] = np.inf
+    with pytest.raises(SimulationError, match="non-finite"):
+        batched.step(z, z_dot, a)
