@@ -28,7 +28,7 @@ import bench_step  # noqa: E402
 
 from skfem_modal._kron3 import EYE16, HORN_BLOCK, QQ_TO_BLOCK_TRACE  # noqa: E402
 from skfem_modal.muscles import sine_gait  # noqa: E402
-from skfem_modal.rotations import certify_squarings, next_squarings  # noqa: E402
+from skfem_modal.rotations import certify_levels, next_squarings  # noqa: E402
 
 
 def us(func, number=2000):
@@ -109,8 +109,9 @@ def parts_3d(sim, z, z_dot, a):
         return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
 
     def certificate():
-        traces = np.matmul(kr.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16)
-        return next_squarings(certify_squarings(traces, kr.shift)[2])
+        levels = kr.levels[: s + 1, :k]
+        np.matmul(kr.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16, levels[1:])
+        return next_squarings(certify_levels(levels)[2])
 
     iteration = {
         "Y Z: the clusters' F (Kronecker form)": lambda: np.dot(kr.Yt, Z_old, kr.F),

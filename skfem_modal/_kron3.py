@@ -24,7 +24,7 @@ from the last power, a division, and the global product. The stopping test
 the last step says will not stop, it is done afterwards, in one batch, on the
 stored iterates, which gives the same answer.
 
-The rotations are certified once a step (:func:`certify_squarings`): the
+The rotations are certified once a step (:func:`~skfem_modal.rotations.certify_squarings`): the
 powers are kept, and their traces say how far each is from rank one; the
 shift, kept just above ``|N| / sqrt(12)``, says the dominant eigenvalue is
 the top one. A step that fails is handed back (``None``) to the simulator,
@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rotations import HORN, QUAT_TO_R, certify_squarings, next_squarings
+from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
 
 __all__ = ["KroneckerStep3", "separable_rows", "separable_columns", "separable_square"]
 
@@ -187,6 +187,8 @@ class KroneckerStep3:
         self.R[:, 4 * n :, :3] = np.eye(3)
         self.powers = np.empty((MAX_SQUARINGS + 1, max_iter, n, 4, 4))  # level first: the traces come out contiguous
         self.F = np.empty((4 * n, 4))
+        # [4 s, tr P^2, tr P^4, ...] per iteration and cluster, for the certificate
+        self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.diff = np.empty((K + 1, 4))
         self.shift = None
@@ -281,6 +283,7 @@ class KroneckerStep3:
             np.dot(self.Yt, self.Z[0], self.F)
             F16 = self.F.reshape(n, 16)
             self.shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
+            np.multiply(self.shift, 4.0, self.levels[0])
         self.shift_column[:] = self.shift
         Yt, Wt, F = self.Yt, self.Wt, self.F
         # as many iterations as the last step took (the count changes seldom
@@ -324,8 +327,9 @@ class KroneckerStep3:
                     stop = i
                     break
         k = stop + 1
-        traces = np.matmul(self.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16)
-        ok, top, rho = certify_squarings(traces, self.shift)
+        levels = self.levels[: s + 1, :k]
+        np.matmul(self.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16, levels[1:])
+        ok, top, rho = certify_levels(levels)
         if ok and not top:
             ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
         if not ok:
@@ -336,6 +340,7 @@ class KroneckerStep3:
         self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
         # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
         # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
-        np.sqrt(traces[0, stop], self.shift)
+        np.sqrt(levels[1, stop], self.shift)
         self.shift *= 1.05 / 4.0
+        np.multiply(self.shift, 4.0, self.levels[0])
         return self.Z[k, :K, :3].ravel(), k

@@ -33,6 +33,7 @@ __all__ = [
     "dominant_quaternions",
     "certify_dominant",
     "certify_squarings",
+    "certify_levels",
     "next_squarings",
     "squarings_for",
     "HORN",
@@ -323,12 +324,26 @@ def certify_squarings(traces: np.ndarray, shift, tol: float = 1e-13):
     >>> certify_squarings(t[:2], 1.1)[0]  # two are not enough
     False
     """
-    k = traces.shape[0]
+    traces = np.asarray(traces, dtype=np.float64)
+    levels = np.empty((traces.shape[0] + 1,) + traces.shape[1:])
+    levels[0] = 4.0 * np.asarray(shift)
+    levels[1:] = traces
+    return certify_levels(levels, tol)
+
+
+def certify_levels(levels: np.ndarray, tol: float = 1e-13):
+    """:func:`certify_squarings` on ``[4 s, t_1, ..., t_k]`` stacked, shape (k + 1, ...).
+
+    The ratios ``levels[j + 1] / levels[j]^2`` are ``t_1 / 16 s^2`` (below 1
+    when the shift proves the top eigenvalue dominant) and ``1 - rho_j``: one
+    division for both checks. For callers that keep the stack in a buffer.
+    """
     # no errstate here (it costs as much as the arithmetic): a zero or
     # non-finite trace gives NaN or inf, which fail the comparisons
-    rho = 1.0 - (traces[1:] / np.square(traces[:-1])).reshape(k - 1, -1).min(axis=1)
+    ratios = (levels[1:] / np.square(levels[:-1])).reshape(levels.shape[0] - 1, -1)
+    rho = 1.0 - ratios[1:].min(axis=1)
     ok = bool(rho[-1] <= 2.0 * np.sqrt(tol))
-    top = np.count_nonzero(np.less(traces[0], 16.0 * np.square(shift))) == traces[0].size
+    top = bool(ratios[0].max() < 1.0)
     return ok, top, rho
 
 
