@@ -109,8 +109,8 @@ def parts_3d(sim, z, z_dot, a):
         return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
 
     def certificate():
-        levels = kr.levels[: s + 1, :k]
-        np.matmul(kr.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16, levels[1:])
+        levels = kr.levels_by_level[: s + 1, : k * n]
+        np.matmul(kr.powers_by_level[1 : s + 1, : k * n], EYE16, levels[1:])
         return next_squarings(certify_levels(levels)[2])
 
     iteration = {

@@ -186,9 +186,11 @@ class KroneckerStep3:
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
         self.powers = np.empty((MAX_SQUARINGS + 1, max_iter, n, 4, 4))  # level first: the traces come out contiguous
+        self.powers_by_level = self.powers.reshape(MAX_SQUARINGS + 1, max_iter * n, 16)
         self.F = np.empty((4 * n, 4))
         # [4 s, tr P^2, tr P^4, ...] per iteration and cluster, for the certificate
         self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
+        self.levels_by_level = self.levels.reshape(MAX_SQUARINGS + 1, max_iter * n)
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.diff = np.empty((K + 1, 4))
         self.shift = None
@@ -327,8 +329,9 @@ class KroneckerStep3:
                     stop = i
                     break
         k = stop + 1
-        levels = self.levels[: s + 1, :k]
-        np.matmul(self.powers[1 : s + 1, :k].reshape(s, k, n, 16), EYE16, levels[1:])
+        # a level's iterations are contiguous: one matrix-vector product per level
+        levels = self.levels_by_level[: s + 1, : k * n]
+        np.matmul(self.powers_by_level[1 : s + 1, : k * n], EYE16, levels[1:])
         ok, top, rho = certify_levels(levels)
         if ok and not top:
             ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
@@ -340,7 +343,7 @@ class KroneckerStep3:
         self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
         # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
         # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
-        np.sqrt(levels[1, stop], self.shift)
+        np.sqrt(levels[1, stop * n : k * n], self.shift)
         self.shift *= 1.05 / 4.0
         np.multiply(self.shift, 4.0, self.levels[0])
         return self.Z[k, :K, :3].ravel(), k

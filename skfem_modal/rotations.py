@@ -24,6 +24,8 @@ of whole-batch numpy operations and no per-matrix LAPACK calls:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -342,7 +344,7 @@ def certify_levels(levels: np.ndarray, tol: float = 1e-13):
     # non-finite trace gives NaN or inf, which fail the comparisons
     ratios = (levels[1:] / np.square(levels[:-1])).reshape(levels.shape[0] - 1, -1)
     rho = 1.0 - ratios[1:].min(axis=1)
-    ok = bool(rho[-1] <= 2.0 * np.sqrt(tol))
+    ok = bool(rho[-1] <= 2.0 * math.sqrt(tol))
     top = bool(ratios[0].max() < 1.0)
     return ok, top, rho
 
@@ -361,7 +363,7 @@ def next_squarings(rho: np.ndarray, least: int = 2, most: int = 8, growth: float
     4
     """
     k = len(rho) + 1
-    bound = 2.0 * np.sqrt(tol)
+    bound = 2.0 * math.sqrt(tol)
     if not rho[-1] <= bound / growth ** (2 ** (k - 1)):
         return min(k + 1, most)
     if k > least and rho[-2] <= bound / growth ** (2 ** (k - 2)):
