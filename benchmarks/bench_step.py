@@ -13,11 +13,13 @@ reference_impl.py) and skfem_modal get the same B, D, clusters, contact
 vertices and gravity, and the trajectories are compared: the relative
 difference of z over the whole run must stay below 1e-8, so the speed is not
 bought with a different answer. Prints per-step median and p90 for each
-implementation (numpy, and numba when installed) and the ratios; the best of
-``--repeat`` runs is kept, the implementations taking turns from one repeat
-to the next. (Running them in lockstep, one step each in turn, would be
-fairer to the machine's slow spells but not to the caches: the reference's
-large working set evicts ours between steps, which no real run does.)
+implementation (numpy, and numba when installed) over all steps of
+``--repeat`` runs, and the ratios. The implementations take turns every 10
+steps all through each run, so that all of them see the machine's fast and
+slow spells alike (whole runs one after another landed in different spells
+and moved the ratios by up to 2x); not every step, since the reference's
+large working set would evict ours from the caches between steps, which no
+real run does.
 """
 
 from __future__ import annotations
@@ -124,23 +126,23 @@ def build(scene, accelerator):
     )
 
 
-def run_ours(scene, accelerator):
+def steps_ours(scene, accelerator):
+    """Our simulator on the scene: yields (seconds, z) per step."""
     sim = build(scene, accelerator)
     z, z_dot, _ = sim.rest_state()
     sim.step(z, z_dot, np.zeros(sim.n_muscles))  # compile / warm up
     amp, per, ph = scene["gait"]
-    times, zs = [], []
     for i in range(scene["steps"]):
         a = sine_gait(i * sim.h, amp, per, ph)
         start = time.perf_counter()
         z_next = sim.step(z, z_dot, a)
-        times.append(time.perf_counter() - start)
+        elapsed = time.perf_counter() - start
         z_dot, z = (z_next - z) / sim.h, z_next
-        zs.append(z)
-    return times, np.array(zs)
+        yield elapsed, z
 
 
-def run_reference(scene, RefModalMuscle):
+def steps_reference(scene, RefModalMuscle):
+    """The reference on the same inputs: yields (seconds, z) per step."""
     import scipy.sparse as sps  # noqa: F401
     import simkit as sk
 
@@ -171,15 +173,16 @@ def run_reference(scene, RefModalMuscle):
     )
     z, z_dot, a = sim.rest_state(X)
     amp, per, ph = scene["gait"]
-    times, zs = [], []
     for i in range(scene["steps"]):
         a[:-1, 0] = sine_gait(i * scene["h"], amp, per, ph)
         start = time.perf_counter()
         z_next = sim.step(z, z_dot, a)
-        times.append(time.perf_counter() - start)
+        elapsed = time.perf_counter() - start
         z_dot, z = (z_next - z) / scene["h"], z_next
-        zs.append(z.ravel())
-    return times, np.array(zs)
+        yield elapsed, z.ravel()
+
+
+BLOCK = 10  # steps an implementation runs before the next one takes its turn
 
 
 def stats(times):
@@ -189,7 +192,7 @@ def stats(times):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--repeat", type=int, default=5, help="whole runs of each scene, all steps pooled")
     parser.add_argument("--tutorial", default=reference_impl.DEFAULT_TUTORIAL)
     parser.add_argument("--only", nargs="*", help="scene names to run (float, crawl, 3d)")
     args = parser.parse_args()
@@ -210,17 +213,28 @@ def main():
     for scene in scenes():
         if args.only and scene["name"] not in args.only:
             continue
-        best = {}
+        # the implementations take turns every BLOCK steps through the whole
+        # run, repeated: all of them see the machine's fast and slow spells
+        # alike (whole runs one after the other can land in different spells),
+        # and a block is long enough that none runs on a cache the other evicted
+        times = {}
         trajectories = {}
         for _ in range(args.repeat):
-            runs = [("reference", lambda scene=scene: run_reference(scene, Ref))] if Ref else []
-            runs += [(impl, lambda impl=impl, scene=scene: run_ours(scene, impl)) for impl in impls]
-            for name, func in runs:
-                times, zs = func()
-                med, p90 = stats(times)
-                if name not in best or med < best[name][0]:
-                    best[name] = (med, p90)
-                trajectories[name] = zs
+            runs = {"reference": steps_reference(scene, Ref)} if Ref else {}
+            runs.update({impl: steps_ours(scene, impl) for impl in impls})
+            zs = {name: [] for name in runs}
+            while runs:
+                for name in list(runs):
+                    for _ in range(BLOCK):
+                        try:
+                            elapsed, z = next(runs[name])
+                        except StopIteration:
+                            del runs[name]
+                            break
+                        times.setdefault(name, []).append(elapsed)
+                        zs[name].append(z)
+            trajectories = {name: np.array(z) for name, z in zs.items()}
+        best = {name: stats(t) for name, t in times.items()}
         ref_med = best["reference"][0] if "reference" in best else None
         for name, (med, p90) in best.items():
             ratio = "" if ref_med is None or name == "reference" else f"{ref_med / med:6.1f}x"

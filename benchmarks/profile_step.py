@@ -64,11 +64,22 @@ def parts_2d(sim, z, z_dot, a):
         c = np.concatenate([c, sim._contact.Je @ c])
     cs = (G @ z).reshape(-1, 2)
     y = c + W @ cs.ravel()
+    iterates = [z + 1e-3 * k for k in range(sim.max_iter + 1)]
+
+    def normalise():
+        norm = np.hypot(cs[:, 0], cs[:, 1])
+        np.count_nonzero(norm)
+        return cs / norm[:, None]
+
+    def batch_test():
+        steps = np.diff(np.array(iterates), axis=0)
+        change2 = np.einsum("ij,ij->i", steps, steps)
+        return np.count_nonzero(~(change2 >= sim._tol2))
+
     iteration = {
         "G z (rotation features)": lambda: G @ z,
-        "normalise (c, s): hypot, divide": lambda: cs / np.hypot(cs[:, 0], cs[:, 1])[:, None],
+        "normalise (c, s): hypot, check, divide": normalise,
         "W (c, s) + c": lambda: c + W @ cs.ravel(),
-        "change of z: difference, dot": lambda: (y[: z.size] - z) @ (y[: z.size] - z),
     }
     if sim._contact is not None:
         contact = sim._contact
@@ -77,6 +88,7 @@ def parts_2d(sim, z, z_dot, a):
     per_step = {
         "activation: operator rows": lambda: sim._set_activation(a),
         "right-hand side c": lambda: sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext,
+        f"stopping test of {sim.max_iter} iterations, one batch": batch_test,
     }
     return iteration, per_step
 
