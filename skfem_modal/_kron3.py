@@ -85,7 +85,7 @@ def separable_rows(G, rtol=1e-11):
     if G.shape != (9 * q, 3 * K):
         return None
     G5 = G.reshape(q, 3, 3, K, 3)  # cluster, d, e, s, b
-    Y = G5[:, :, :, :, 0][:, 0].copy()
+    Y = G5[:, 0, :, :, 0].copy()
     if not _close(G5, np.einsum("db,ces->cdesb", np.eye(3), Y), rtol):
         return None
     return Y

@@ -526,7 +526,8 @@ class ModalMuscle:
         if dim == 3:
             G_step, W_step, A_step, WA_step = self._G, self._W.copy(), self._A, self._WA
             if self.accelerator == "numpy":
-                G_step, A_step = self._shifted_operators(nc, na)
+                rest_scale = self._rest_scale(nc + na)
+                G_step, A_step = self._shifted_operators(nc, na, rest_scale)
         else:
             G_step, W_step = self._Gf, self._Wf
             A_step, WA_step = (self._Af, self._WAf) if m else (None, None)
@@ -552,7 +553,7 @@ class ModalMuscle:
                 Pz,
                 Pv,
                 self._c_ext,
-                self._rest_scale(nc + na),
+                rest_scale,
                 na,
                 self.max_iter,
             )
@@ -571,7 +572,7 @@ class ModalMuscle:
     def tol(self, value) -> None:
         self._tol2 = _positive_scalar(value, "tol", allow_zero=True) ** 2
 
-    def _shifted_operators(self, nc: int, na: int):
+    def _shifted_operators(self, nc: int, na: int, w: np.ndarray):
         """3D, numpy: cluster operators that give ``(F / w, s)`` per cluster.
 
         ``w`` is the cluster's ``|F|`` at rest (so entries stay near 1 and
@@ -582,7 +583,6 @@ class ModalMuscle:
         """
         r = self.B.shape[1]
         n = nc + na
-        w = self._rest_scale(n)
         G = np.zeros((n, 10, r + 1))
         G[:, :9, :r] = self._G.reshape(n, 9, r) / w[:, None, None]
         m = self.n_muscles

@@ -292,3 +292,32 @@ def test_kronecker_step_with_damping_pins_gravity_and_relative_stopping(rtol, mo
     fast, checked, redone = run_pair(sims, 40, 0.6, monkeypatch)
     assert redone <= 2
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
+
+
+def test_kronecker_step_checks_the_sign_itself_when_the_shift_proves_nothing(monkeypatch):
+    # when the shift is too small to prove the top eigenvalue dominant, the
+    # step computes tr(P P^(2^s)) itself: same trajectory, no redone step
+    from skfem_modal import _kron3
+
+    sims = simulators()
+    unproven = []
+    certify = _kron3.certify_levels
+
+    def without_shift_proof(levels):
+        ok, top, rho = certify(levels)
+        unproven.append(ok)
+        return ok, False, rho
+
+    z_ref = z = sims[0].rest_state()[0]
+    z_dot_ref = z_dot = np.zeros_like(z)
+    for i in range(30):
+        a = 0.6 * sims[0].ceilings * np.sin(2 * np.pi * i * 0.01 / np.array([0.3, 0.5, 0.7]))
+        z_next_ref = sims[0].step(z_ref, z_dot_ref, a)
+        with monkeypatch.context() as patch:
+            patch.setattr(_kron3, "certify_levels", without_shift_proof)
+            z_next = sims[1].step(z, z_dot, a)
+        assert sims[0].iterations == sims[1].iterations
+        z_dot_ref, z_ref = (z_next_ref - z_ref) / 0.01, z_next_ref
+        z_dot, z = (z_next - z) / 0.01, z_next
+    assert len(unproven) == 30 and all(unproven)  # every step took the explicit check, and passed it
+    np.testing.assert_array_equal(z, z_ref)
