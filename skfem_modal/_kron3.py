@@ -59,6 +59,10 @@ QQ_TO_BLOCK_TRACE[:, 16] = np.eye(4).ravel()
 
 EYE16 = np.eye(4).ravel()  # the trace of a row-major 4 x 4 block, as a dot product
 
+# np.dot without the __array_function__ dispatch (all operands here are our
+# own ndarrays): a third of a call's cost on these small products
+_dot = getattr(np.dot, "_implementation", np.dot)
+
 
 def _close(X, Y, rtol):
     scale = np.abs(X).max(initial=0.0)
@@ -168,13 +172,19 @@ class KroneckerStep3:
         self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
         self.C_slot = self.Wt[:K, 4 * n :]
         if m:
-            rows = np.stack([_row_blocks(YA[k], scale[nc:]).reshape(-1) for k in range(m + 1)])
+            # the active clusters' F rows (not their shift rows, which the
+            # step keeps) and columns, affine in the activation: one product
+            # for both, a @ [rows | columns], then the constant parts
+            rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3].reshape(-1) for k in range(m + 1)])
             cols = np.stack([_column_blocks(VA[k]).reshape(-1) for k in range(m + 1)])
-            # one product for both: a @ [rows | columns], then the constant parts
             self.A_all = np.hstack([rows[1:], cols[1:]])
-            self.A_product = np.empty(self.A_all.shape[1])
-            self.A0, self.WA0 = rows[0].copy(), cols[0].reshape(K, -1).copy()
-            self.Yt_active = self.Yt[4 * nc :].reshape(-1)  # contiguous rows: a view
+            A_product = np.empty(self.A_all.shape[1])
+            self.A_product = A_product
+            self.A_rows = A_product[: rows.shape[1]].reshape(n_active, 3, K + 1)
+            self.A_columns = A_product[rows.shape[1] :].reshape(K, -1)
+            self.A0 = rows[0].reshape(n_active, 3, K + 1).copy()
+            self.WA0 = cols[0].reshape(K, -1).copy()
+            self.Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
             self.Wt_active = self.Wt[:K, 4 * nc : 4 * n]
         # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
         self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
@@ -185,34 +195,57 @@ class KroneckerStep3:
         self.Z[:, K, 3] = 1.0
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
-        self.powers = np.empty((MAX_SQUARINGS + 1, max_iter, n, 4, 4))  # level first: the traces come out contiguous
-        self.powers_by_level = self.powers.reshape(MAX_SQUARINGS + 1, max_iter * n, 16)
+        # level first: each level's traces are one matrix-vector product over
+        # all iterations (zeros, so that the iterations a step does not reach
+        # hold finite values)
+        self.powers = np.zeros((MAX_SQUARINGS + 1, max_iter, n, 4, 4))
+        self.powers_rows = self.powers.reshape(-1, 16)
         self.F = np.empty((4 * n, 4))
-        # [4 s, tr P^2, tr P^4, ...] per iteration and cluster, for the certificate
+        # [4 s / 1.05, tr P^2, tr P^4, ...] per iteration and cluster, for the
+        # certificate (level 0 as the shifts are made: s = 1.05 sqrt(t_1) / 4)
         self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
-        self.levels_by_level = self.levels.reshape(MAX_SQUARINGS + 1, max_iter * n)
+        self.levels_flat = self.levels.reshape(-1)
+        self.steps = np.empty((max_iter, (K + 1) * 4))  # iterates' changes, for the stopping test
+        self.change2 = np.empty(max_iter)
+        self.ones = np.ones((K + 1) * 4)
+        self.Z_rows = self.Z.reshape(max_iter + 1, -1)
+        self.C_z = self.C_input[:K].reshape(-1)  # contiguous rows: views
+        self.C_z_dot = self.C_input[K : 2 * K].reshape(-1)
+        self.Z0 = self.Z[0, :K, :3]
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.diff = np.empty((K + 1, 4))
-        self.shift = None
+        self.shifted = False  # the shifts are set (from the last step)
         self.squarings = 4
         self._predicted = max_iter  # iterations the last step took
-        F16 = self.F.reshape(n, 16)
+        self.F16 = self.F.reshape(n, 16)
+        self.RT16, self.trace = self.RT[:, :16], self.RT[:, 16:]
+        self.diff_flat = self.diff.reshape(-1)
+        self.C_Z = self.C_input[:K]
+        self.outputs = [Zk[:K, :3] for Zk in self.Z]
+        # per number of squarings s: each iteration's operands (iterates,
+        # powers, rotations, the squarings' (input, output) pairs), and the
+        # rows of levels 1..s for the traces
         self._views = [
+            [
+                (
+                    self.Z[i],
+                    self.Z[i + 1],
+                    self.powers[0, i].reshape(n, 16),
+                    self.powers[s, i].reshape(n, 16),
+                    self.R[i],
+                    self.R[i, : 4 * n].reshape(n, 16),
+                    tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
+                )
+                for i in range(max_iter)
+            ]
+            for s in range(MAX_SQUARINGS + 1)
+        ]
+        self._trace_rows = [
             (
-                self.Z[i],
-                self.Z[i + 1],
-                F16,
-                self.powers[0, i].reshape(n, 16),
-                [P.reshape(n, 16) for P in self.powers[:, i]],
-                self.R[i],
-                self.R[i, : 4 * n].reshape(n, 16),
-                # the squarings' operands, for each number of squarings
-                [
-                    [(P, P, Q) for P, Q in zip(self.powers[:s, i], self.powers[1 : s + 1, i])]
-                    for s in range(MAX_SQUARINGS + 1)
-                ],
+                self.powers_rows[max_iter * n : (s + 1) * max_iter * n],
+                self.levels_flat[max_iter * n : (s + 1) * max_iter * n],
             )
-            for i in range(max_iter)
+            for s in range(MAX_SQUARINGS + 1)
         ]
 
     @classmethod
@@ -269,81 +302,84 @@ class KroneckerStep3:
         """
         K, n, s = self.K, self.n, self.squarings
         if self.m:
-            np.dot(a, self.A_all, self.A_product)
-            np.add(self.A_product[: self.A0.size], self.A0, self.Yt_active)
-            np.add(self.A_product[self.A0.size :].reshape(K, -1), self.WA0, self.Wt_active)
-        Z0 = z.reshape(K, 3)
-        self.C_input[:K] = Z0
-        self.C_input[K : 2 * K] = z_dot.reshape(K, 3)
+            _dot(a, self.A_all, self.A_product)
+            np.add(self.A_rows, self.A0, self.Yt_active)
+            np.add(self.A_columns, self.WA0, self.Wt_active)
+        np.copyto(self.C_z, z)
+        np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
-        self.Z[0, :K, :3] = Z0
-        if self.shift is None:
+        np.copyto(self.Z0, self.C_Z)
+        if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best
             # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
             # with a margin for the certificate (see below)
             self.shift_column[:] = 0.0
             np.dot(self.Yt, self.Z[0], self.F)
             F16 = self.F.reshape(n, 16)
-            self.shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
-            np.multiply(self.shift, 4.0, self.levels[0])
-        self.shift_column[:] = self.shift
-        Yt, Wt, F = self.Yt, self.Wt, self.F
+            shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
+            self.shift_column[:] = shift
+            np.multiply(shift, 4.0 / 1.05, self.levels[0])
+            self.shifted = True
+        Yt, Wt, F, F16 = self.Yt, self.Wt, self.F, self.F16
         # as many iterations as the last step took (the count changes seldom
         # from step to step) run unchecked; the stopping rule is applied to
         # them afterwards, in one batch on the stored iterates: the same
         # answer as testing each in turn, and any iterations past the stop
         # are discarded
         unchecked = 0 if rtol else self._predicted
-        diff, flat = self.diff, self.diff.reshape(-1)
+        diff, flat = self.diff, self.diff_flat
         stop = self.max_iter - 1
-        RT, RT16, trace = self.RT, self.RT[:, :16], self.RT[:, 16:]
-        dot, matmul, divide = np.dot, np.matmul, np.divide
-        for i, (Z_old, Z_new, F16, P0, P16, R, R16, squarings) in enumerate(self._views):
-            # np.dot for the 2D products: the same BLAS call as matmul, less dispatch
+        RT, RT16, trace = self.RT, self.RT16, self.trace
+        dot, matmul, divide = _dot, np.matmul, np.divide
+        for i, (Z_old, Z_new, P0, P_last, R, R16, squarings) in enumerate(self._views[s]):
+            # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)
             dot(F16, HORN_BLOCK, P0)
-            for operands in squarings[s]:
-                matmul(*operands)
-            dot(P16[s], QQ_TO_BLOCK_TRACE, RT)
+            for P, P_squared in squarings:
+                matmul(P, P, P_squared)
+            dot(P_last, QQ_TO_BLOCK_TRACE, RT)
             divide(RT16, trace, R16)
             dot(Wt, R, Z_new)
             if i < unchecked - 1:
                 continue
             if i == unchecked - 1:
-                steps = (self.Z[1 : i + 2] - self.Z[: i + 1]).reshape(i + 1, 1, -1)
-                change2 = np.matmul(steps, steps.transpose(0, 2, 1)).ravel()
-                if change2.min() < tol2:
-                    stop = int((change2 < tol2).argmax())
+                steps, change2 = self.steps[: i + 1], self.change2[: i + 1]
+                np.subtract(self.Z_rows[1 : i + 2], self.Z_rows[: i + 1], steps)
+                np.multiply(steps, steps, steps)
+                dot(steps, self.ones, change2)
+                hits = change2 < tol2
+                first = int(hits.argmax())
+                if hits[first]:
+                    stop = first
                     break
                 continue
             np.subtract(Z_new, Z_old, diff)
-            change2 = float(np.dot(flat, flat))
+            change2 = float(dot(flat, flat))
             if change2 < tol2:
                 stop = i
                 break
             if not change2 < np.inf:
                 return None
             if rtol:
-                motion = Z_new[:K, :3] - Z0
+                motion = Z_new[:K, :3] - self.Z0
                 if change2 <= rtol**2 * float(np.vdot(motion, motion)):
                     stop = i
                     break
         k = stop + 1
-        # a level's iterations are contiguous: one matrix-vector product per level
-        levels = self.levels_by_level[: s + 1, : k * n]
-        np.matmul(self.powers_by_level[1 : s + 1, : k * n], EYE16, levels[1:])
-        ok, top, rho = certify_levels(levels)
+        # the traces of levels 1..s, all iterations: one matrix-vector product
+        powers, traces = self._trace_rows[s]
+        _dot(powers, EYE16, traces)
+        ok, top, rho = certify_levels(self.levels[: s + 1, :k], top_bound=1.05**2)
         if ok and not top:
             ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
         if not ok:
             self.squarings = min(s + 1, MAX_SQUARINGS)
-            self.shift = None
+            self.shifted = False
             return None
         self._predicted = k
         self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
         # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
         # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
-        np.sqrt(levels[1, stop * n : k * n], self.shift)
-        self.shift *= 1.05 / 4.0
-        np.multiply(self.shift, 4.0, self.levels[0])
-        return self.Z[k, :K, :3].ravel(), k
+        np.sqrt(self.levels[1, stop], self.levels[0])  # |P| = 4 s' / 1.05, every iteration
+        np.multiply(self.levels[0, 0], 1.05 / 4.0, self.shift_column)
+        return self.outputs[k].ravel(), k

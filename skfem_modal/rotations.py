@@ -312,7 +312,7 @@ def certify_squarings(traces: np.ndarray, shift, tol: float = 1e-13):
     top : bool
         The shift proves the dominant eigenvalue is the top one (if not, that
         is for the caller to check, e.g. ``tr(P P^(2^k)) > 0``).
-    rho : ndarray, shape (k - 1,)
+    rho : list of float, length k - 1
         The largest ``rho_j`` over the matrices, ``j = 1..k-1``.
 
     Examples
@@ -333,19 +333,25 @@ def certify_squarings(traces: np.ndarray, shift, tol: float = 1e-13):
     return certify_levels(levels, tol)
 
 
-def certify_levels(levels: np.ndarray, tol: float = 1e-13):
+def certify_levels(levels: np.ndarray, tol: float = 1e-13, top_bound: float = 1.0):
     """:func:`certify_squarings` on ``[4 s, t_1, ..., t_k]`` stacked, shape (k + 1, ...).
 
     The ratios ``levels[j + 1] / levels[j]^2`` are ``t_1 / 16 s^2`` (below 1
     when the shift proves the top eigenvalue dominant) and ``1 - rho_j``: one
-    division for both checks. For callers that keep the stack in a buffer.
+    division for both checks. For callers that keep the stack in a buffer;
+    ``levels[0]`` may hold ``4 s / sqrt(top_bound)`` instead (the shift's
+    proof is then ``t_1 / levels[0]^2 < top_bound``), which saves such a
+    caller a multiplication.
     """
     # no errstate here (it costs as much as the arithmetic): a zero or
     # non-finite trace gives NaN or inf, which fail the comparisons
-    ratios = (levels[1:] / np.square(levels[:-1])).reshape(levels.shape[0] - 1, -1)
-    rho = 1.0 - ratios[1:].min(axis=1)
-    ok = bool(rho[-1] <= 2.0 * math.sqrt(tol))
-    top = bool(ratios[0].max() < 1.0)
+    ratios = levels[1:] / np.square(levels[:-1])
+    # one reduction for all levels (level 0's minimum is not needed), and
+    # plain floats from there on: numpy scalars cost more than the arithmetic
+    lowest = ratios.min(axis=tuple(range(1, ratios.ndim))).tolist()
+    rho = [1.0 - x for x in lowest[1:]]
+    ok = rho[-1] <= 2.0 * math.sqrt(tol)
+    top = float(ratios[0].max()) < top_bound
     return ok, top, rho
 
 

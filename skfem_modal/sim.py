@@ -561,6 +561,7 @@ class ModalMuscle:
         self._com = com_operator(mesh, B, rho_e)
         self._rotations = rotations2_flat if dim == 2 else rotations3_flat
         self.iterations = 0
+        self._state_shape = (self.B.shape[1],)
         self.timings["effects"] = time.perf_counter() - clock
 
     @property
@@ -709,11 +710,10 @@ class ModalMuscle:
             If the state becomes non-finite.
         """
         z = np.asarray(z, dtype=np.float64)
-        r = self.B.shape[1]
-        if z.shape != (r,) or np.shape(z_dot) != (r,):
-            raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {np.shape(z_dot)}")
-        a = self._activation(a)
         z_dot = np.asarray(z_dot, dtype=np.float64)
+        if z.shape != self._state_shape or z_dot.shape != self._state_shape:
+            raise ValueError(f"z and z_dot must have shape {self._state_shape}, got {z.shape} and {z_dot.shape}")
+        a = self._activation(a)
         # overflow in a blown-up state is reported as a SimulationError, not as warnings
         with np.errstate(over="ignore", invalid="ignore"):
             return self._advance(z, z_dot, a)

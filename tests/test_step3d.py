@@ -303,8 +303,8 @@ def test_kronecker_step_checks_the_sign_itself_when_the_shift_proves_nothing(mon
     unproven = []
     certify = _kron3.certify_levels
 
-    def without_shift_proof(levels):
-        ok, top, rho = certify(levels)
+    def without_shift_proof(levels, **options):
+        ok, top, rho = certify(levels, **options)
         unproven.append(ok)
         return ok, False, rho
 
