@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_step  # noqa: E402
 
+from skfem_modal._fast import dot  # noqa: E402
 from skfem_modal._kron3 import EYE16, HORN_BLOCK, QQ_TO_BLOCK_TRACE  # noqa: E402
 from skfem_modal.muscles import sine_gait  # noqa: E402
 from skfem_modal.rotations import certify_levels, next_squarings  # noqa: E402
@@ -58,38 +59,47 @@ def run(sim, scene, steps=None):
 
 
 def parts_2d(sim, z, z_dot, a):
-    _, _, G, W = sim._step_ops
-    c = sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext
-    if sim._contact is not None:
-        c = np.concatenate([c, sim._contact.Je @ c])
-    cs = (G @ z).reshape(-1, 2)
-    y = c + W @ cs.ravel()
-    iterates = [z + 1e-3 * k for k in range(sim.max_iter + 1)]
+    """The 2D numpy step (see skfem_modal/_step2.py), on its own buffers."""
+    st = sim._step2
+    sim.step(z, z_dot, a)  # the buffers hold this step
+    k = sim.iterations
+    contact = sim._contact
+
+    def right_hand_side():
+        np.copyto(st.C_z, z)
+        np.copyto(st.C_z_dot, z_dot)
+        np.matmul(st.C_operator, st.C_input, st.c)
+        np.copyto(st.z_rows[0], z)
 
     def normalise():
-        norm = np.hypot(cs[:, 0], cs[:, 1])
-        np.count_nonzero(norm)
-        return cs / norm[:, None]
+        np.hypot(st.cos, st.sin, st.norm)
+        zero = np.count_nonzero(st.norm) < st.n
+        np.divide(st.cs, st.norm_column, st.cs)
+        return zero
 
     def batch_test():
-        steps = np.diff(np.array(iterates), axis=0)
-        change2 = np.einsum("ij,ij->i", steps, steps)
+        steps, change2 = st.steps[:k], st.change2[:k]
+        np.subtract(st.Z[1 : k + 1], st.Z[:k], steps)
+        np.multiply(steps, steps, steps)
+        dot(steps, st.ones, change2)
         return np.count_nonzero(~(change2 >= sim._tol2))
 
+    y = st.Y[k].copy()
     iteration = {
-        "G z (rotation features)": lambda: G @ z,
+        "G z (rotation features)": lambda: dot(st.G, st.z_rows[k - 1], st.cs_flat),
         "normalise (c, s): hypot, check, divide": normalise,
-        "W (c, s) + c": lambda: c + W @ cs.ravel(),
+        "[W | c] [(c, s); 1]": lambda: dot(st.W_c, st.cs_1, y),
     }
-    if sim._contact is not None:
-        contact = sim._contact
+    if contact is not None:
         contact.start_step(z)
         iteration["contact projection"] = lambda: contact.correct(y)
     per_step = {
         "activation: operator rows": lambda: sim._set_activation(a),
-        "right-hand side c": lambda: sim._K_inertia @ (z + sim.h * z_dot) + sim._c_ext,
-        f"stopping test of {sim.max_iter} iterations, one batch": batch_test,
+        "right-hand side c, z in": right_hand_side,
+        f"stopping test of {k} iterations, one batch": batch_test,
     }
+    if contact is not None:
+        per_step["contact: start of step"] = lambda: contact.start_step(z)
     return iteration, per_step
 
 
@@ -97,46 +107,50 @@ def parts_3d(sim, z, z_dot, a):
     """The Kronecker-form step (skinning bases; see skfem_modal/_kron3.py)."""
     kr = sim._kron
     sim.step(z, z_dot, a)  # the buffers hold this step
-    K, n, s, k = kr.K, kr.n, kr.squarings, sim.iterations
-    Z_old, Z_new, F16, P0, P16, R, R16, squarings = kr._views[0]
-    RT, RT16, trace = kr.RT, kr.RT[:, :16], kr.RT[:, 16:]
+    n, s, k = kr.n, kr.squarings, sim.iterations
+    Z_old, Z_new, P0, P_last, R, R16, squarings = kr._views[s][0]
 
     def power():
-        for operands in squarings[s]:
-            np.matmul(*operands)
+        for P, P_squared in squarings:
+            np.matmul(P, P, P_squared)
 
     def activation():
-        np.dot(a, kr.A_all, kr.A_product)
-        np.add(kr.A_product[: kr.A0.size], kr.A0, kr.Yt_active)
-        np.add(kr.A_product[kr.A0.size :].reshape(K, -1), kr.WA0, kr.Wt_active)
+        dot(a, kr.A_all, kr.A_product)
+        np.add(kr.A_rows, kr.A0, kr.Yt_active)
+        np.add(kr.A_columns, kr.WA0, kr.Wt_active)
 
     def right_hand_side():
-        kr.C_input[:K] = z.reshape(K, 3)
-        kr.C_input[K : 2 * K] = z_dot.reshape(K, 3)
+        np.copyto(kr.C_z, z)
+        np.copyto(kr.C_z_dot, z_dot)
         np.matmul(kr.C_operator, kr.C_input, kr.C_slot)
-        kr.Z[0, :K, :3] = z.reshape(K, 3)
+        np.copyto(kr.Z0, kr.C_Z)
 
     def batch_test():
-        steps = (kr.Z[1:k] - kr.Z[: k - 1]).reshape(k - 1, 1, -1)
-        return np.matmul(steps, steps.transpose(0, 2, 1)).ravel().min()
+        steps, change2 = kr.steps[:k], kr.change2[:k]
+        np.subtract(kr.Z_rows[1 : k + 1], kr.Z_rows[:k], steps)
+        np.multiply(steps, steps, steps)
+        dot(steps, kr.ones, change2)
+        hits = change2 < sim._tol2
+        return hits[int(hits.argmax())]
 
     def certificate():
-        levels = kr.levels_by_level[: s + 1, : k * n]
-        np.matmul(kr.powers_by_level[1 : s + 1, : k * n], EYE16, levels[1:])
-        return next_squarings(certify_levels(levels)[2])
+        powers, traces = kr._trace_rows[s]
+        dot(powers, EYE16, traces)
+        rho = certify_levels(kr.levels[: s + 1, :k], top_bound=1.05**2)[2]
+        next_squarings(rho)
 
     iteration = {
-        "Y Z: the clusters' F (Kronecker form)": lambda: np.dot(kr.Yt, Z_old, kr.F),
-        "Horn matrices and shifts": lambda: np.dot(F16, HORN_BLOCK, P0),
+        "Y Z: the clusters' F (Kronecker form)": lambda: dot(kr.Yt, Z_old, kr.F),
+        "Horn matrices and shifts": lambda: dot(kr.F16, HORN_BLOCK, P0),
         f"{s} squarings of {n} 4x4 matrices": power,
-        "R and traces from the last power": lambda: np.dot(P16[s], QQ_TO_BLOCK_TRACE, RT),
-        "divide by the traces": lambda: np.divide(RT16, trace, R16),
-        "V R^T + C (the global step)": lambda: np.dot(kr.Wt, R, Z_new),
+        "R and traces from the last power": lambda: dot(P_last, QQ_TO_BLOCK_TRACE, kr.RT),
+        "divide by the traces": lambda: np.divide(kr.RT16, kr.trace, R16),
+        "V R^T + C (the global step)": lambda: dot(kr.Wt, R, Z_new),
     }
     per_step = {
         "activation: operator rows and columns": activation,
         "right-hand side C, z in": right_hand_side,
-        f"stopping test of {k - 1} iterations, one batch": batch_test,
+        f"stopping test of {k} iterations, one batch": batch_test,
         f"certificate of {k} iterations' rotations": certificate,
     }
     return iteration, per_step

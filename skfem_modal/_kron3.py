@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._fast import dot as _dot
 from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
 
 __all__ = ["KroneckerStep3", "separable_rows", "separable_columns", "separable_square"]
@@ -58,10 +59,6 @@ QQ_TO_BLOCK_TRACE[:, 15] = np.eye(4).ravel()
 QQ_TO_BLOCK_TRACE[:, 16] = np.eye(4).ravel()
 
 EYE16 = np.eye(4).ravel()  # the trace of a row-major 4 x 4 block, as a dot product
-
-# np.dot without the __array_function__ dispatch (all operands here are our
-# own ndarrays): a third of a call's cost on these small products
-_dot = getattr(np.dot, "_implementation", np.dot)
 
 
 def _close(X, Y, rtol):

@@ -31,6 +31,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from ._fast import dot
+
 __all__ = ["GroundContact"]
 
 _CACHE_SIZE = 512
@@ -149,7 +151,7 @@ class GroundContact:
             self._cache.popitem(last=False)
         return entry
 
-    def correct(self, y: np.ndarray) -> np.ndarray:
+    def correct(self, y: np.ndarray, in_place: bool = False) -> np.ndarray:
         """Project the active contacts.
 
         Parameters
@@ -159,6 +161,8 @@ class GroundContact:
             positions ``Je z_t``. In the reference rule points are tested
             against the previous iterate (from the last call, or the start of
             the step).
+        in_place : bool
+            Correct ``y`` itself (and return it).
 
         Returns
         -------
@@ -167,7 +171,11 @@ class GroundContact:
         """
         r = y.size - self.Je.shape[0]
         if self.push_out:
-            return self._correct_positions(y, r)
+            corrected = self._correct_positions(y, r)
+            if in_place and corrected is not y:
+                np.copyto(y, corrected)
+                return y
+            return corrected
         p_tent = y[r:]
         up_tent = p_tent[self.up :: self.dim]
         # below the plane at the current iterate and moving into it
@@ -176,14 +184,14 @@ class GroundContact:
             self.active_count = 0
             self.up_iter = up_tent
             return y
-        y = self._apply(y, r, mask)
+        y = self._apply(y, r, mask, y if in_place else None)
         self.up_iter = y[r + self.up :: self.dim]
         return y
 
-    def _apply(self, y, r, mask):
+    def _apply(self, y, r, mask, out=None):
         active, rows, K = self._projection(mask)
         self.active_count = active.size
-        return y + K @ (self.p_target - y[r:]).take(rows)
+        return np.add(y, dot(K, (self.p_target - y[r:]).take(rows)), out=out)
 
     def _correct_positions(self, y, r):
         """Position rule: no contact point ends below its target height."""

@@ -28,6 +28,7 @@ import scipy.linalg as sla
 
 from . import _accel
 from ._kron3 import KroneckerStep3
+from ._step2 import NumpyStep2
 from .contact import GroundContact
 from .fem import _gravity, _jacobian, _mass, _positive, scalar_basis, vector_dofs
 from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
@@ -484,7 +485,7 @@ class ModalMuscle:
         # from the last step's matrices
         self._shift = None
         self._squarings = 4
-        self._batched = self.max_iter  # iterations of the last batched step (see _loop)
+        self._batched = self.max_iter  # iterations of the last 2D step (see _step2)
         self._rest_const = 0.5 * dim * float(w_mu.sum())
         self.timings["factor"] = time.perf_counter() - clock
 
@@ -539,6 +540,19 @@ class ModalMuscle:
                 WA_step = np.concatenate([WA_step, np.einsum("pr,krc->kpc", Je, WA_step)], axis=1)
         self._step_ops = (A_step, WA_step, np.ascontiguousarray(G_step), np.ascontiguousarray(W_step))
         self._activation_views = {}
+        # 2D, numpy or with contact: the iterations on buffers made once (see
+        # _step2); its W (with the step's constant as one more column) is the
+        # one the muscle columns are written into. (With numba and no
+        # contact one compiled call runs all iterations instead.)
+        self._step2 = None
+        if dim == 2 and (self.accelerator == "numpy" or self._contact is not None):
+            Pz = self._K_inertia if self._P_z is None else self._P_z
+            Pv = h * self._K_inertia if self._P_v is None else self._P_v
+            C_operator = np.hstack([Pz, Pv, self._c_ext[:, None]])
+            if self._contact is not None:
+                C_operator = np.vstack([C_operator, self._contact.Je @ C_operator])
+            self._step2 = NumpyStep2(self._step_ops[2], self._step_ops[3], C_operator, self.max_iter)
+            self._step_ops = self._step_ops[:3] + (self._step2.W,)
         # 3D, numpy, no contact: the step in Kronecker form when the subspace
         # moves x, y and z alike (skinning bases do); None otherwise
         self._kron = None
@@ -728,12 +742,21 @@ class ModalMuscle:
             # a rotation failed its certificate (or the state blew up): the
             # step is redone below, each rotation checked as it is made
         self._set_activation(a)
+        if self._accel is None and self.accelerator == "numba":
+            self._accel = _accel.kernels()
+        if self._step2 is not None:
+            unchecked = 0 if self.rtol else self._batched
+            normalize = self._accel.normalize_cs if self._accel is not None else None
+            result = self._step2.step(z, z_dot, self._contact, self._tol2, unchecked, self._stop, normalize)
+            if result is None:
+                raise SimulationError("the state became non-finite")
+            z_next, self.iterations = result
+            self._batched = self.iterations
+            return z_next
         if self._P_z is None:
             c = self._K_inertia @ (z + self.h * z_dot) + self._c_ext
         else:
             c = self._P_z @ z + self._P_v @ z_dot + self._c_ext
-        if self._accel is None and self.accelerator == "numba":
-            self._accel = _accel.kernels()
         contact = self._contact
         if contact is not None:
             contact.start_step(z)
@@ -757,74 +780,36 @@ class ModalMuscle:
             return change2 <= self.rtol**2 * (motion @ motion)
         return False
 
-    def _loop(self, c, z, contact, local, batch=False):
+    def _loop(self, c, z, contact, local):
         """Local/global iterations in Python: ``z = c + W local(z)`` until a stopping rule holds.
 
         ``local(z)`` returns the rotation parameters the step's ``W`` acts on
-        (``(c, s)`` per cluster in 2D, ``vec(R)`` in 3D), flat. With
-        ``batch`` (a ``local`` that takes any input, NaN included) as many
-        iterations as the last batched step took run without the stopping
-        test, which is then applied to them at once on the stored iterates:
-        the same answer, the same errors, two numpy calls fewer an iteration.
+        (``vec(R)`` in 3D), flat. (The 2D steps run in :mod:`._step2`, or
+        compiled.)
         """
         W = self._step_ops[3]
         tol2, r = self._tol2, z.size
-        unchecked = self._batched if batch and not self.rtol else 0
-        iterates = [z]
         z_iter = z
         for it in range(1, self.max_iter + 1):
             y = c + W @ local(z_iter)
             if contact is not None:
                 y = contact.correct(y)
             z_next = y[:r]
-            if it <= unchecked:
-                iterates.append(z_next)
-                z_iter = z_next
-                if it == unchecked:
-                    steps = np.diff(np.array(iterates), axis=0)
-                    change2 = np.einsum("ij,ij->i", steps, steps)
-                    stopped = ~(change2 >= tol2)  # converged, or not finite
-                    if np.count_nonzero(stopped):
-                        k = int(stopped.argmax())
-                        if not change2[k] < tol2:
-                            raise SimulationError("the state became non-finite")
-                        self._batched = k + 1
-                        return iterates[k + 1], k + 1
-                continue
             diff = z_next - z_iter
             change2 = diff @ diff
             z_iter = z_next
             if change2 < tol2 or self._stop(change2, z_next, z):
-                break
-        if batch:
-            self._batched = it
-        return z_iter, it
+                return z_iter, it
+        return z_iter, self.max_iter
 
     def _iterate2(self, c, z, contact):
-        G = self._step_ops[2]
-        if self._accel is not None and contact is None:
-            # compiled, all iterations in one call
-            z_next, it, status = self._accel.iterate2(
-                G, self._step_ops[3], c, z, self.max_iter, self._tol2, self.rtol**2
-            )
-            if status == 2:
-                raise SimulationError("the state became non-finite")
-            return z_next, it
-        compiled = self._accel.normalize_cs if self._accel is not None else None
-
-        def local(z_iter):
-            cs = (G @ z_iter).reshape(-1, 2)
-            if compiled is not None:
-                return compiled(cs).ravel()
-            norm = np.hypot(cs[:, 0], cs[:, 1])
-            if np.count_nonzero(norm) < norm.size:  # count_nonzero: a third of .all()'s cost
-                # a zero target: every rotation is optimal, take the identity
-                cs[norm == 0.0, 0] = 1.0
-                norm[norm == 0.0] = 1.0
-            cs /= norm[:, None]
-            return cs.ravel()
-
-        return self._loop(c, z, contact, local, batch=True)
+        """2D, compiled, no contact: all iterations in one call."""
+        z_next, it, status = self._accel.iterate2(
+            self._step_ops[2], self._step_ops[3], c, z, self.max_iter, self._tol2, self.rtol**2
+        )
+        if status == 2:
+            raise SimulationError("the state became non-finite")
+        return z_next, it
 
     def _iterate3(self, c, z, contact):
         if self._accel is not None:

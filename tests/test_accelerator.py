@@ -49,7 +49,7 @@ def test_compiled_2d_normalisation(kernels):
 
 @needs_numba
 @pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("scene", ["crawl", "float", "float, relative tolerance"])
+@pytest.mark.parametrize("scene", ["crawl", "crawl, push out", "float", "float, relative tolerance"])
 def test_compiled_steps_equal_numpy_steps(dim, scene):
     # floating, the compiled path runs all iterations of a step in one call
     if dim == 2:
@@ -57,7 +57,7 @@ def test_compiled_steps_equal_numpy_steps(dim, scene):
     else:
         mesh, up, gravity = creature(cell=0.2), 2, [0.0, 0.0, -9.8]
     ground = float(mesh.p[up].min()) - 0.02
-    if scene != "crawl":
+    if not scene.startswith("crawl"):
         gravity = ground = None
     rtol = 1e-3 if "relative" in scene else 0.0
     sims = [
@@ -74,6 +74,7 @@ def test_compiled_steps_equal_numpy_steps(dim, scene):
             n_contacts=12,
             accelerator=acc,
             rtol=rtol,
+            push_out=1.0 if "push out" in scene else 0.0,
         )
         for acc in ("numpy", "numba")
     ]
