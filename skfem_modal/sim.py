@@ -27,6 +27,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from . import _accel
+from ._fast import dot
 from ._kron3 import KroneckerStep3
 from ._step2 import NumpyStep2
 from .contact import GroundContact
@@ -689,20 +690,26 @@ class ModalMuscle:
             m = A.shape[0] - 1
             rows = G.shape[0] - A.shape[1]
             cols = W.shape[1] - WA.shape[2]
+            # both operators are affine in a: one product for the rows and
+            # the columns together, then the constant parts
+            A1 = np.hstack([A[1:].reshape(m, -1), WA[1:].reshape(m, -1)])
+            product = np.empty(A1.shape[1])
+            split = A[0].size
             views = (
-                np.ascontiguousarray(A[1:].reshape(m, -1)),
-                A[0].reshape(-1),
-                G[rows:].reshape(-1),  # contiguous rows: a view
-                np.ascontiguousarray(WA[1:].reshape(m, -1)),
-                WA[0],
+                A1,
+                product,
+                product[:split].reshape(A[0].shape),
+                product[split:].reshape(WA[0].shape),
+                A[0].copy(),
+                WA[0].copy(),
+                G[rows:],
                 W[:, cols:],
             )
             self._activation_views[features] = views
-        A1, A0, G_rows, WA1, WA0, W_cols = views
-        # the operators are affine in a: one small product each
-        np.matmul(a, A1, out=G_rows)
-        G_rows += A0
-        np.add((a @ WA1).reshape(WA0.shape), WA0, out=W_cols)
+        A1, product, A_part, WA_part, A0, WA0, G_rows, W_cols = views
+        dot(a, A1, product)
+        np.add(A_part, A0, out=G_rows)
+        np.add(WA_part, WA0, out=W_cols)
 
     def step(self, z, z_dot, a=None) -> np.ndarray:
         """Advance one time step.
