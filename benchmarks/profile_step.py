@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_step  # noqa: E402
 
-from skfem_modal._fast import dot  # noqa: E402
+from skfem_modal._fast import dot, squared_changes  # noqa: E402
 from skfem_modal._kron3 import EYE16, HORN_BLOCK, QQ_TO_BLOCK_TRACE  # noqa: E402
 from skfem_modal.muscles import sine_gait  # noqa: E402
 from skfem_modal.rotations import certify_levels, next_squarings  # noqa: E402
@@ -78,10 +78,7 @@ def parts_2d(sim, z, z_dot, a):
         return zero
 
     def batch_test():
-        steps, change2 = st.steps[:k], st.change2[:k]
-        np.subtract(st.Z[1 : k + 1], st.Z[:k], steps)
-        np.multiply(steps, steps, steps)
-        dot(steps, st.ones, change2)
+        change2 = squared_changes(st.Z, k, st.steps, st.ones, st.change2)
         return np.count_nonzero(~(change2 >= sim._tol2))
 
     y = st.Y[k].copy()
@@ -126,10 +123,7 @@ def parts_3d(sim, z, z_dot, a):
         np.copyto(kr.Z0, kr.C_Z)
 
     def batch_test():
-        steps, change2 = kr.steps[:k], kr.change2[:k]
-        np.subtract(kr.Z_rows[1 : k + 1], kr.Z_rows[:k], steps)
-        np.multiply(steps, steps, steps)
-        dot(steps, kr.ones, change2)
+        change2 = squared_changes(kr.Z_rows, k, kr.steps, kr.ones, kr.change2)
         hits = change2 < sim._tol2
         return hits[int(hits.argmax())]
 

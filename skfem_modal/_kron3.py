@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._fast import dot as _dot
+from ._fast import squared_changes
 from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
 
 __all__ = ["KroneckerStep3", "separable_rows", "separable_columns", "separable_square"]
@@ -340,10 +341,7 @@ class KroneckerStep3:
             if i < unchecked - 1:
                 continue
             if i == unchecked - 1:
-                steps, change2 = self.steps[: i + 1], self.change2[: i + 1]
-                np.subtract(self.Z_rows[1 : i + 2], self.Z_rows[: i + 1], steps)
-                np.multiply(steps, steps, steps)
-                dot(steps, self.ones, change2)
+                change2 = squared_changes(self.Z_rows, i + 1, self.steps, self.ones, self.change2)
                 hits = change2 < tol2
                 first = int(hits.argmax())
                 if hits[first]:

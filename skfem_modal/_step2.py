@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._fast import dot
+from ._fast import dot, squared_changes
 
 __all__ = ["NumpyStep2"]
 
@@ -125,10 +125,7 @@ class NumpyStep2:
             if it <= unchecked:
                 z_iter = z_next
                 if it == unchecked:
-                    steps, change2 = self.steps[:it], self.change2[:it]
-                    np.subtract(self.Z[1 : it + 1], self.Z[:it], steps)
-                    np.multiply(steps, steps, steps)
-                    dot(steps, self.ones, change2)
+                    change2 = squared_changes(self.Z, it, self.steps, self.ones, self.change2)
                     stopped = ~(change2 >= tol2)  # converged, or not finite
                     if count_nonzero(stopped):
                         k = int(stopped.argmax())

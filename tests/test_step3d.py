@@ -236,6 +236,26 @@ def test_squarings_certificate_needs_the_shift_or_the_sign():
     assert not certify_squarings(traces, 10.0)[0]
 
 
+def test_certificate_with_the_shift_bound_folded_into_level_zero():
+    # the Kronecker step stores 4 s / 1.05 at level 0 and asks t_1 / level_0^2
+    # < 1.05^2: the same decisions as 4 s and t_1 / (4 s)^2 < 1
+    from skfem_modal.rotations import certify_levels
+
+    F = near_rotations(50, 0.2, seed=5)
+    N = (F @ HORN).reshape(-1, 4, 4)
+    norm = np.sqrt(np.einsum("nij,nij->n", N, N) / 12)
+    for factor in (1.07, 0.9):  # above |N| / sqrt(12) for all, and below it for some
+        shift = factor * norm
+        P0 = N + shift[:, None, None] * np.eye(4)
+        levels = np.vstack([4.0 * shift, traces_of(powers_of(P0, 5))])
+        plain = certify_levels(levels)
+        folded = levels.copy()
+        folded[0] /= 1.05
+        assert certify_levels(folded, top_bound=1.05**2)[:2] == plain[:2]
+        assert plain[1] == (factor > 1.0)
+        np.testing.assert_allclose(certify_levels(folded, top_bound=1.05**2)[2], plain[2])
+
+
 def test_kronecker_form_only_for_bases_that_move_coordinates_alike():
     from skfem_modal._kron3 import separable_columns, separable_rows, separable_square
 
