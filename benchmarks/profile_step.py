@@ -120,7 +120,7 @@ def parts_3d(sim, z, z_dot, a):
         np.copyto(kr.C_z, z)
         np.copyto(kr.C_z_dot, z_dot)
         np.matmul(kr.C_operator, kr.C_input, kr.C_slot)
-        np.copyto(kr.Z0, kr.C_Z)
+        np.copyto(kr.Z0, kr.C_z_block)
 
     def batch_test():
         change2 = squared_changes(kr.Z_rows, k, kr.steps, kr.ones, kr.change2)

@@ -218,7 +218,7 @@ class KroneckerStep3:
         self.F16 = self.F.reshape(n, 16)
         self.RT16, self.trace = self.RT[:, :16], self.RT[:, 16:]
         self.diff_flat = self.diff.reshape(-1)
-        self.C_Z = self.C_input[:K]
+        self.C_z_block = self.C_input[:K]  # the same z, as (K, 3)
         self.outputs = [Zk[:K, :3] for Zk in self.Z]
         # per number of squarings s: each iteration's operands (iterates,
         # powers, rotations, the squarings' (input, output) pairs), and the
@@ -306,7 +306,7 @@ class KroneckerStep3:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
-        np.copyto(self.Z0, self.C_Z)
+        np.copyto(self.Z0, self.C_z_block)
         if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best
             # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
