@@ -3,8 +3,9 @@
 The data flow runs one way: a mesh (:mod:`~skfem_modal.mesh`) gives FEM
 operators (:mod:`~skfem_modal.fem`), which give linear modes
 (:mod:`~skfem_modal.modal`) used as muscles, a skinning subspace and element
-clusters, a reduced simulator, and files for ParaView
-(:mod:`~skfem_modal.export`).
+clusters, a reduced simulator (:class:`ModalMuscle`, stepped by
+:func:`simulate`; scenes: :class:`Scene`, :func:`run_scene`), and files for
+ParaView (:mod:`~skfem_modal.export`).
 """
 
 from .export import export_modes
@@ -38,10 +39,16 @@ from .modal import (
     actuation_limits,
     linear_modal_analysis,
     mode_sign_convention,
+    muscle_modes,
     natural_frequencies,
     rigid_mode_count,
     rigid_motions,
 )
+from .muscles import sine_gait
+from .reference import FullSpaceSimulator
+from .run import run_scene
+from .scene import Scene, SceneError
+from .sim import ModalMuscle, SimulationError, StepRecord, simulate
 
 __version__ = "0.1.0"
 
@@ -75,4 +82,14 @@ __all__ = [
     "natural_frequencies",
     "rigid_mode_count",
     "rigid_motions",
+    "muscle_modes",
+    "sine_gait",
+    "ModalMuscle",
+    "FullSpaceSimulator",
+    "SimulationError",
+    "StepRecord",
+    "simulate",
+    "Scene",
+    "SceneError",
+    "run_scene",
 ]

@@ -11,33 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["dot", "squared_changes"]
+__all__ = ["dot"]
 
 #: ``np.dot`` itself, without the ``__array_function__`` dispatch (the same
 #: function where numpy does not expose it)
 dot = getattr(np.dot, "_implementation", np.dot)
-
-
-def squared_changes(rows, count, work, ones, out):
-    """``|rows[j + 1] - rows[j]|^2`` for ``j < count``, in three numpy calls.
-
-    Parameters
-    ----------
-    rows : ndarray, shape (>= count + 1, m)
-        Iterates, one a row (rows may be strided).
-    count : int
-    work : ndarray, shape (>= count, m)
-        Scratch.
-    ones : ndarray, shape (m,)
-    out : ndarray, shape (>= count,)
-
-    Returns
-    -------
-    ndarray, shape (count,)
-        A view of ``out``.
-    """
-    steps, changes = work[:count], out[:count]
-    np.subtract(rows[1 : count + 1], rows[:count], steps)
-    np.multiply(steps, steps, steps)
-    dot(steps, ones, changes)
-    return changes

@@ -248,39 +248,17 @@ def rotations3(F9, q):
 
 
 @numba.njit(cache=True, fastmath=False)
-def _converged(z_next, z_iter, z_start, tol2, rtol2):  # pragma: no cover - compiled
-    """The stopping rules: 1 stop, 0 go on, -1 non-finite."""
-    change2 = 0.0
-    motion2 = 0.0
-    for i in range(z_next.shape[0]):
-        d = z_next[i] - z_iter[i]
-        change2 += d * d
-        m = z_next[i] - z_start[i]
-        motion2 += m * m
-    if not change2 < np.inf:
-        return -1
-    if change2 < tol2:
-        return 1
-    if rtol2 > 0.0 and change2 <= rtol2 * motion2:
-        return 1
-    return 0
-
-
-@numba.njit(cache=True, fastmath=False)
-def iterate3(G, W, c, z, q, warm, max_iter, tol2, rtol2):  # pragma: no cover - compiled
-    """All local/global iterations of a 3D step without contact.
+def run3(G, W, c, Y, first, count, q, warm):  # pragma: no cover - compiled
+    """Local/global iterations of a 3D step, into rows ``first + 1 ..`` of ``Y``.
 
     ``F = G z`` (9 rows a cluster), the rotations by :func:`_top_quaternion`
-    (warm-started from ``q``, updated in place), ``z = c + W vec(R)``, until
-    a stopping rule holds.
+    (warm-started from ``q``, updated in place), ``z = c + W vec(R)``.
 
     Returns
     -------
-    z : ndarray, shape (r,)
-    iterations : int
-    status : int
-        0 done; 1 a rotation was not certified (the caller redoes the step);
-        2 the state became non-finite.
+    done : int
+        Iterations made: ``count``, or fewer when a rotation could not be
+        certified (the caller makes that iteration another way).
     """
     n = G.shape[0] // 9
     N = np.empty((4, 4))
@@ -288,47 +266,35 @@ def iterate3(G, W, c, z, q, warm, max_iter, tol2, rtol2):  # pragma: no cover - 
     work = np.empty((19, 5))
     g = np.empty(9)
     R = np.empty(n * 9)
-    z_iter = z.copy()
-    for it in range(1, max_iter + 1):
-        F = np.dot(G, z_iter)
+    for i in range(count):
+        it = first + 1 + i
+        F = np.dot(G, Y[it - 1])
         for k in range(n):
-            if not _closest_rotation(F, k, q, warm or it > 1, R, N, g, out, work):
-                return z_iter, it, 1
-        z_next = c + np.dot(W, R)
-        state = _converged(z_next, z_iter, z, tol2, rtol2)
-        z_iter = z_next
-        if state == -1:
-            return z_iter, it, 2
-        if state == 1:
-            break
-    return z_iter, it, 0
+            if not _closest_rotation(F, k, q, warm or i > 0, R, N, g, out, work):
+                return i
+        Y[it] = c + np.dot(W, R)
+    return count
 
 
 @numba.njit(cache=True, fastmath=False)
-def iterate2(G, W, c, z, max_iter, tol2, rtol2):  # pragma: no cover - compiled
-    """All local/global iterations of a 2D step without contact.
+def run2(G, W_c, Y, first, count):  # pragma: no cover - compiled
+    """Local/global iterations of a 2D step, into rows ``first + 1 ..`` of ``Y``.
 
-    ``(c, s) = G z`` (2 rows a cluster), normalised, ``z = c + W (c, s)``.
-    Returns ``(z, iterations, status)`` with status 0 done, 2 non-finite.
+    ``(c, s) = G z`` (2 rows a cluster), normalised, ``z = W_c [(c, s); 1]``
+    (the step's constant is ``W_c``'s last column).
     """
-    z_iter = z.copy()
-    for it in range(1, max_iter + 1):
-        cs = np.dot(G, z_iter)
-        for k in range(cs.shape[0] // 2):
+    pairs = G.shape[0]
+    cs1 = np.ones(pairs + 1)
+    for it in range(first + 1, first + count + 1):
+        cs = np.dot(G, Y[it - 1])
+        for k in range(pairs // 2):
             x = cs[2 * k]
             y = cs[2 * k + 1]
             nrm = np.hypot(x, y)
             if nrm == 0.0:
-                cs[2 * k] = 1.0
-                cs[2 * k + 1] = 0.0
+                cs1[2 * k] = 1.0
+                cs1[2 * k + 1] = 0.0
             else:
-                cs[2 * k] = x / nrm
-                cs[2 * k + 1] = y / nrm
-        z_next = c + np.dot(W, cs)
-        state = _converged(z_next, z_iter, z, tol2, rtol2)
-        z_iter = z_next
-        if state == -1:
-            return z_iter, it, 2
-        if state == 1:
-            break
-    return z_iter, it, 0
+                cs1[2 * k] = x / nrm
+                cs1[2 * k + 1] = y / nrm
+        Y[it] = np.dot(W_c, cs1)

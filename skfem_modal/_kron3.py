@@ -36,10 +36,10 @@ from __future__ import annotations
 import numpy as np
 
 from ._fast import dot as _dot
-from ._fast import squared_changes
 from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
+from .solver import ActivationRows
 
-__all__ = ["KroneckerStep3", "separable_rows", "separable_columns", "separable_square"]
+__all__ = ["KroneckerBackend", "separable_rows", "separable_columns", "separable_square"]
 
 MAX_SQUARINGS = 8
 
@@ -144,11 +144,13 @@ def _column_blocks(V):
     return blocks.reshape(K, 4 * q)
 
 
-class KroneckerStep3:
-    """Buffers and state of the Kronecker-form 3D step (see the module docstring).
+
+class KroneckerBackend:
+    """Buffers and state of the Kronecker-form 3D iterations (see the module docstring).
 
     Built by :meth:`build`, which returns None when the operators do not
-    factor; :meth:`step` runs one step.
+    factor. Its rotations are not exact until :meth:`finish` has certified
+    them (``exact = False``).
 
     Attributes
     ----------
@@ -157,10 +159,13 @@ class KroneckerStep3:
         the last step's powers.
     """
 
+    name = "numpy (Kronecker form)"
+    exact = False
+
     def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter):
         n, _, K = Y.shape
         m = YA.shape[0] - 1 if YA is not None else 0
-        self.K, self.n, self.m, self.max_iter = K, n, m, max_iter
+        self.K, self.n, self.m, self.max_batch = K, n, m, max_iter
         self.nc = n - n_active
         nc = self.nc
         self.Yt = _row_blocks(Y, scale).reshape(4 * n, K + 1)
@@ -169,21 +174,14 @@ class KroneckerStep3:
         self.Wt[:K, : 4 * n] = _column_blocks(V)
         self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
         self.C_slot = self.Wt[:K, 4 * n :]
+        self.activation = None
         if m:
             # the active clusters' F rows (not their shift rows, which the
-            # step keeps) and columns, affine in the activation: one product
-            # for both, a @ [rows | columns], then the constant parts
-            rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3].reshape(-1) for k in range(m + 1)])
-            cols = np.stack([_column_blocks(VA[k]).reshape(-1) for k in range(m + 1)])
-            self.A_all = np.hstack([rows[1:], cols[1:]])
-            A_product = np.empty(self.A_all.shape[1])
-            self.A_product = A_product
-            self.A_rows = A_product[: rows.shape[1]].reshape(n_active, 3, K + 1)
-            self.A_columns = A_product[rows.shape[1] :].reshape(K, -1)
-            self.A0 = rows[0].reshape(n_active, 3, K + 1).copy()
-            self.WA0 = cols[0].reshape(K, -1).copy()
-            self.Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
-            self.Wt_active = self.Wt[:K, 4 * nc : 4 * n]
+            # step keeps) and columns, affine in the activation
+            rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3] for k in range(m + 1)])
+            cols = np.stack([_column_blocks(VA[k]) for k in range(m + 1)])
+            Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
+            self.activation = ActivationRows([(rows, Yt_active), (cols, self.Wt[:K, 4 * nc : 4 * n])])
         # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
         self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
         self.C_input = np.zeros((2 * K + 3, 3))
@@ -203,23 +201,19 @@ class KroneckerStep3:
         # certificate (level 0 as the shifts are made: s = 1.05 sqrt(t_1) / 4)
         self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
         self.levels_flat = self.levels.reshape(-1)
-        self.steps = np.empty((max_iter, (K + 1) * 4))  # iterates' changes, for the stopping test
-        self.change2 = np.empty(max_iter)
-        self.ones = np.ones((K + 1) * 4)
         self.Z_rows = self.Z.reshape(max_iter + 1, -1)
         self.C_z = self.C_input[:K].reshape(-1)  # contiguous rows: views
         self.C_z_dot = self.C_input[K : 2 * K].reshape(-1)
         self.Z0 = self.Z[0, :K, :3]
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
-        self.diff = np.empty((K + 1, 4))
         self.shifted = False  # the shifts are set (from the last step)
         self.squarings = 4
-        self._predicted = max_iter  # iterations the last step took
         self.F16 = self.F.reshape(n, 16)
         self.RT16, self.trace = self.RT[:, :16], self.RT[:, 16:]
-        self.diff_flat = self.diff.reshape(-1)
         self.C_z_block = self.C_input[:K]  # the same z, as (K, 3)
         self.outputs = [Zk[:K, :3] for Zk in self.Z]
+        self.z_flat = np.empty(3 * K)  # a contiguous z for the contact projection
+        self.z_block = self.z_flat.reshape(K, 3)
         # per number of squarings s: each iteration's operands (iterates,
         # powers, rotations, the squarings' (input, output) pairs), and the
         # rows of levels 1..s for the traces
@@ -233,6 +227,7 @@ class KroneckerStep3:
                     self.R[i],
                     self.R[i, : 4 * n].reshape(n, 16),
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
+                    self.outputs[i + 1],
                 )
                 for i in range(max_iter)
             ]
@@ -247,62 +242,41 @@ class KroneckerStep3:
         ]
 
     @classmethod
-    def build(cls, G, W, A, WA, Pz, Pv, c_ext, scale, n_active, max_iter):
-        """The Kronecker step for these operators, or None if they do not factor.
+    def build(cls, model, max_iter):
+        """The Kronecker backend of a 3D model, or None if its operators do not factor.
 
         Parameters
         ----------
-        G : ndarray, shape (n * 9, r)
-            Cluster rows of row-major ``F`` (passive, then active clusters).
-        W : ndarray, shape (r, n * 9)
-            ``z = W vec(R) + c``.
-        A, WA : ndarray, shape (m + 1, n_active * 9, r) and (m + 1, r, n_active * 9)
-            The active clusters' rows and columns, affine in the activation:
-            ``A[0] + sum_k a_k A[k + 1]``. ``m = 0``: no muscles.
-        Pz, Pv : ndarray, shape (r, r)
-            ``c = Pz z + Pv z_dot + c_ext``.
-        c_ext : ndarray, shape (r,)
-        scale : ndarray, shape (n,)
-            Each cluster's ``|F|`` at rest: rows are divided by it, so that
-            the powers neither overflow nor underflow.
-        n_active : int
+        model : Model
         max_iter : int
         """
-        Y, V = separable_rows(G), separable_columns(W)
-        Pz_s, Pv_s = separable_square(Pz), separable_square(Pv)
+        r = model.space.r
+        muscles = model.A is not None and model.n_muscles
+        G_all = np.vstack([model.G] + ([model.A[0]] if model.A is not None else []))
+        W_all = np.hstack([model.W] + ([model.WA[0]] if model.A is not None else []))
+        C = model.C
+        Y, V = separable_rows(G_all), separable_columns(W_all)
+        Pz_s, Pv_s = separable_square(C[:, :r]), separable_square(C[:, r : 2 * r])
         if Y is None or V is None or Pz_s is None or Pv_s is None:
             return None
         YA = VA = None
-        if A is not None and A.shape[0] > 1:
-            YA = [separable_rows(Ak) for Ak in A]
-            VA = [separable_columns(Wk) for Wk in WA]
+        if muscles:
+            YA = [separable_rows(Ak) for Ak in model.A]
+            VA = [separable_columns(Wk) for Wk in model.WA]
             if any(x is None for x in YA + VA):
                 return None
             YA, VA = np.stack(YA), np.stack(VA)
-        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.asarray(c_ext, float), scale, n_active, max_iter)
+        # each cluster's |F| at rest (1 where it is 0): rows are divided by it,
+        # so that the powers neither overflow nor underflow
+        rest = (G_all @ model.rest).reshape(-1, 9)
+        scale = np.sqrt(np.einsum("ij,ij->i", rest, rest))
+        scale = np.where(scale > 0.0, scale, 1.0)
+        n_active = 0 if model.A is None else model.A.shape[1] // 9
+        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.ascontiguousarray(C[:, 2 * r]), scale, n_active, max_iter)
 
-    def step(self, z, z_dot, a, tol2, rtol):
-        """One step from ``(z, z_dot)`` under activation ``a``.
-
-        Parameters
-        ----------
-        z, z_dot : ndarray, shape (3 K,)
-        a : ndarray, shape (m,)
-        tol2 : float
-            Stop when ``|z_k - z_(k-1)|^2 < tol2``.
-        rtol : float
-            Also stop when ``|z_k - z_(k-1)| <= rtol |z_k - z|`` (0: off).
-
-        Returns
-        -------
-        (z_next, iterations), or None when a rotation failed the certificate
-        or the state became non-finite (the caller redoes the step).
-        """
-        K, n, s = self.K, self.n, self.squarings
-        if self.m:
-            _dot(a, self.A_all, self.A_product)
-            np.add(self.A_rows, self.A0, self.Yt_active)
-            np.add(self.A_columns, self.WA0, self.Wt_active)
+    def start(self, z, z_dot, a) -> None:
+        if self.activation is not None:
+            self.activation.write(a)
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
@@ -310,26 +284,25 @@ class KroneckerStep3:
         if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best
             # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
-            # with a margin for the certificate (see below)
+            # with a margin for the certificate (see finish)
             self.shift_column[:] = 0.0
             np.dot(self.Yt, self.Z[0], self.F)
-            F16 = self.F.reshape(n, 16)
-            shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", F16, F16) / 3.0)
+            shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", self.F16, self.F16) / 3.0)
             self.shift_column[:] = shift
             np.multiply(shift, 4.0 / 1.05, self.levels[0])
             self.shifted = True
+        self.s = self.squarings  # fixed for the step: the certificate needs one count
+        self.k = 0
+
+    def start_row(self):
+        return self.Z_rows[0]
+
+    def iterate(self, count, project):
         Yt, Wt, F, F16 = self.Yt, self.Wt, self.F, self.F16
-        # as many iterations as the last step took (the count changes seldom
-        # from step to step) run unchecked; the stopping rule is applied to
-        # them afterwards, in one batch on the stored iterates: the same
-        # answer as testing each in turn, and any iterations past the stop
-        # are discarded
-        unchecked = 0 if rtol else self._predicted
-        diff, flat = self.diff, self.diff_flat
-        stop = self.max_iter - 1
         RT, RT16, trace = self.RT, self.RT16, self.trace
         dot, matmul, divide = _dot, np.matmul, np.divide
-        for i, (Z_old, Z_new, P0, P_last, R, R16, squarings) in enumerate(self._views[s]):
+        first = self.k
+        for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new in self._views[self.s][first : first + count]:
             # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)
             dot(F16, HORN_BLOCK, P0)
@@ -338,43 +311,33 @@ class KroneckerStep3:
             dot(P_last, QQ_TO_BLOCK_TRACE, RT)
             divide(RT16, trace, R16)
             dot(Wt, R, Z_new)
-            if i < unchecked - 1:
-                continue
-            if i == unchecked - 1:
-                change2 = squared_changes(self.Z_rows, i + 1, self.steps, self.ones, self.change2)
-                hits = change2 < tol2
-                first = int(hits.argmax())
-                if hits[first]:
-                    stop = first
-                    break
-                continue
-            np.subtract(Z_new, Z_old, diff)
-            change2 = float(dot(flat, flat))
-            if change2 < tol2:
-                stop = i
-                break
-            if not change2 < np.inf:
-                return None
-            if rtol:
-                motion = Z_new[:K, :3] - self.Z0
-                if change2 <= rtol**2 * float(np.vdot(motion, motion)):
-                    stop = i
-                    break
-        k = stop + 1
-        # the traces of levels 1..s, all iterations: one matrix-vector product
-        powers, traces = self._trace_rows[s]
-        _dot(powers, EYE16, traces)
-        ok, top, rho = certify_levels(self.levels[: s + 1, :k], top_bound=1.05**2)
-        if ok and not top:
-            ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
-        if not ok:
+            if project is not None:
+                np.copyto(self.z_block, z_new)
+                if project(self.z_flat):
+                    np.copyto(z_new, self.z_block)
+        self.k = first + count
+        return self.Z_rows[first : self.k + 1]
+
+    def finish(self, k) -> bool:
+        """Certify the rotations of the step's first ``k`` iterations (None: it went non-finite)."""
+        s = self.s
+        if k is not None:
+            # the traces of levels 1..s, all iterations: one matrix-vector product
+            powers, traces = self._trace_rows[s]
+            _dot(powers, EYE16, traces)
+            ok, top, rho = certify_levels(self.levels[: s + 1, :k], top_bound=1.05**2)
+            if ok and not top:
+                ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
+        if k is None or not ok:
             self.squarings = min(s + 1, MAX_SQUARINGS)
             self.shifted = False
-            return None
-        self._predicted = k
+            return False
         self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
         # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
         # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
-        np.sqrt(self.levels[1, stop], self.levels[0])  # |P| = 4 s' / 1.05, every iteration
+        np.sqrt(self.levels[1, k - 1], self.levels[0])  # |P| = 4 s' / 1.05, every iteration
         np.multiply(self.levels[0, 0], 1.05 / 4.0, self.shift_column)
-        return self.outputs[k].ravel(), k
+        return True
+
+    def result(self, k):
+        return self.outputs[k].ravel()

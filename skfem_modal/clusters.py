@@ -15,7 +15,7 @@ from scipy.cluster.vq import kmeans2
 
 from .mesh import check_mesh
 
-__all__ = ["average_onto_elements", "spectral_clusters", "cluster_sizes"]
+__all__ = ["average_onto_elements", "spectral_clusters"]
 
 
 def average_onto_elements(mesh, values) -> np.ndarray:
@@ -103,9 +103,3 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
         warnings.filterwarnings("ignore", message="One of the clusters is empty")
         _, labels = kmeans2(points, k, seed=seed, minit="++")
     return _fill_empty(points, labels.astype(np.int64), k)
-
-
-def cluster_sizes(labels, k: int | None = None) -> np.ndarray:
-    """Number of elements in each cluster, shape (k,)."""
-    labels = np.asarray(labels)
-    return np.bincount(labels, minlength=int(labels.max()) + 1 if k is None else k)

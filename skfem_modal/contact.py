@@ -1,4 +1,4 @@
-"""Ground contact: a velocity-level projection folded into the global solve.
+"""Ground contact: a projection of each global solution, the reference implementation's model.
 
 A plane ``x[up] = ground`` and a set of contact vertices. In every global step
 the tentative solution ``z_t = H^{-1} f`` is checked: each contact point that
@@ -20,9 +20,7 @@ active set is re-checked after each correction.
 
 The correction for a given set of active points is a fixed matrix, so it is
 computed once per set and cached: contact sets repeat from one iteration and
-one step to the next. The solver carries the contact positions along with
-``z`` (its global solve produces both in one product), so a cached set costs
-one small product.
+one step to the next.
 """
 
 from __future__ import annotations
@@ -30,32 +28,28 @@ from __future__ import annotations
 from collections import OrderedDict
 
 import numpy as np
+import scipy.sparse as sps
 
 from ._fast import dot
+from .effects import Effect
 
 __all__ = ["GroundContact"]
 
 _CACHE_SIZE = 512
 
 
-class GroundContact:
-    """Precomputed ground-contact projection for one reduced system.
+class GroundContact(Effect):
+    """Ground contact at a set of vertices, projecting each global solution.
 
     Parameters
     ----------
-    Je : ndarray or scipy.sparse matrix, shape (p * dim, r)
-        The map from the unknowns to the contact vertices' positions
-        (interleaved): rows of the subspace basis, or a selection matrix in
-        the full space.
-    solve : callable
-        ``solve(X)`` returns ``H^{-1} X`` for the global system matrix ``H``
-        and a dense ``X`` of shape (r, k).
-    h : float
-        Time step.
-    dim, up : int
-        Dimension and the index of the up axis.
+    space : Subspace or FullSpace
+    vertices : ndarray of int
+        The contact vertices.
     ground : float
         Height of the plane along ``up``.
+    up : int
+        Index of the up axis.
     stickiness : float
         In [0, 1]: fraction of the tangential velocity removed on contact.
     push_out : float
@@ -68,30 +62,32 @@ class GroundContact:
         Contact points active in the last projection.
     """
 
-    def __init__(self, Je, solve, h, dim, up, ground, stickiness=1.0, push_out=0.0):
-        import scipy.sparse as sps
+    name = "contact"
 
-        if sps.issparse(Je):
-            self.Je = Je.tocsr()
-            self.Je_up = self.Je[up::dim]
-            JeT = self.Je.T.toarray()
-        else:
-            self.Je = np.ascontiguousarray(Je)
-            self.Je_up = np.ascontiguousarray(self.Je[up::dim])
-            JeT = self.Je.T
-        self.solve = solve
-        self.dim, self.up, self.h = dim, up, float(h)
+    def __init__(self, space, vertices, ground, up, stickiness=1.0, push_out=0.0):
+        self.vertices = vertices
+        self.dim, self.up = space.dim, up
         self.ground = float(ground)
         self.stickiness = float(stickiness)
         self.push_out = float(push_out)
-        self.HinvJeT = solve(JeT)  # (r, p dim): H^-1 Je^T
-        self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
-        self.n_points = self.Je.shape[0] // dim
-        self.lift = 0.0
+        Je = space.rows(space.dofs(vertices))
+        self.Je = Je.tocsr() if sps.issparse(Je) else Je
+        self.n_points = vertices.size
         self.active_count = 0
+
+    def bind(self, system, h) -> None:
+        """Take the factored system of time step ``h`` (a new one clears the cached corrections)."""
+        JeT = self.Je.T.toarray() if sps.issparse(self.Je) else self.Je.T
+        self.HinvJeT = system.solve(JeT)  # (r, p dim): H^-1 Je^T
+        self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
+        self.solve, self.h = system.solve, float(h)
         self._cache: OrderedDict = OrderedDict()
 
-    def start_step(self, z_start: np.ndarray) -> None:
+    def positions(self, z) -> np.ndarray:
+        """Contact point positions, shape (p, dim)."""
+        return (self.Je @ np.asarray(z, float)).reshape(-1, self.dim)
+
+    def start_step(self, z_start, z_dot=None) -> None:
         """Remember the contact positions at the start of the step."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
@@ -100,23 +96,33 @@ class GroundContact:
             depth = np.maximum(self.ground - up_start, 0.0)
             # the lowest end height allowed: the ground, or on the way out of it
             self.target = np.where(depth > 0, up_start + self.push_out * depth, self.ground)
-            self.lift = self.target - up_start
             self.limit = self.target
             # the positions the corrections aim at: the start, lifted out of the ground
             self.p_target = self.p_start.copy()
-            self.p_target[self.up :: self.dim] += self.lift
+            self.p_target[self.up :: self.dim] += self.target - up_start
         else:
             # reference rule: a point below ground may not move further down
-            self.lift = 0.0
             self.limit = up_start
             self.p_target = self.p_start
 
-    def positions(self, z: np.ndarray) -> np.ndarray:
-        """Contact point positions, shape (p, dim)."""
-        return (self.Je @ z).reshape(-1, self.dim)
+    def project(self, z) -> bool:
+        """Project the active contacts of a global solution ``z`` (r,), in place; True if it changed."""
+        p = self.Je @ z
+        if self.push_out:
+            return self._project_positions(z, p)
+        up_tent = p[self.up :: self.dim]
+        # below the plane at the current iterate and moving into it
+        mask = (self.up_iter < self.ground) & (up_tent < self.limit)
+        if not np.count_nonzero(mask):  # a third of .any()'s cost, once an iteration
+            self.active_count = 0
+            self.up_iter = up_tent
+            return False
+        self._apply(z, p, mask)
+        self.up_iter = p[self.up :: self.dim]
+        return True
 
     def _projection(self, mask: np.ndarray):
-        """Rows and the stacked correction matrix of an active set (cached)."""
+        """Rows and the correction matrices of an active set (cached)."""
         key = mask.tobytes()
         entry = self._cache.get(key)
         if entry is not None:
@@ -143,69 +149,36 @@ class GroundContact:
             dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
-        # the correction of z and of every contact position, in one product,
-        # the tangential scaling folded in
-        entry = (active, rows, np.vstack([dz, np.asarray(self.Je @ dz)]) * factor)
+        dz = np.ascontiguousarray(dz * factor)
+        entry = (active, rows, dz, np.ascontiguousarray(np.asarray(self.Je @ dz)))
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
         return entry
 
-    def correct(self, y: np.ndarray, in_place: bool = False) -> np.ndarray:
-        """Project the active contacts.
-
-        Parameters
-        ----------
-        y : ndarray, shape (r + p * dim,)
-            The tentative solution ``z_t = H^{-1} f`` followed by its contact
-            positions ``Je z_t``. In the reference rule points are tested
-            against the previous iterate (from the last call, or the start of
-            the step).
-        in_place : bool
-            Correct ``y`` itself (and return it).
-
-        Returns
-        -------
-        y : ndarray, shape (r + p * dim,)
-            Corrected solution and positions.
-        """
-        r = y.size - self.Je.shape[0]
-        if self.push_out:
-            corrected = self._correct_positions(y, r)
-            if in_place and corrected is not y:
-                np.copyto(y, corrected)
-                return y
-            return corrected
-        p_tent = y[r:]
-        up_tent = p_tent[self.up :: self.dim]
-        # below the plane at the current iterate and moving into it
-        mask = (self.up_iter < self.ground) & (up_tent < self.limit)
-        if not np.count_nonzero(mask):  # a third of .any()'s cost, once an iteration
-            self.active_count = 0
-            self.up_iter = up_tent
-            return y
-        y = self._apply(y, r, mask, y if in_place else None)
-        self.up_iter = y[r + self.up :: self.dim]
-        return y
-
-    def _apply(self, y, r, mask, out=None):
-        active, rows, K = self._projection(mask)
+    def _apply(self, z, p, mask) -> None:
+        """Correct ``z`` and its contact positions ``p`` in place for an active set."""
+        active, rows, dz, dp = self._projection(mask)
         self.active_count = active.size
-        return np.add(y, dot(K, (self.p_target - y[r:]).take(rows)), out=out)
+        delta = (self.p_target - p).take(rows)
+        z += dot(dz, delta)
+        p += dot(dp, delta)
 
-    def _correct_positions(self, y, r):
+    def _project_positions(self, z, p) -> bool:
         """Position rule: no contact point ends below its target height."""
         tol = 1e-12 * max(1.0, abs(self.ground))
-        mask = y[r + self.up :: self.dim] < self.target - tol
+        mask = p[self.up :: self.dim] < self.target - tol
         if not np.count_nonzero(mask):
             self.active_count = 0
-            return y
-        tentative = y
+            return False
+        z_tent, p_tent = z.copy(), p.copy()
         for _ in range(4):
-            y = self._apply(tentative, r, mask)
+            np.copyto(z, z_tent)
+            np.copyto(p, p_tent)
+            self._apply(z, p, mask)
             # a correction moves other points too: add any now below target
-            violated = y[r + self.up :: self.dim] < self.target - tol
+            violated = p[self.up :: self.dim] < self.target - tol
             if not (violated & ~mask).any():
                 break
             mask = mask | violated
-        return y
+        return True

@@ -37,6 +37,8 @@ __all__ = [
     "fixed_nodes",
     "natural_frequencies",
     "actuation_limits",
+    "ceilings_of_gradients",
+    "muscle_modes",
     "mode_sign_convention",
 ]
 
@@ -337,8 +339,52 @@ def actuation_limits(mesh, modes, max_s: float = 2.0, element: str | None = None
     n_rows = node_positions(mesh, element).size
     if D.ndim != 2 or D.shape[0] != n_rows:
         raise ValueError(f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}")
-    J = _jacobian(mesh, element)
-    JD = (J @ D).reshape(-1, dim * dim, D.shape[1])
-    largest = np.sqrt((JD**2).sum(axis=1)).max(axis=0)
+    return ceilings_of_gradients(_jacobian(mesh, element) @ D, dim, max_s)
+
+
+def ceilings_of_gradients(JD, dim: int, max_s: float = 2.0) -> np.ndarray:
+    """:func:`actuation_limits` from the modes' gradient changes ``JD = J @ D``.
+
+    Parameters
+    ----------
+    JD : ndarray, shape (nT * nq * dim * dim, m)
+    dim : int
+    max_s : float
+
+    Returns
+    -------
+    ceilings : ndarray, shape (m,)
+        ``max_s / max_e |(J D_k)_e|_F``, ``inf`` for modes that do not deform.
+    """
+    largest = np.sqrt((JD.reshape(-1, dim * dim, JD.shape[1]) ** 2).sum(axis=1)).max(axis=0, initial=0.0)
     with np.errstate(divide="ignore"):
         return np.where(largest > 0, max_s / np.where(largest > 0, largest, 1.0), np.inf)
+
+
+def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None, signs=None) -> np.ndarray:
+    """The muscles of a body: its lowest linear modes without the rigid ones.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    n_muscles : int
+    mu, lam, rho : float or ndarray of shape (nT,)
+        Material of the modal analysis (``lam`` defaults to ``mu``).
+    pinned : array_like of int, optional
+        Clamped vertices: then the modes of the clamped body (no rigid ones).
+    signs : array_like of +1 / -1, shape (n_muscles,), optional
+        Flip muscles (the modes' own signs follow
+        :func:`~skfem_modal.eigen.sign_convention`).
+
+    Returns
+    -------
+    D : ndarray, shape (n * dim, n_muscles)
+    """
+    if not n_muscles:
+        return np.zeros((mesh.p.size, 0))
+    n_rigid = rigid_mode_count(mesh, pinned)
+    _, found = linear_modal_analysis(
+        mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
+    )
+    D = found[:, n_rigid:]
+    return D if signs is None else D * np.asarray(signs, dtype=np.float64)

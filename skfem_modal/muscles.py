@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sps
 
-__all__ = ["cluster_sum_operator", "muscle_target_operator", "muscle_operators", "muscle_target_constants", "sine_gait"]
+__all__ = ["cluster_sum_operator", "muscle_target_operator", "muscle_target_constants", "sine_gait"]
 
 
 def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = None) -> sps.csr_matrix:
@@ -47,13 +47,23 @@ def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = Non
     return sps.kron(P, sps.identity(dim * dim), format="csr")
 
 
-def muscle_target_operator(J, D, labels, weights, dim: int):
+def muscle_target_operator(JD, labels, weights, dim: int):
     """The sparse map from per-element gradients to the active cluster sums.
 
     Row ``(k, c, i, j)`` of the result applied to ``vec(F)`` is
     ``sum_{e in c} w_e (F_e Y^k_e^T)[i, j]`` with ``Y^0_e = I`` and
     ``Y^k_e = (J D_k)_e``: stacked for the rest target (``k = 0``) and each
     muscle.
+
+    Parameters
+    ----------
+    JD : ndarray, shape (nT * dim * dim, m)
+        The muscle modes' deformation-gradient changes ``J @ D``.
+    labels : ndarray of int, shape (nT,)
+        Active cluster of each element.
+    weights : ndarray, shape (nT,)
+        ``gamma * vol``.
+    dim : int
 
     Returns
     -------
@@ -63,8 +73,8 @@ def muscle_target_operator(J, D, labels, weights, dim: int):
     nT = labels.size
     na = int(labels.max()) + 1
     dd = dim * dim
-    m = D.shape[1]
-    G = (J @ D).reshape(nT, dim, dim, m)  # per element, per muscle: (J D_m)_e
+    m = JD.shape[1]
+    G = JD.reshape(nT, dim, dim, m)  # per element, per muscle: (J D_m)_e
     # row (c, i, j) <- column (e, i, k) with value w_e G^m_e[j, k]
     e, i, j, k = np.meshgrid(np.arange(nT), np.arange(dim), np.arange(dim), np.arange(dim), indexing="ij")
     rows = ((labels[e] * dim + i) * dim + j).ravel()
@@ -77,34 +87,14 @@ def muscle_target_operator(J, D, labels, weights, dim: int):
     return sps.vstack(blocks, format="csr")
 
 
-def muscle_operators(J, B, D, labels, weights, dim: int) -> np.ndarray:
-    """The operators ``A_0, A_1, ..., A_m`` of the active target.
+def muscle_target_constants(JD, weights, dim: int):
+    """Constant part of the active energy: ``1/2 sum_e w_e |Y_e(a)|^2``.
 
     Parameters
     ----------
-    J : scipy.sparse matrix, shape (nT * dim * dim, N)
-        Deformation Jacobian.
-    B : ndarray, shape (N, r)
-        Subspace.
-    D : ndarray, shape (N, m)
-        Muscle modes (displacements, without the rest pose).
-    labels : ndarray of int, shape (nT,)
-        Active cluster of each element.
+    JD : ndarray, shape (nT * dim * dim, m)
     weights : ndarray, shape (nT,)
-        ``gamma * vol``.
     dim : int
-
-    Returns
-    -------
-    A : ndarray, shape (m + 1, n_active * dim * dim, r)
-        ``A[0]`` pulls towards the rest shape, ``A[k]`` is muscle ``k``'s part.
-    """
-    TJ = muscle_target_operator(J, D, labels, weights, dim) @ J
-    return np.asarray(TJ @ B).reshape(D.shape[1] + 1, -1, B.shape[1])
-
-
-def muscle_target_constants(J, D, weights, dim: int):
-    """Constant part of the active energy: ``1/2 sum_e w_e |Y_e(a)|^2``.
 
     Returns
     -------
@@ -117,8 +107,8 @@ def muscle_target_constants(J, D, weights, dim: int):
         ``c0 + c1 @ a + a @ Q @ a``.
     """
     nT = np.asarray(weights).size
-    m = D.shape[1]
-    G = (J @ D).reshape(nT, dim * dim, m)
+    m = JD.shape[1]
+    G = JD.reshape(nT, dim * dim, m)
     c0 = 0.5 * dim * float(np.sum(weights))
     trace = G[:, :: dim + 1, :].sum(axis=1)  # (nT, m)
     c1 = weights @ trace

@@ -107,7 +107,7 @@ def _worker_sim(data: dict, base_dir):
         sim = scene.build()
         # the body's overall rotation is polar(sum_i m_i x_i (X_i - C)^T): linear in z
         dim, n = sim.mesh.p.shape
-        m = sim._M.diagonal()[::dim]
+        m = sim.mass[::dim]
         X = sim.mesh.p.T
         C = (m[:, None] * X).sum(axis=0) / m.sum()
         W = m[:, None] * (X - C)  # (n, dim)
@@ -133,23 +133,19 @@ def rollout(task: dict) -> dict:
     """
     from .muscles import sine_gait
     from .rotations import polar_rotations
-    from .sim import SimulationError
+    from .sim import SimulationError, simulate
 
     scene, sim, tilt_op = _worker_sim(task["scene"], task["base_dir"])
     dim, up = sim.dim, sim.up
     gait = task["gait"]
     amps = np.asarray(gait["amplitude"]) * sim.ceilings
-    z, z_dot, _ = sim.rest_state()
+    z = sim.rest_state()[0]
     start = sim.com(z)
     max_tilt, finite = 0.0, True
-    e_up = np.zeros(dim)
-    e_up[up] = 1.0
     try:
-        for i in range(task["steps"]):
-            a = sine_gait(i * sim.h, amps, gait["period"], gait["phase"])
-            z_next = sim.step(z, z_dot, a)
-            z_dot, z = (z_next - z) / sim.h, z_next
-            if i % 5 == 4:
+        for record in simulate(sim, task["steps"], lambda t: sine_gait(t, amps, gait["period"], gait["phase"])):
+            z = record.z
+            if record.step % 5 == 0:
                 R = polar_rotations((tilt_op @ z).reshape(1, dim, dim))[0]
                 max_tilt = max(max_tilt, float(np.arccos(np.clip(R[up, up], -1.0, 1.0))))
     except SimulationError:

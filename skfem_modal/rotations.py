@@ -32,16 +32,13 @@ __all__ = [
     "polar_rotations",
     "rotations2_flat",
     "rotations3_flat",
+    "closest_rotations3",
     "dominant_quaternions",
-    "certify_dominant",
     "certify_squarings",
     "certify_levels",
     "next_squarings",
-    "squarings_for",
     "HORN",
-    "HORN_SHIFTED",
     "QUAT_TO_R",
-    "QQ_TO_R_TRACE",
     "ROT2",
 ]
 
@@ -86,34 +83,6 @@ for _k, _terms in enumerate(
 ):
     for _a, _b, _s in _terms:
         QUAT_TO_R[4 * _a + _b, _k] += _s
-
-# (F, s) -> N(F) + s I: the tenth input is the power method's shift
-HORN_SHIFTED = np.vstack([HORN, np.eye(4).reshape(1, 16)])
-SHIFT = float(_SHIFT[0, 0]) * 1.225  # shift over |N(F)|
-
-# q q^T (16 values) -> (R, tr(q q^T)): dividing by the trace normalises any multiple of q q^T
-QQ_TO_R_TRACE = np.hstack([QUAT_TO_R, np.eye(4).reshape(16, 1)])
-
-# R -> q q^T for a unit quaternion q: linear in R plus a constant (each
-# product of two components is a quarter of a sum of entries of R, given
-# |q| = 1); the inverse of QUAT_TO_R on rotations
-_R_TO_QQ = np.zeros((9, 16))
-_QQ_CONST = np.eye(4).ravel() / 4
-for (_i, _j), _terms in {
-    (0, 0): [(0, 1), (4, 1), (8, 1)],
-    (1, 1): [(0, 1), (4, -1), (8, -1)],
-    (2, 2): [(0, -1), (4, 1), (8, -1)],
-    (3, 3): [(0, -1), (4, -1), (8, 1)],
-    (0, 1): [(7, 1), (5, -1)],
-    (0, 2): [(2, 1), (6, -1)],
-    (0, 3): [(3, 1), (1, -1)],
-    (1, 2): [(1, 1), (3, 1)],
-    (1, 3): [(2, 1), (6, 1)],
-    (2, 3): [(5, 1), (7, 1)],
-}.items():
-    for _f, _s in _terms:
-        _R_TO_QQ[_f, 4 * _i + _j] = _s / 4
-        _R_TO_QQ[_f, 4 * _j + _i] = _s / 4
 
 ROT2 = np.array([[1.0, 0.0, 0.0, 1.0], [0.0, -1.0, 1.0, 0.0]])  # (c, s) -> [c, -s, s, c]
 CS2 = np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 1.0], [1.0, 0.0]])  # F -> (F00 + F11, F10 - F01)
@@ -165,83 +134,48 @@ def dominant_quaternions(N: np.ndarray, q0: np.ndarray | None = None) -> np.ndar
         col = np.argmax(P.reshape(n, 16)[:, ::5], axis=1)
         q = P[np.arange(n), :, col]
     q *= (1.0 / (np.sqrt(np.einsum("ij,ij->i", q, q)) + 1e-300))[:, None]
-    # converged when q is an eigenvector of N: |N q - (q.N q) q| ~ 0
+    # converged when q is an eigenvector of N, |N q - (q.N q) q| ~ 0, of the
+    # top eigenvalue: one above |N| / 2 can only be the top one (a vector
+    # exactly along another eigenvector, which the powers cannot leave, has
+    # a lower one and goes to eigh)
     Nq = np.einsum("nij,nj->ni", N, q)
-    Nq -= np.einsum("ij,ij->i", q, Nq)[:, None] * q
+    rayleigh = np.einsum("ij,ij->i", q, Nq)
+    Nq -= rayleigh[:, None] * q
     bad = np.einsum("ij,ij->i", Nq, Nq) > (1e-12 * size) ** 2
+    bad |= ~(rayleigh > size / 2.45 * (1.0 + 1e-12))
+    bad &= (size > 0.0) & (size < np.inf)  # F = 0: any rotation; non-finite: the caller reports it
     if bad.any():
         _, vectors = np.linalg.eigh(N[bad])
         q[bad] = vectors[:, :, -1]
     return q
 
 
-def certify_dominant(P0: np.ndarray, R9: np.ndarray, squarings: int):
-    """Check rotations read off powers of shifted Horn matrices.
-
-    Each ``R`` was computed as ``R(O)`` with ``O = P^(2^k) / tr(P^(2^k))``
-    for ``P = N(F) + s I`` (``s > 0``). In exact arithmetic ``O`` is a
-    weighted mixture of ``P``'s eigenprojectors, the weights in proportion to
-    ``|lambda_i|^(2^k)``. With ``mu = tr(P O)`` (a weighted mean of the
-    eigenvalues, so ``|mu|`` is at most the largest magnitude), the ratio
-    ``sqrt(|P|_F^2 - mu^2) / |mu|`` bounds every other eigenvalue's magnitude
-    over the largest one; when its ``2^k``-th power is below ``1e-13`` the
-    mixture is the dominant eigenprojector to that accuracy, and ``mu > 0``
-    says the dominant eigenvalue is the top one, so ``R`` is the closest
-    rotation. Non-finite values (overflow) fail the check.
+def closest_rotations3(F9: np.ndarray, q0: np.ndarray | None = None):
+    """3D closest rotations of row-major matrices, with their quaternions.
 
     Parameters
     ----------
-    P0 : ndarray, shape (m, 16)
-        The shifted Horn matrices (row-major), any positive scale.
-    R9 : ndarray, shape (m, 9)
-        The rotations read off their powers (row-major).
-    squarings : int
-        ``k``.
+    F9 : ndarray, shape (n, 9)
+    q0 : ndarray, shape (n, 4), optional
+        Quaternions of nearby rotations (e.g. the last iteration's): a warm
+        start, fewer squarings.
 
     Returns
     -------
-    ok : bool
-        Every rotation passes.
-    ratio : float
-        The largest ratio (the contraction of one power), inf if any failed.
+    R9 : ndarray, shape (n, 9)
+    q : ndarray, shape (n, 4)
     """
-    qq = R9 @ _R_TO_QQ + _QQ_CONST  # q q^T, for the rotation R(q)
-    mu = np.einsum("ij,ij->i", P0, qq)  # both symmetric: tr(P O)
-    p2 = np.einsum("ij,ij->i", P0, P0)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        ratio2 = (p2 - mu * mu) / (mu * mu)
-        worst = float(ratio2.max())
-        ok = bool(mu.min() > 0.0) and worst <= 1e-13 ** (2.0 / 2**squarings)
-    return ok, (float(np.sqrt(max(worst, 0.0))) if ok else np.inf)
-
-
-def squarings_for(ratio: float, least: int = 2, most: int = 8) -> int:
-    """Squarings ``k`` that shrink a contraction ``ratio`` to ``ratio**(2**k) <= 1e-13``.
-
-    >>> squarings_for(0.15), squarings_for(0.5), squarings_for(0.0)
-    (4, 6, 2)
-    """
-    if not ratio < 1.0:
-        return most
-    if ratio <= 0.0:
-        return least
-    need = np.log(1e-13) / np.log(ratio)
-    return int(min(max(np.ceil(np.log2(need)), least), most))
-
-
-def _quaternions(F9: np.ndarray) -> np.ndarray:
-    """Closest-rotation quaternions of row-major matrices, shape (n, 9) -> (n, 4)."""
     # the rotation does not change with a positive scale: bring entries to
     # [-1, 1] so that no square can overflow or underflow
     big = np.abs(F9).max(axis=1)
     big[big == 0.0] = 1.0
-    return dominant_quaternions(((F9 / big[:, None]) @ HORN).reshape(-1, 4, 4))
+    q = dominant_quaternions(((F9 / big[:, None]) @ HORN).reshape(-1, 4, 4), q0)
+    return (q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ QUAT_TO_R, q
 
 
 def rotations3_flat(F9: np.ndarray) -> np.ndarray:
     """3D closest rotations of row-major matrices, shape (n, 9) -> (n, 9)."""
-    q = _quaternions(F9)
-    return (q[:, :, None] * q[:, None, :]).reshape(-1, 16) @ QUAT_TO_R
+    return closest_rotations3(F9)[0]
 
 
 def polar_rotations(F) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 
 from .export import FrameWriter, atomic_path
 from .mesh import mesh_summary
-from .sim import SimulationError
+from .sim import SimulationError, simulate
 
 __all__ = ["run_scene", "Progress"]
 
@@ -237,24 +237,22 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
     bar = Progress(n_steps, "steps", enabled=progress)
     status, error = "completed", None
     step = 0
+    ceilings = sim.ceilings
+    activation = (lambda t: scene.activation(t, ceilings)) if m else None
     try:
         record(0, z, a)
-        ceilings = sim.ceilings
-        for step in range(1, n_steps + 1):
-            a = scene.activation((step - 1) * h, ceilings) if m else a
-            clock = time.perf_counter()
-            z_next = sim.step(z, z_dot, a)
-            step_seconds.append(time.perf_counter() - clock)
-            iterations.append(sim.iterations)
-            z_dot = (z_next - z) / h
-            z = z_next
+        for done in simulate(sim, n_steps, activation):
+            step = done.step
+            step_seconds.append(done.seconds)
+            iterations.append(done.iterations)
             if ground is not None:
-                worst_contact = max(worst_contact, float(ground - sim.contact_positions(z)[:, sim.up].min()))
-            coms.append(record(step, z, a))
+                worst_contact = max(worst_contact, float(ground - sim.contact_positions(done.z)[:, sim.up].min()))
+            coms.append(record(step, done.z, done.a))
             bar.update()
     except SimulationError as err:
+        step = err.step or step + 1
         status, error = "failed", {"step": step, "time": step * h, "message": str(err)}
-        raise SimulationError(f"{err} (t = {step * h:g}; outputs so far kept)", step=step) from None
+        raise SimulationError(f"{err.message} (t = {step * h:g}; outputs so far kept)", step=step) from None
     except KeyboardInterrupt:
         status, error = "interrupted", {"step": step, "time": step * h}
         raise

@@ -566,13 +566,52 @@ class Scene:
         return _pinned(p, self.mesh)
 
     # ------------------------------------------------------------ building
-    def build(self, progress=None):
+    def effect_settings(self) -> dict:
+        """The material and effect arguments the reduced simulator and the reference share.
+
+        Returns
+        -------
+        settings : dict
+            Keyword arguments of :class:`~skfem_modal.sim.ModalMuscle` (and
+            :class:`~skfem_modal.reference.FullSpaceSimulator`): ``mu``,
+            ``gamma``, ``rho``, ``h``, ``gravity``, ``ground``, ``up``,
+            ``stickiness``, ``push_out``, ``pinned``, ``pin_stiffness``,
+            ``damping_mass``, ``damping_stiffness``, ``max_s``.
+        """
+        c = self.config
+        mat = self.material()
+        ground = c["ground"]
+        damping = c["damping"] or {"mass": 0.0, "stiffness": 0.0}
+        return dict(
+            mu=mat["mu"],
+            gamma=mat["gamma"],
+            rho=mat["rho"],
+            h=self.h,
+            gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
+            ground=self.ground_height(),
+            up=self.up,
+            stickiness=1.0 if ground is None else ground["stickiness"],
+            push_out=0.0 if ground is None else ground["push_out"],
+            pinned=self.pinned_vertices(),
+            pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
+            damping_mass=damping["mass"],
+            damping_stiffness=damping["stiffness"],
+            max_s=c["muscles"]["max_s"],
+        )
+
+    def contact_count(self) -> int | None:
+        """Contact points to sample (None: every boundary vertex); None without a ground too."""
+        ground = self.config["ground"]
+        return None if ground is None or ground["contacts"] == "all" else ground["contacts"]
+
+    def build(self, progress=None, backend: str = "auto"):
         """The simulator holding exactly the effects this scene names.
 
         Parameters
         ----------
         progress : callable, optional
             Called with the name of each precompute stage.
+        backend : {"auto", "numpy", "numba", "plain"}
 
         Returns
         -------
@@ -581,10 +620,6 @@ class Scene:
         from .sim import ModalMuscle
 
         c = self.config
-        mat = self.material()
-        ground = c["ground"]
-        damping = c["damping"] or {"mass": 0.0, "stiffness": 0.0}
-        contacts = None if ground is None or ground["contacts"] == "all" else ground["contacts"]
         return ModalMuscle.from_mesh(
             self.mesh,
             n_muscles=c["muscles"]["count"],
@@ -594,26 +629,15 @@ class Scene:
             n_clusters=c["subspace"]["clusters"],
             n_active_clusters=c["subspace"]["active_clusters"],
             seed=c["subspace"]["seed"],
-            mu=mat["mu"],
-            gamma=mat["gamma"],
-            lam=mat["lam"],
-            rho=mat["rho"],
-            h=self.h,
-            gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
-            ground=self.ground_height(),
-            n_contacts=contacts,
-            up=self.up,
-            stickiness=1.0 if ground is None else ground["stickiness"],
-            push_out=0.0 if ground is None else ground["push_out"],
+            lam=self.material()["lam"],
+            n_contacts=self.contact_count(),
             contact_candidates=self.contact_candidates(),
-            pinned=self.pinned_vertices(),
-            pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
-            damping_mass=damping["mass"],
-            damping_stiffness=damping["stiffness"],
             max_iter=c["time"]["iterations"],
             tol=c["time"]["tol"],
             rtol=c["time"]["rtol"],
             progress=progress,
+            backend=backend,
+            **self.effect_settings(),
         )
 
     def build_reference(self, rtol: float = 1e-10, max_iter: int = 5000):
@@ -627,47 +651,26 @@ class Scene:
         ref : skfem_modal.reference.FullSpaceSimulator
         """
         from .mesh import sample_boundary
+        from .modal import muscle_modes
         from .reference import FullSpaceSimulator
-        from .sim import muscle_modes
 
         c = self.config
         mat = self.material()
-        pinned = self.pinned_vertices()
+        settings = self.effect_settings()
         D = muscle_modes(
             self.mesh,
             c["muscles"]["count"],
             mu=mat["mu"],
             lam=mat["lam"],
             rho=mat["rho"],
-            pinned=pinned,
+            pinned=settings["pinned"],
             signs=c["muscles"]["signs"] if c["muscles"]["count"] else None,
         )
-        ground = c["ground"]
         contacts = None
-        if ground is not None:
-            count = None if ground["contacts"] == "all" else ground["contacts"]
-            contacts = sample_boundary(self.mesh, count, self.contact_candidates())
-        damping = c["damping"] or {"mass": 0.0, "stiffness": 0.0}
+        if c["ground"] is not None:
+            contacts = sample_boundary(self.mesh, self.contact_count(), self.contact_candidates())
         return FullSpaceSimulator(
-            self.mesh,
-            D,
-            mu=mat["mu"],
-            gamma=mat["gamma"],
-            rho=mat["rho"],
-            h=self.h,
-            gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
-            contact_vertices=contacts,
-            ground=self.ground_height(),
-            up=self.up,
-            stickiness=1.0 if ground is None else ground["stickiness"],
-            push_out=0.0 if ground is None else ground["push_out"],
-            pinned=pinned,
-            pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
-            damping_mass=damping["mass"],
-            damping_stiffness=damping["stiffness"],
-            max_iter=max_iter,
-            tol=0.0,
-            rtol=rtol,
+            self.mesh, D, contact_vertices=contacts, max_iter=max_iter, tol=0.0, rtol=rtol, **settings
         )
 
     def activation(self, t: float, ceilings) -> np.ndarray:

@@ -40,6 +40,8 @@ from concurrent.futures import Executor, ProcessPoolExecutor
 
 import numpy as np
 
+from .sim import simulate
+
 __all__ = [
     "PRESETS",
     "FLOATING_CATERPILLAR",
@@ -200,15 +202,12 @@ def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
 
     scene = Scene.from_dict(_steps_scene(data, steps), base_dir=base_dir)
     ref = scene.build_reference()
-    x, x_dot, _ = ref.rest_state()
+    x = ref.rest_state()[0]
     xs, its = [x], []
     clock = time.perf_counter()
-    for i in range(steps):
-        a = scene.activation(i * ref.h, _ceilings(ref))
-        x_next = ref.step(x, x_dot, a)
-        x_dot, x = (x_next - x) / ref.h, x_next
-        xs.append(x)
-        its.append(ref.iterations)
+    for record in simulate(ref, steps, _gait(scene, ref)):
+        xs.append(record.z)
+        its.append(record.iterations)
     return {
         "x": np.array(xs),
         "seconds_per_step": (time.perf_counter() - clock) / steps,
@@ -217,14 +216,10 @@ def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
     }
 
 
-def _ceilings(ref) -> np.ndarray:
-    from .modal import actuation_limits
-
-    if not ref.n_muscles:
-        return np.zeros(0)
-    if not hasattr(ref, "_ceilings"):
-        ref._ceilings = actuation_limits(ref.mesh, ref.D)
-    return ref._ceilings
+def _gait(scene, sim):
+    """The scene's activation as a function of time, for :func:`~skfem_modal.sim.simulate`."""
+    ceilings = sim.ceilings
+    return lambda t: scene.activation(t, ceilings)
 
 
 def run_reduced(task: dict) -> dict:
@@ -241,14 +236,10 @@ def run_reduced(task: dict) -> dict:
     z, z_dot, _ = sim.rest_state()
     sim.step(z, z_dot, np.zeros(sim.n_muscles))  # warm up (compiled kernels)
     zs, times, its = [z], [], []
-    for i in range(task["steps"]):
-        a = scene.activation(i * sim.h, sim.ceilings)
-        start = time.perf_counter()
-        z_next = sim.step(z, z_dot, a)
-        times.append(time.perf_counter() - start)
-        its.append(sim.iterations)
-        z_dot, z = (z_next - z) / sim.h, z_next
-        zs.append(z)
+    for record in simulate(sim, task["steps"], _gait(scene, sim)):
+        times.append(record.seconds)
+        its.append(record.iterations)
+        zs.append(record.z)
     row = {
         "sweep": task["sweep"],
         "label": task["label"],
@@ -263,11 +254,11 @@ def run_reduced(task: dict) -> dict:
         "iterations_mean": float(np.mean(its)),
         "precompute_s": precompute,
         "step_ms": float(np.median(times) * 1e3),
-        "accelerator": sim.accelerator,
+        "backend": sim.backend_used,
     }
     if task.get("reference") is not None:
         x = np.array(zs) @ sim.B.T
-        mass = sim._M.diagonal()
+        mass = sim.mass
         size = float(np.ptp(sim.mesh.p, axis=1).max())
         row.update(trajectory_errors(x, task["reference"], mass, sim.mesh.p.T.ravel(), size, sim.dim, B=sim.B))
     return row
@@ -295,19 +286,13 @@ def time_steps(tasks: list[dict], *, rounds: int = 3, steps: int = 60) -> list[f
     for task in tasks:
         scene = _reduced_scene(task)
         sim = scene.build()
-        acts = [scene.activation(i * sim.h, sim.ceilings) for i in range(steps)]
-        built.append((sim, acts))
+        built.append((sim, _gait(scene, sim)))
     best = [np.inf] * len(tasks)
     for _ in range(rounds):
-        for k, (sim, acts) in enumerate(built):
+        for k, (sim, gait) in enumerate(built):
             z, z_dot, _ = sim.rest_state()
-            sim.step(z, z_dot, acts[0])  # warm up
-            times = []
-            for a in acts:
-                start = time.perf_counter()
-                z_next = sim.step(z, z_dot, a)
-                times.append(time.perf_counter() - start)
-                z_dot, z = (z_next - z) / sim.h, z_next
+            sim.step(z, z_dot, gait(0.0))  # warm up
+            times = [record.seconds for record in simulate(sim, steps, gait)]
             best[k] = min(best[k], float(np.median(times) * 1e3))
     return best
 
@@ -592,7 +577,7 @@ def run_study(
 _COLUMNS = [
     "sweep", "label", "resolution", "vertices", "weights", "cluster_weights", "subspace", "clusters",
     "max_iterations", "rtol", "iterations_mean", "precompute_s", "step_ms", "trajectory_error",
-    "subspace_error", "solver_error", "com_error", "worst_vertex_error", "accelerator",
+    "subspace_error", "solver_error", "com_error", "worst_vertex_error", "backend",
 ]  # fmt: skip
 
 

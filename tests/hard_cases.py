@@ -14,7 +14,6 @@ import numpy as np
 import skfem_modal as sm
 from skfem_modal.muscles import sine_gait
 from skfem_modal.sim import ModalMuscle
-from skfem_modal.subspace import project
 
 GAIT = dict(periods=[1.0, 0.7, 0.9], phases=[0.0, 0.25, 0.6])
 
@@ -83,7 +82,7 @@ def run(sim, steps, *, amplitude=0.0, z0=None, z_dot0=None):
 def velocity(sim, v) -> np.ndarray:
     """Reduced velocity of a uniform velocity vector ``v`` (all vertices)."""
     n = sim.mesh.p.shape[1]
-    return project(np.tile(np.asarray(v, float), n), sim.B, sim._M)
+    return sim.coordinates(np.tile(np.asarray(v, float), n))
 
 
 def outcome(result, *, floating=False, no_input=False, ground=None, size=1.0) -> dict:
@@ -126,7 +125,7 @@ def _inverted_start():
     x = mesh.p.T.copy()
     left = x[:, 0] < -0.5
     x[left, 0] = -1.0 - x[left, 0]  # fold the left end over itself: its elements are inverted
-    z0 = project(x, sim.B, sim._M)
+    z0 = sim.coordinates(x)
     J = sm.deformation_jacobian(mesh)
     det = lambda z: np.linalg.det((J @ (sim.B @ z)).reshape(-1, 2, 2))  # noqa: E731
     result = run(sim, 400, z0=z0)

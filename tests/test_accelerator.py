@@ -72,13 +72,13 @@ def test_compiled_steps_equal_numpy_steps(dim, scene):
             gravity=gravity,
             ground=ground,
             n_contacts=12,
-            accelerator=acc,
+            backend=acc,
             rtol=rtol,
             push_out=1.0 if "push out" in scene else 0.0,
         )
         for acc in ("numpy", "numba")
     ]
-    assert [s.accelerator for s in sims] == ["numpy", "numba"]
+    assert [s.backend_used for s in sims] == ["numpy", "numba"]
     states = [s.rest_state()[:2] for s in sims]
     for i in range(60):
         a = 0.5 * sims[0].ceilings * np.sin(2 * np.pi * (i * 0.01 / np.array([0.5, 0.7, 0.9]) + [0, 0.3, 0.6]))
@@ -93,10 +93,10 @@ def test_compiled_steps_equal_numpy_steps(dim, scene):
 
 def test_asking_for_numba_without_it(monkeypatch):
     monkeypatch.setattr(_accel, "AVAILABLE", False)
-    with pytest.raises(ValueError, match=r"accelerator='numba' needs numba"):
-        ModalMuscle.from_mesh(caterpillar(nx=12, ny=6), n_muscles=1, n_weights=2, n_clusters=3, accelerator="numba")
+    with pytest.raises(ValueError, match=r"backend='numba' needs numba"):
+        ModalMuscle.from_mesh(caterpillar(nx=12, ny=6), n_muscles=1, n_weights=2, n_clusters=3, backend="numba")
     sim = ModalMuscle.from_mesh(caterpillar(nx=12, ny=6), n_muscles=1, n_weights=2, n_clusters=3)
-    assert sim.accelerator == "numpy"
+    assert sim.backend_used == "numpy"
 
 
 def test_polar_rotations_unchanged_by_accelerator():

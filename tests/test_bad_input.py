@@ -95,10 +95,11 @@ def test_k_larger_than_possible():
         (dict(mu=np.ones(3)), r"mu must be a scalar or have shape \(16,\)"),
         (dict(max_iter=0), "max_iter must be a positive integer"),
         (dict(tol=-1.0), "tol must be non-negative"),
-        (dict(stickiness=2.0), r"stickiness and push_out must be in \[0, 1\]"),
+        (dict(stickiness=2.0), r"stickiness must be in \[0, 1\], got 2.0"),
+        (dict(push_out=-0.5), r"push_out must be non-negative"),
         (dict(gravity=[0.0, np.inf]), "gravity must be finite"),
         (dict(up=5), r"up must be an axis index in 0..1"),
-        (dict(accelerator="gpu"), "accelerator must be 'auto', 'numpy' or 'numba'"),
+        (dict(backend="gpu"), "backend must be one of 'auto', 'numpy', 'numba', 'plain', got 'gpu'"),
     ],
 )
 def test_simulator_parameters(kwargs, message):

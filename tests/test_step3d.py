@@ -1,35 +1,16 @@
-"""The 3D numpy step: rotations read off matrix powers, certified once a step.
+"""The 3D numpy backend: rotations read off matrix powers in Kronecker form, certified once a step.
 
-Its trajectory must be the one of the path that certifies each rotation as it
-is made (:meth:`ModalMuscle._iterate3_checked`), on easy and hard motions, and
-a step whose rotations fail the check must be redone that way. Both fast
-forms are covered: the Kronecker form (skinning bases) and the general one.
+Its trajectory must be the one of the plain backend, which makes each
+rotation exactly as it goes, on easy and hard motions, and a step whose
+rotations fail the certificate must be redone by the plain backend.
 """
 
 import numpy as np
 import pytest
 
 from skfem_modal import creature
-from skfem_modal.rotations import HORN, HORN_SHIFTED, SHIFT, certify_dominant, rotations3_flat
+from skfem_modal.rotations import HORN
 from skfem_modal.sim import ModalMuscle
-
-
-def shifted(F9):
-    """P0 = N(F) + |N(F)| SHIFT I, row-major, for F of shape (m, 9)."""
-    N = F9 @ HORN
-    s = SHIFT * np.sqrt(np.einsum("ij,ij->i", N, N))
-    return np.hstack([F9, s[:, None]]) @ HORN_SHIFTED
-
-
-def powered_rotations(P0, k):
-    P = P0.reshape(-1, 4, 4)
-    for _ in range(k):
-        P = P / np.abs(P).max(axis=(1, 2), keepdims=True)
-        P = P @ P
-    from skfem_modal.rotations import QQ_TO_R_TRACE
-
-    RT = P.reshape(-1, 16) @ QQ_TO_R_TRACE
-    return RT[:, :9] / RT[:, 9:]
 
 
 def near_rotations(m, strain, seed=0):
@@ -40,73 +21,19 @@ def near_rotations(m, strain, seed=0):
     return (Q @ (np.eye(3) + strain * rng.standard_normal((m, 3, 3)))).reshape(-1, 9)
 
 
-def test_certified_rotations_are_the_closest_rotations():
-    F = near_rotations(400, 0.2)
-    P0 = shifted(F)
-    R = powered_rotations(P0, 6)
-    ok, ratio = certify_dominant(P0, R, 6)
-    assert ok and 0.0 < ratio < 1.0
-    np.testing.assert_allclose(R, rotations3_flat(F), atol=1e-11)
-
-
-def test_too_few_squarings_fail():
-    F = near_rotations(400, 0.3, seed=1)
-    P0 = shifted(F)
-    R = powered_rotations(P0, 2)  # P^4: far from converged for these strains
-    assert np.abs(R - rotations3_flat(F)).max() > 1e-8
-    ok, ratio = certify_dominant(P0, R, 2)
-    assert not ok and ratio == np.inf
-
-
-def test_a_wrong_rotation_fails():
-    F = near_rotations(50, 0.1, seed=2)
-    P0 = shifted(F)
-    R = rotations3_flat(F)
-    assert certify_dominant(P0, R, 8)[0]
-    # the rotation by pi about an axis: another stationary point, a negative eigenvalue
-    R_bad = R.copy()
-    R_bad[7] = (R[7].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])).ravel()
-    assert not certify_dominant(P0, R_bad, 8)[0]
-    R_nan = R.copy()
-    R_nan[3, 0] = np.nan
-    assert not certify_dominant(P0, R_nan, 8)[0]
-
-
-def test_a_too_small_shift_fails_on_an_inverted_matrix():
-    # det F < 0 with a tiny shift: the most negative eigenvalue dominates in
-    # magnitude, and P's powers converge to the wrong eigenvector
-    F = np.diag([1.0, 0.9, -0.8]).reshape(1, 9)
-    N = F @ HORN
-    P0 = np.hstack([F, [[0.01]]]) @ HORN_SHIFTED
-    R = powered_rotations(P0, 8)
-    assert np.abs(R - rotations3_flat(F)).max() > 0.5
-    assert not certify_dominant(P0, R, 8)[0]
-    assert np.linalg.eigvalsh(N.reshape(4, 4))[0] < 0
-
-
-def simulators(scale=1.0):
+def simulators(scale=1.0, backends=("numpy", "plain")):
     mesh = creature(cell=0.2)
     return [
         ModalMuscle.from_mesh(
-            mesh, n_muscles=3, n_weights=5, n_clusters=10, mu=1e5 * scale, rho=1e3 * scale, h=0.01, accelerator="numpy"
+            mesh, n_muscles=3, n_weights=5, n_clusters=10, mu=1e5 * scale, rho=1e3 * scale, h=0.01, backend=backend
         )
-        for _ in range(2)
+        for backend in backends
     ]
 
 
-def run_pair(sims, steps, amplitude, monkeypatch, z_dot0=None):
-    """Step both simulators; the second certifies each rotation as it is made."""
-    checked = sims[1]
-    checked._kron = None
-    monkeypatch.setattr(checked, "_iterate3_squarings", lambda c, z, contact: None)
-    redone = []
-    original = sims[0]._iterate3_checked
-
-    def spy(*args):
-        redone.append(1)
-        return original(*args)
-
-    monkeypatch.setattr(sims[0], "_iterate3_checked", spy)
+def run_pair(sims, steps, amplitude, z_dot0=None):
+    """Step both simulators (the second makes each rotation exactly); also the steps the first redid."""
+    assert sims[0].backends[0].name == "numpy (Kronecker form)" and sims[1].backend_used == "plain"
     states = []
     for sim in sims:
         z, z_dot, _ = sim.rest_state()
@@ -120,60 +47,49 @@ def run_pair(sims, steps, amplitude, monkeypatch, z_dot0=None):
             z_next = sim.step(z, z_dot, a)
             states[k] = (z_next, (z_next - z) / sim.h)
         assert sims[0].iterations == sims[1].iterations
-    return states[0][0], states[1][0], len(redone)
+    return states[0][0], states[1][0], sims[0].solver.redone
 
 
-def squarings(sim):
-    return sim._kron.squarings if sim._kron is not None else sim._squarings
-
-
-@pytest.mark.parametrize("kronecker", [True, False])
-def test_same_trajectory_as_rotations_checked_one_by_one(kronecker, monkeypatch):
+def test_same_trajectory_as_rotations_made_exactly():
     sims = simulators()
-    assert sims[0]._kron is not None  # a skinning basis: the Kronecker form
-    if not kronecker:
-        sims[0]._kron = None
-    fast, checked, redone = run_pair(sims, 80, 0.6, monkeypatch)
+    fast, checked, redone = run_pair(sims, 80, 0.6)
     assert np.all(np.isfinite(fast))
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
     assert redone <= 2  # at most the start: the squarings adapt to the motion
-    assert 2 <= squarings(sims[0]) <= 8
+    assert 2 <= sims[0].backends[0].squarings <= 8
 
 
-@pytest.mark.parametrize("kronecker", [True, False])
-def test_hard_motion_redoes_uncertified_steps(kronecker, monkeypatch):
+def test_hard_motion_redoes_uncertified_steps():
     # activations three times the ceilings and a violent spin: clusters
     # invert and strain hard, so some steps must be redone rotation by rotation
     sims = simulators()
-    if not kronecker:
-        sims[0]._kron = None
     r = sims[0].B.shape[1]
     rng = np.random.default_rng(3)
     z_dot0 = 50.0 * rng.standard_normal(r)
-    fast, checked, redone = run_pair(sims, 60, 3.0, monkeypatch, z_dot0=z_dot0)
+    fast, checked, redone = run_pair(sims, 60, 3.0, z_dot0=z_dot0)
     assert np.all(np.isfinite(fast))
     assert redone >= 1
     assert np.abs(fast - checked).max() <= 1e-9 * np.abs(checked).max()
 
 
 @pytest.mark.parametrize("scale", [1e-8, 1e8])
-def test_material_scale_neither_overflows_nor_underflows_the_powers(scale, monkeypatch):
+def test_material_scale_neither_overflows_nor_underflows_the_powers(scale):
     sims = simulators(scale=scale)
-    fast, checked, redone = run_pair(sims, 40, 0.6, monkeypatch)
+    fast, checked, redone = run_pair(sims, 40, 0.6)
     assert np.all(np.isfinite(fast))
     assert redone <= 2
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
 
 
-@pytest.mark.parametrize("accelerator", ["numpy", "numba"])
-def test_blow_up_is_reported_in_3d(accelerator):
+@pytest.mark.parametrize("backend", ["numpy", "numba", "plain"])
+def test_blow_up_is_reported_in_3d(backend):
     from skfem_modal import _accel
     from skfem_modal.sim import SimulationError
 
-    if accelerator == "numba" and not _accel.AVAILABLE:
+    if backend == "numba" and not _accel.AVAILABLE:
         pytest.skip("numba is not installed (the optional 'fast' extra)")
     sim = ModalMuscle.from_mesh(
-        creature(cell=0.25), n_muscles=2, n_weights=4, n_clusters=6, mu=1e5, rho=1e3, h=0.01, accelerator=accelerator
+        creature(cell=0.25), n_muscles=2, n_weights=4, n_clusters=6, mu=1e5, rho=1e3, h=0.01, backend=backend
     )
     z, z_dot, _ = sim.rest_state()
     with pytest.raises(SimulationError, match="non-finite"):
@@ -225,7 +141,7 @@ def test_squarings_certificate_needs_the_shift_or_the_sign():
     # det F < 0 with a tiny shift: the most negative eigenvalue dominates, the
     # powers are rank one along the wrong eigenvector, and the shift proves nothing
     F = np.diag([1.0, 0.9, -0.8]).reshape(1, 9)
-    P0 = (np.hstack([F, [[0.01]]]) @ HORN_SHIFTED).reshape(1, 4, 4)
+    P0 = (F @ HORN).reshape(1, 4, 4) + 0.01 * np.eye(4)
     P0 = P0 / np.abs(P0).max()
     ok, top, rho = certify_squarings(traces_of(powers_of(P0, 8)), 0.01 / np.abs(P0).max())
     assert ok and not top
@@ -257,25 +173,21 @@ def test_certificate_with_the_shift_bound_folded_into_level_zero():
 
 
 def test_kronecker_form_only_for_bases_that_move_coordinates_alike():
-    from skfem_modal._kron3 import separable_columns, separable_rows, separable_square
-
     sim = simulators()[0]
-    assert sim._kron is not None
-    assert separable_rows(sim._G) is not None and separable_columns(sim._W) is not None
-    assert separable_square(sim._K_inertia) is not None
+    assert sim.backends[0].name == "numpy (Kronecker form)"
     # mixing the coordinates of z by a generic rotation keeps the subspace
-    # but not the factored form: the general step takes over, same answer
+    # but not the factored form: the plain backend takes over, same answer
     r = sim.B.shape[1]
     Q, _ = np.linalg.qr(np.random.default_rng(5).standard_normal((r, r)))
 
     def on_basis(B):
         return ModalMuscle(
-            sim.mesh, B, sim.D, sim.labels, mu=1e5, gamma=1e5, rho=1e3, h=0.01, accelerator="numpy",
+            sim.mesh, B, sim.D, sim.labels, mu=1e5, gamma=1e5, rho=1e3, h=0.01, backend="numpy",
             active_labels=sim.active_labels,
         )  # fmt: skip
 
     mixed, plain = on_basis(sim.B @ Q), on_basis(sim.B)
-    assert mixed._kron is None and plain._kron is not None
+    assert mixed.backends[0].name == "plain" and plain.backends[0].name == "numpy (Kronecker form)"
     z, z_dot, _ = plain.rest_state()
     w, w_dot = Q.T @ z, Q.T @ z_dot
     for i in range(30):
@@ -287,7 +199,7 @@ def test_kronecker_form_only_for_bases_that_move_coordinates_alike():
 
 
 @pytest.mark.parametrize("rtol", [0.0, 1e-3])
-def test_kronecker_step_with_damping_pins_gravity_and_relative_stopping(rtol, monkeypatch):
+def test_kronecker_step_with_damping_pins_gravity_and_relative_stopping(rtol):
     mesh = creature(cell=0.2)
     top = np.flatnonzero(mesh.p[2] >= mesh.p[2].max() - 1e-9)
     sims = [
@@ -304,12 +216,12 @@ def test_kronecker_step_with_damping_pins_gravity_and_relative_stopping(rtol, mo
             damping_mass=0.5,
             damping_stiffness=1e-3,
             rtol=rtol,
-            accelerator="numpy",
+            backend=backend,
         )
-        for _ in range(2)
+        for backend in ("numpy", "plain")
     ]
-    assert sims[0]._kron is not None and {"gravity", "pinned", "damping"} <= set(sims[0].effects)
-    fast, checked, redone = run_pair(sims, 40, 0.6, monkeypatch)
+    assert {"gravity", "pinned", "damping"} <= set(sims[0].effects)
+    fast, checked, redone = run_pair(sims, 40, 0.6)
     assert redone <= 2
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
 
@@ -319,7 +231,7 @@ def test_kronecker_step_checks_the_sign_itself_when_the_shift_proves_nothing(mon
     # step computes tr(P P^(2^s)) itself: same trajectory, no redone step
     from skfem_modal import _kron3
 
-    sims = simulators()
+    sims = simulators(backends=("numpy", "numpy"))
     unproven = []
     certify = _kron3.certify_levels
 

@@ -1,0 +1,319 @@
+"""Effects: each one contributes its own terms to a time step.
+
+A step of length ``h`` minimises, over the next unknowns ``u``, a sum of terms
+
+    E(u) = sum over effects of  1/2 u^T H_e u - u^T (Pz_e u0 + Pv_e v0 + f_e) + c_e
+           - sum over rotation clusters of  R_c : S_c(u)
+
+(``u0``, ``v0`` the start-of-step state, ``S_c`` linear in ``u``, ``R_c``
+the closest rotation to ``S_c``). Each effect object holds its operators,
+already taken into the space of the unknowns (:mod:`skfem_modal.space`), and
+answers for its share:
+
+* :meth:`Effect.matrix` its part of the constant system matrix ``H``,
+* :meth:`Effect.rhs` its part of the right-hand side, ``Pz u0 + Pv v0 + f``,
+* :meth:`Effect.energy` its energy and gradient, for checks and studies,
+* ``rows``: the rotation effects (elasticity, muscles) their cluster rows ``S(u)``.
+
+Ground contact (:class:`skfem_modal.contact.GroundContact`) is an effect too:
+it adds no energy term but projects each global solution.
+
+The reduced simulator and the full-space reference build the same effects,
+in the same order (:data:`ORDER`), on their own space.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .modal import ceilings_of_gradients
+from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
+from .rotations import rotations2_flat, rotations3_flat
+
+__all__ = ["Effect", "Elasticity", "Inertia", "Muscles", "Gravity", "Pins", "Damping", "ORDER"]
+
+#: The order of effects in every simulator (and of their names in ``sim.effects``).
+ORDER = ("elasticity", "inertia", "muscles", "gravity", "pinned", "damping", "contact")
+
+_ROTATIONS = {2: rotations2_flat, 3: rotations3_flat}
+
+
+class Effect:
+    """An effect's share of a time step (the base class: no terms at all)."""
+
+    name = "effect"
+
+    def matrix(self, h):
+        """Its part of the system matrix, shape (r, r), or None."""
+        return None
+
+    def rhs(self, h):
+        """``(Pz, Pv, f)``: its right-hand side ``Pz u0 + Pv v0 + f``; None for absent parts."""
+        return None, None, None
+
+    def energy(self, h, u, u0, v0, a):
+        """Its energy at ``u`` for a step from ``(u0, v0)`` under activation ``a``, and the gradient."""
+        return 0.0, 0.0
+
+
+def _rotation_energy(rows, hessian, u, dim):
+    """``1/2 u^T H u - R : S`` and its gradient, ``S = rows @ u`` and ``R`` the closest rotations."""
+    S = rows @ u
+    R = _ROTATIONS[dim](S.reshape(-1, dim * dim)).ravel()
+    Hu = hessian @ u
+    return 0.5 * float(u @ Hu) - float(R @ S), Hu - rows.T @ R
+
+
+class Elasticity(Effect):
+    """Passive as-rigid-as-possible elasticity, one rotation per cluster of elements.
+
+    ``sum_e mu_e vol_e / 2 |F_e(u) - R_c(e)|^2``.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    weights : ndarray, shape (nT,)
+        ``mu * vol`` per element.
+    labels : ndarray of int, shape (nT,)
+        Rotation cluster of each element.
+
+    Attributes
+    ----------
+    rows : ndarray or sparse matrix, shape (clusters * dim * dim, r)
+        ``rows @ u`` holds every cluster's ``sum_e w_e F_e`` (row-major).
+    hessian : ndarray or sparse matrix, shape (r, r)
+        ``J^T (w x I) J`` in the space.
+    """
+
+    name = "elasticity"
+
+    def __init__(self, space, weights, labels):
+        self.weights = weights
+        self.labels = labels
+        self.dim = space.dim
+        self.n_clusters = int(labels.max()) + 1
+        self.rows = space.through(cluster_sum_operator(labels, weights, space.dim) @ space.J)
+        self.hessian = space.elastic_hessian(weights)
+        self._rest_energy = 0.5 * space.dim * float(weights.sum())
+
+    def matrix(self, h):
+        return self.hessian
+
+    def energy(self, h, u, u0, v0, a):
+        E, grad = _rotation_energy(self.rows, self.hessian, u, self.dim)
+        return E + self._rest_energy, grad
+
+
+class Inertia(Effect):
+    """Implicit-Euler inertia ``|u - u0 - h v0|^2_M / (2 h^2)`` with the lumped mass.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    mass : ndarray, shape (N,)
+        Lumped mass per interleaved DOF.
+
+    Attributes
+    ----------
+    mass_matrix : ndarray or sparse matrix, shape (r, r)
+        ``B^T M B``.
+    """
+
+    name = "inertia"
+
+    def __init__(self, space, mass):
+        self.mass = mass
+        self.mass_matrix = space.gram(mass)
+
+    def matrix(self, h):
+        return self.mass_matrix / h**2
+
+    def rhs(self, h):
+        return self.mass_matrix / h**2, self.mass_matrix / h, None
+
+    def energy(self, h, u, u0, v0, a):
+        d = u - u0 - h * v0
+        Md = self.mass_matrix @ d
+        return float(d @ Md) / (2 * h**2), Md / h**2
+
+
+class Muscles(Effect):
+    """Modal muscles: the clustered plastic-stretch target of :mod:`skfem_modal.muscles`.
+
+    ``sum_e gamma_e vol_e / 2 |F_e(u) - R_a(e) Y_e(a)|^2`` with
+    ``Y_e(a) = I + sum_k a_k (J D_k)_e``.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    modes : ndarray, shape (N, m)
+        The muscle modes ``D`` (displacements).
+    weights : ndarray, shape (nT,)
+        ``gamma * vol`` per element.
+    labels : ndarray of int, shape (nT,)
+        Muscle rotation cluster of each element.
+    mass : ndarray, shape (N,)
+        Lumped mass, for the realised amplitudes.
+    max_s : float
+        The ceilings' largest gradient change (:func:`~skfem_modal.modal.actuation_limits`).
+
+    Attributes
+    ----------
+    blocks : list of m + 1 matrices of shape (clusters * dim * dim, r)
+        The cluster rows ``A_0 + sum_k a_k A_(k + 1)``.
+    ceilings : ndarray, shape (m,)
+    """
+
+    name = "muscles"
+
+    def __init__(self, space, modes, weights, labels, mass, max_s=2.0):
+        dim = self.dim = space.dim
+        self.modes, self.weights, self.labels = modes, weights, labels
+        self.count = modes.shape[1]
+        self.n_clusters = int(labels.max()) + 1
+        JD = space.J @ modes
+        self._JD = JD
+        self.max_s = max_s
+        stacked = space.through(muscle_target_operator(JD, labels, weights, dim) @ space.J)
+        size = self.n_clusters * dim * dim
+        self.blocks = [stacked[k * size : (k + 1) * size] for k in range(self.count + 1)]
+        self.hessian = space.elastic_hessian(weights)
+        self._constants = muscle_target_constants(JD, weights, dim)
+        # the realised amplitude of muscle k: the mass-weighted projection of x - X on D_k
+        MD = modes * mass[:, None]
+        scale = 1.0 / np.einsum("ik,ik->k", MD, modes)
+        self.amplitude_rows = np.asarray(space.force(MD)).T * scale[:, None]
+        self.amplitude_rest = (MD.T @ space.rest) * scale
+
+    @property
+    def max_s(self) -> float:
+        """The ceilings' largest gradient change; assigning recomputes :attr:`ceilings`."""
+        return self._max_s
+
+    @max_s.setter
+    def max_s(self, value) -> None:
+        value = float(value)
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"max_s must be positive and finite, got {value!r}")
+        self._max_s = value
+        self.ceilings = ceilings_of_gradients(self._JD, self.dim, value)
+
+    def rows_for(self, a):
+        """The cluster rows under activation ``a``, shape (clusters * dim * dim, r)."""
+        rows = self.blocks[0]
+        for k in range(self.count):
+            rows = rows + a[k] * self.blocks[k + 1]
+        return rows
+
+    def matrix(self, h):
+        return self.hessian
+
+    def energy(self, h, u, u0, v0, a):
+        E, grad = _rotation_energy(self.rows_for(a), self.hessian, u, self.dim)
+        c0, c1, Q = self._constants
+        return E + c0 + float(c1 @ a) + float(a @ Q @ a), grad
+
+    def amplitudes(self, u) -> np.ndarray:
+        """Realised modal amplitudes of a state, shape (m,)."""
+        return self.amplitude_rows @ u - self.amplitude_rest
+
+
+class Gravity(Effect):
+    """Uniform gravity: the potential ``-u^T f`` with ``f`` the lumped weight.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    mass : ndarray, shape (N,)
+    acceleration : ndarray, shape (dim,)
+    """
+
+    name = "gravity"
+
+    def __init__(self, space, mass, acceleration):
+        self.acceleration = acceleration
+        self.force = space.force(mass * np.tile(acceleration, space.n))
+
+    def rhs(self, h):
+        return None, None, self.force
+
+    def energy(self, h, u, u0, v0, a):
+        return -float(u @ self.force), -self.force
+
+
+class Pins(Effect):
+    """Vertices held at their rest positions by stiff springs ``k / 2 |x_i - X_i|^2``.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    vertices : ndarray of int
+    stiffness : float or None
+        ``k``; None: 1e3 times the larger of the passive stiffness and the
+        mass over ``h^2`` per DOF (``scale``), so it follows the time step.
+    scale : tuple of float
+        ``(passive, mass)``: the mean diagonal of the passive Hessian and of
+        the mass matrix per DOF, for the default stiffness.
+    """
+
+    name = "pinned"
+
+    def __init__(self, space, vertices, stiffness=None, scale=(0.0, 0.0)):
+        self.vertices = vertices
+        self.given_stiffness = stiffness
+        self._scale = scale
+        rows = space.rows(space.dofs(vertices))
+        targets = space.rest[space.dofs(vertices)]
+        self._gram = rows.T @ rows
+        self._pull = rows.T @ targets
+        self._rest = 0.5 * float(targets @ targets)
+
+    def stiffness(self, h) -> float:
+        """The spring stiffness at time step ``h``."""
+        if self.given_stiffness is not None:
+            return self.given_stiffness
+        passive, mass = self._scale
+        return 1e3 * max(passive, mass / h**2)
+
+    def matrix(self, h):
+        return self.stiffness(h) * self._gram
+
+    def rhs(self, h):
+        return None, None, self.stiffness(h) * self._pull
+
+    def energy(self, h, u, u0, v0, a):
+        k = self.stiffness(h)
+        Gu = self._gram @ u
+        return k * (0.5 * float(u @ Gu) - float(u @ self._pull) + self._rest), k * (Gu - self._pull)
+
+
+class Damping(Effect):
+    """Rayleigh damping: the dissipation ``|u - u0|^2_D / (2 h)``, ``D = alpha M + beta K``.
+
+    Parameters
+    ----------
+    inertia : Inertia
+        Its mass matrix ``M``.
+    elasticity : Elasticity
+        Its Hessian ``K`` (the passive stiffness at rest).
+    mass, stiffness : float
+        ``alpha`` (1 / time: damps all motion, like drag) and ``beta`` (time:
+        damps deformation).
+    """
+
+    name = "damping"
+
+    def __init__(self, inertia, elasticity, mass=0.0, stiffness=0.0):
+        self.mass_coefficient, self.stiffness_coefficient = mass, stiffness
+        self.operator = mass * inertia.mass_matrix + stiffness * elasticity.hessian
+
+    def matrix(self, h):
+        return self.operator / h
+
+    def rhs(self, h):
+        return self.operator / h, None, None
+
+    def energy(self, h, u, u0, v0, a):
+        v = u - u0
+        Dv = self.operator @ v
+        return float(v @ Dv) / (2 * h), Dv / h

@@ -1,0 +1,125 @@
+"""The model: a space, its effects and the operators of one time step, precomputed.
+
+:class:`Model` sums the effects' terms (:mod:`skfem_modal.effects`) at a time
+step ``h`` into the system a step solves,
+
+    H u = Pz u0 + Pv v0 + f + G^T vec(R) + A(a)^T vec(R_a),
+
+factors ``H`` once, and keeps what the iterations use: the cluster rows ``G``
+(passive) and ``A(a) = A_0 + sum_k a_k A_k`` (muscles) and, in a subspace,
+the dense products ``W = H^-1 G^T``, ``W_A = H^-1 A^T`` and
+``C = H^-1 [Pz | Pv | f]``. Changing ``h`` or an effect reassembles these
+(cheap: sums of ``r x r`` matrices and one small factorisation); the
+expensive reductions stay in the effects. The stepping lives elsewhere
+(:mod:`skfem_modal.solver`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .effects import ORDER
+
+__all__ = ["Model"]
+
+
+class Model:
+    """Precomputed operators of a simulator at one time step.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    effects : sequence of Effect
+        In the order of :data:`skfem_modal.effects.ORDER`; elasticity and
+        inertia are required.
+    h : float
+        Time step.
+
+    Attributes
+    ----------
+    G : ndarray or sparse matrix, shape (clusters * dim * dim, r)
+        Passive cluster rows.
+    A : ndarray, shape (m + 1, active clusters * dim * dim, r), or None
+        Muscle cluster rows (a subspace only; without muscles None).
+    W, WA, C : ndarray
+        ``H^-1 G^T`` (r, clusters dd), ``H^-1 A_k^T`` (m + 1, r, active
+        clusters dd), ``H^-1 [Pz | Pv | f]`` (r, 2 r + 1); a subspace only.
+    system : DenseSystem or SparseSystem
+        The factored ``H``.
+    rest : ndarray, shape (r,)
+        The rest state.
+    """
+
+    def __init__(self, space, effects, h):
+        self.space = space
+        self._set(effects)
+        self.rest = space.coordinates(space.rest, self.inertia.mass)
+        self.h = float(h)
+        self.assemble()
+
+    def _set(self, effects) -> None:
+        names = [e.name for e in effects]
+        if names != sorted(names, key=ORDER.index) or names[:2] != ["elasticity", "inertia"]:
+            raise ValueError(f"effects must start with elasticity and inertia and follow {ORDER}, got {names}")
+        self.effects = tuple(effects)
+        self.named = {e.name: e for e in effects}
+        self.elasticity, self.inertia = self.named["elasticity"], self.named["inertia"]
+        self.muscles = self.named.get("muscles")
+        self.contact = self.named.get("contact")
+        self.G = self.elasticity.rows
+        self.A = np.stack(self.muscles.blocks) if self.muscles is not None and self.space.dense else None
+
+    @property
+    def n_muscles(self) -> int:
+        return 0 if self.muscles is None else self.muscles.count
+
+    def assemble(self) -> None:
+        """(Re)build the system of the current time step and effects."""
+        h, space = self.h, self.space
+        H = sum(m for m in (e.matrix(h) for e in self.effects) if m is not None)
+        parts = [e.rhs(h) for e in self.effects]
+        r = space.r
+        self.Pz = sum((p[0] for p in parts if p[0] is not None), 0 * H)
+        self.Pv = sum((p[1] for p in parts if p[1] is not None), 0 * H)
+        self.f = sum((p[2] for p in parts if p[2] is not None), np.zeros(r))
+        self.system = space.factor(H)
+        if space.dense:
+            self.C = self.system.solve(np.hstack([self.Pz, self.Pv, self.f[:, None]]))
+            self.W = self.system.solve(self.G.T)
+            if self.A is not None:
+                self.WA = np.stack([self.system.solve(Ak.T) for Ak in self.A])
+        if self.contact is not None:
+            self.contact.bind(self.system, h)
+
+    def replace(self, effect) -> None:
+        """Put an effect in (replacing the one of its name, or adding it) and reassemble."""
+        named = {**self.named, effect.name: effect}
+        self._set([named[n] for n in ORDER if n in named])
+        self.assemble()
+
+    def remove(self, name: str) -> None:
+        """Take an effect out and reassemble."""
+        self._set([e for e in self.effects if e.name != name])
+        self.assemble()
+
+    def constant(self, z, z_dot) -> np.ndarray:
+        """The start-of-step part of a global solution, ``H^-1 (Pz z + Pv z_dot + f)``, shape (r,)."""
+        if self.space.dense:
+            return self.C[:, : z.size] @ z + self.C[:, z.size : 2 * z.size] @ z_dot + self.C[:, -1]
+        return self.system.solve(self.Pz @ z + self.Pv @ z_dot + self.f)
+
+    def energy(self, u, u0, v0, a, gradient: bool = False):
+        """The energy a step minimises, at ``u``, rotations optimal (contact adds none).
+
+        Returns
+        -------
+        E : float
+        grad : ndarray, shape (r,)
+            Only with ``gradient=True``.
+        """
+        E, grad = 0.0, np.zeros(u.size)
+        for effect in self.effects:
+            e, g = effect.energy(self.h, u, u0, v0, a)
+            E += e
+            grad = grad + g
+        return (float(E), np.asarray(grad)) if gradient else float(E)

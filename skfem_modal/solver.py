@@ -1,0 +1,297 @@
+"""The local/global driver: one stopping rule over interchangeable backends.
+
+A step minimises the energy of :mod:`skfem_modal.model` by block-coordinate
+descent: the *local* step sets every cluster rotation to the closest
+rotation of its rows ``S(u)`` (a polar decomposition), the *global* step
+solves ``H u = rhs + G^T vec(R)`` with the constant, factored ``H``, and
+ground contact, when present, projects each global solution. One driver,
+:class:`LocalGlobal`, runs these iterations and applies the one stopping
+rule: stop at the first iteration ``k`` with
+
+    |u_k - u_(k-1)| < tol    or    |u_k - u_(k-1)| <= rtol |u_k - u_0|,
+
+after at most ``max_iter``; a non-finite iterate is an error.
+
+A *backend* does the arithmetic of the iterations and owns its buffers; the
+driver calls:
+
+``start(z, z_dot, a)``
+    set up a step (its constant part and the muscles' activation);
+``start_row()``
+    the start state as a row of the backend's choosing;
+``iterate(count, project)``
+    run ``count`` iterations (``project(z)`` corrects each global solution
+    in place, or is None); return the last iterate before them and the
+    ``count`` new ones as rows, shape (count + 1, q), whose differences have
+    the norms of the differences of the ``z``'s;
+``finish(k)``
+    the step stopped after ``k`` iterations (None: it went non-finite):
+    True accepts it; a backend whose rotations are not *exact* may check
+    them here and refuse, and the driver redoes the step with the next
+    backend;
+``result(k)``
+    ``z_k``, a new array of shape (r,).
+
+``max_batch`` says how many iterations one ``iterate`` call may run. The
+driver runs as many as the last step took without looking (they seldom
+change from step to step), then tests them in one batch: the same answer as
+testing each in turn.
+
+Backends (chosen by :func:`make_backends`): :class:`PlainBackend` here (any
+space and dimension, every rotation exact; the full-space reference and the
+fallback of the others), and in their own modules the fast ones: 2D numpy
+(:mod:`skfem_modal._step2`), 3D numpy in Kronecker form with a certificate
+(:mod:`skfem_modal._kron3`), and numba-compiled iterations
+(:mod:`skfem_modal._compiled`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+
+from . import _accel
+from ._fast import dot
+from .rotations import closest_rotations3, rotations2_flat
+
+__all__ = ["LocalGlobal", "PlainBackend", "ActivationRows", "SimulationError", "make_backends", "BACKENDS"]
+
+#: Backend names a simulator accepts.
+BACKENDS = ("auto", "numpy", "numba", "plain")
+
+
+class SimulationError(RuntimeError):
+    """The simulation went non-finite; ``step`` is the step number when known."""
+
+    def __init__(self, message: str, step: int | None = None):
+        super().__init__(message if step is None else f"step {step}: {message}")
+        self.message, self.step = message, step
+
+
+class ActivationRows:
+    """Writes operators that are affine in the activation, ``X(a) = X_0 + sum_k a_k X_k``.
+
+    Parameters
+    ----------
+    pairs : list of (ndarray of shape (m + 1, ...), ndarray view)
+        Each operator's stack ``[X_0, X_1, ..., X_m]`` and where ``X(a)``
+        goes. One product serves all of them.
+    """
+
+    def __init__(self, pairs):
+        m = pairs[0][0].shape[0] - 1
+        self.varying = np.hstack([np.asarray(stack[1:]).reshape(m, -1) for stack, _ in pairs])
+        self.product = np.empty(self.varying.shape[1])
+        self.parts = []
+        offset = 0
+        for stack, destination in pairs:
+            size = stack[0].size
+            part = self.product[offset : offset + size].reshape(destination.shape)
+            self.parts.append((part, np.array(stack[0]).reshape(destination.shape), destination))
+            offset += size
+
+    def write(self, a) -> None:
+        dot(a, self.varying, self.product)
+        for part, constant, destination in self.parts:
+            np.add(part, constant, out=destination)
+
+
+class PlainBackend:
+    """Iterations in plain numpy, one a call, every rotation exact; any space, 2D or 3D.
+
+    2D rotations in closed form, 3D ones from Horn's quaternion
+    (:func:`~skfem_modal.rotations.closest_rotations3`, warm-started within
+    a step and checked as eigenvectors). In a subspace the global step is
+    ``z = c + [W | W_A(a)] vec(R)``; in the full space a sparse back-solve.
+    """
+
+    name = "plain"
+    max_batch = 1
+    exact = True
+
+    def __init__(self, model):
+        self.model = model
+        space = model.space
+        self.dim, self.dense = space.dim, space.dense
+        self.dd = self.dim * self.dim
+        self.rows_buffer = self.cols_buffer = None
+        self.activation = None
+        if self.dense:
+            G, W = model.G, model.W
+            self.rows_buffer = np.vstack([G] + ([model.A[0]] if model.A is not None else []))
+            self.cols_buffer = np.hstack([W] + ([model.WA[0]] if model.A is not None else []))
+            if model.A is not None and model.n_muscles:
+                nG = G.shape[0]
+                self.activation = ActivationRows(
+                    [(model.A, self.rows_buffer[nG:]), (model.WA, self.cols_buffer[:, nG:])]
+                )
+        self.Y = np.empty((2, space.r))
+
+    def start(self, z, z_dot, a) -> None:
+        model = self.model
+        self.c = model.constant(z, z_dot)
+        if self.dense:
+            if self.activation is not None:
+                self.activation.write(a)
+            self.rows = self.rows_buffer
+        else:
+            blocks = [model.G] + ([model.muscles.rows_for(a)] if model.muscles is not None else [])
+            self.rows = sps.vstack(blocks, format="csr")
+        self.z0 = np.array(z, dtype=float)
+        self.Y[1] = self.z0
+        self.q = None
+        self.k = 0
+
+    def start_row(self):
+        return self.z0
+
+    def _rotations(self, S):
+        if self.dim == 2:
+            return rotations2_flat(S.reshape(-1, 4))
+        R, self.q = closest_rotations3(S.reshape(-1, 9), self.q)
+        return R
+
+    def iterate(self, count, project):
+        self.Y[0] = self.Y[1]
+        z = self.Y[0]
+        R = self._rotations(self.rows @ z).ravel()
+        if self.dense:
+            z_next = self.c + self.cols_buffer @ R
+        else:
+            z_next = self.c + self.model.system.solve(self.rows.T @ R)
+        if project is not None:
+            project(z_next)
+        self.Y[1] = z_next
+        self.k += 1
+        return self.Y
+
+    def finish(self, k) -> bool:
+        return True
+
+    def result(self, k):
+        return self.Y[1].copy()
+
+
+class LocalGlobal:
+    """The local/global driver and its stopping rule.
+
+    Parameters
+    ----------
+    max_iter : int
+        Iterations a step, at most.
+    tol, rtol : float
+        The stopping rule (module docstring); 0 switches a test off.
+    batch : bool
+        Run the iterations the last step took before testing them (the same
+        answer; False tests each as it is made).
+
+    Attributes
+    ----------
+    predicted : int
+        Iterations of the last step.
+    redone : int
+        Steps a backend refused (its rotations failed their check), redone by the next.
+    """
+
+    def __init__(self, max_iter=10, tol=1e-6, rtol=0.0, batch=True):
+        self.max_iter, self.tol, self.rtol, self.batch = max_iter, tol, rtol, batch
+        self.predicted = max_iter
+        self.redone = 0
+        self._work = {}
+
+    def step(self, backends, z, z_dot, a, contact=None):
+        """One step from ``(z, z_dot)``: ``(z_next, iterations)``.
+
+        Each backend in turn until one accepts the step (the last must be exact).
+
+        Raises
+        ------
+        SimulationError
+            If the state becomes non-finite.
+        """
+        for backend in backends:
+            if contact is not None:
+                contact.start_step(z, z_dot)
+            backend.start(z, z_dot, a)
+            found = self._run(backend, None if contact is None else contact.project)
+            if found is not None:
+                return found
+            self.redone += 1
+        raise AssertionError("the last backend must accept every step")
+
+    def _run(self, backend, project):
+        start = backend.start_row()
+        done = 0
+        limit = self.max_iter
+        while True:
+            ahead = self.predicted - done if self.batch else 1
+            count = min(limit - done, backend.max_batch, max(1, ahead))
+            rows = backend.iterate(count, project)
+            hit = self._first_stop(rows, start)
+            if hit < 0:
+                if backend.exact:
+                    raise SimulationError("the state became non-finite")
+                backend.finish(None)
+                return None
+            if hit or done + count == limit:
+                k = done + (hit or count)
+                break
+            done += count
+        if not backend.finish(k):
+            return None
+        self.predicted = k
+        return backend.result(k), k
+
+    def _first_stop(self, rows, start) -> int:
+        """The first row (1-based) that stops, negative if it is non-finite, 0 if none."""
+        count, q = rows.shape[0] - 1, rows.shape[1]
+        work = self._work.get(q)
+        if work is None or work[0].shape[0] < count:
+            work = self._work[q] = (np.empty((max(count, self.max_iter), q)), np.ones(q), np.empty(self.max_iter))
+        steps, ones, out = work[0][:count], work[1], work[2][:count]
+        np.subtract(rows[1:], rows[:-1], steps)
+        np.multiply(steps, steps, steps)
+        change2 = dot(steps, ones, out)
+        stop = ~(change2 < np.inf)  # not finite: stops the step too, as an error
+        stop |= change2 < self.tol**2
+        if self.rtol:
+            motion = np.subtract(rows[1:], start, steps)
+            np.multiply(motion, motion, motion)
+            stop |= change2 <= self.rtol**2 * dot(motion, ones)
+        if not np.count_nonzero(stop):
+            return 0
+        j = int(stop.argmax())
+        return j + 1 if change2[j] < np.inf else -(j + 1)
+
+
+def make_backends(model, name: str, max_iter: int) -> list:
+    """The backends a simulator steps with: the fast one first, an exact fallback last.
+
+    Parameters
+    ----------
+    model : Model
+    name : {"auto", "numpy", "numba", "plain"}
+        ``auto``: numba when installed, numpy otherwise. ``numpy``: 2D
+        buffers (:mod:`._step2`); 3D in Kronecker form when the subspace moves
+        x, y and z alike (skinning bases do; :mod:`._kron3`), plain otherwise.
+        ``numba``: compiled iterations (the ``fast`` extra). ``plain``: one
+        iteration at a time, every rotation exact (the reference for the others).
+    max_iter : int
+    """
+    if name == "auto":
+        name = "numba" if _accel.AVAILABLE else "numpy"
+    plain = PlainBackend(model)
+    if name == "plain" or not model.space.dense:
+        return [plain]
+    if name == "numba":
+        from ._compiled import compiled_backend
+
+        return [compiled_backend(model, max_iter)]
+    if model.space.dim == 2:
+        from ._step2 import Step2Backend
+
+        return [Step2Backend(model, max_iter)]
+    from ._kron3 import KroneckerBackend
+
+    kron = KroneckerBackend.build(model, max_iter)
+    return [plain] if kron is None else [kron, plain]

@@ -1,0 +1,220 @@
+"""Where a simulator's unknowns live: a subspace ``x = B z``, or every DOF of the mesh.
+
+The effects (:mod:`skfem_modal.effects`) describe their terms on the mesh:
+a lumped mass, a weighted Laplacian-type Hessian ``J^T (w x I) J``, sparse
+maps from positions to cluster sums of deformation gradients, forces, rows of
+vertices. A space turns each of these into the operator that acts on its
+unknowns: dense ``B^T (.) B`` products in a :class:`Subspace` (made a few
+rows or columns at a time, so no dense copy of a mesh-sized matrix is ever
+held), the sparse operators themselves in the :class:`FullSpace`. The same
+effect code thus builds the reduced simulator and the full-space reference.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+
+from .fem import _jacobian, scalar_basis, vector_dofs
+from .mesh import _signed_measures
+
+__all__ = ["Subspace", "FullSpace"]
+
+
+class _MeshData:
+    """What both spaces read off the mesh: sizes, volumes, J, P1 gradients."""
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+        self.dim, self.n = mesh.p.shape
+        self.n_elements = mesh.t.shape[1]
+        self.N = self.n * self.dim
+
+    @cached_property
+    def volumes(self) -> np.ndarray:
+        """Element volumes, shape (nT,)."""
+        return np.abs(_signed_measures(self.mesh.p, self.mesh.t))
+
+    @cached_property
+    def J(self) -> sps.csr_matrix:
+        """The deformation Jacobian, shape (nT * dim * dim, N)."""
+        return _jacobian(self.mesh, "P1")
+
+    @cached_property
+    def rest(self) -> np.ndarray:
+        """Rest positions, interleaved, shape (N,)."""
+        return self.mesh.p.T.ravel()
+
+    def dofs(self, vertices) -> np.ndarray:
+        """Interleaved DOF indices of vertices."""
+        return vector_dofs(vertices, self.dim)
+
+    def full_positions(self, x) -> np.ndarray:
+        return np.asarray(x, float).reshape(-1, self.dim)
+
+
+class Subspace(_MeshData):
+    """A reduced space: positions ``x = B z``.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    B : ndarray, shape (n * dim, r)
+        Interleaved rows (vertex-major).
+    """
+
+    dense = True
+
+    def __init__(self, mesh, B):
+        super().__init__(mesh)
+        self.B = B
+        self.r = B.shape[1]
+
+    @cached_property
+    def _gradients(self) -> np.ndarray:
+        """P1 basis gradients per element, shape (dim + 1, dim, nT)."""
+        basis = scalar_basis(self.mesh, "P1")
+        return np.stack([phi[0].grad[..., 0] for phi in basis.basis])
+
+    def gram(self, diagonal) -> np.ndarray:
+        """``B^T diag(d) B``, shape (r, r), a few rows of ``B`` at a time (no copy of ``B``)."""
+        B = self.B
+        out = np.zeros((self.r, self.r))
+        rows = max(1, int(2e6 // max(self.r, 1)))
+        for start in range(0, B.shape[0], rows):
+            Bc = B[start : start + rows]
+            out += (Bc * diagonal[start : start + rows, None]).T @ Bc
+        return (out + out.T) / 2
+
+    def elastic_hessian(self, weights) -> np.ndarray:
+        """``B^T J^T (w x I) J B``, shape (r, r): ``sum_i B_i^T L_w B_i`` with ``L_w`` the w-weighted Laplacian."""
+        dim, n, t = self.dim, self.n, self.mesh.t
+        grads = self._gradients
+        vals = np.einsum("ake,bke->abe", grads, grads) * weights
+        rows = np.broadcast_to(t[:, None, :], vals.shape).ravel()
+        cols = np.broadcast_to(t[None, :, :], vals.shape).ravel()
+        L = sps.csr_matrix((vals.ravel(), (rows, cols)), shape=(n, n))
+        Bv = self.B.reshape(n, dim, -1)
+        H = np.zeros((self.r, self.r))
+        # a few columns at a time: the temporaries stay near 16 MB on any mesh
+        width = max(1, int(1e6 // max(n, 1)))
+        for i in range(dim):
+            for start in range(0, self.r, width):
+                block = np.ascontiguousarray(Bv[:, i, start : start + width])
+                H[:, start : start + width] += Bv[:, i].T @ (L @ block)
+        return (H + H.T) / 2
+
+    def through(self, T) -> np.ndarray:
+        """``T @ B`` for a sparse ``T`` with few rows, dense, shape (rows, r).
+
+        Densified a few rows at a time (a dense product is twice as fast as
+        the sparse one here), so the dense copy stays near 16 MB on any mesh.
+        """
+        T = sps.csr_matrix(T)
+        rows, N = T.shape
+        out = np.empty((rows, self.r))
+        chunk = max(1, int(2e6 // max(N, 1)))
+        for start in range(0, rows, chunk):
+            out[start : start + chunk] = T[start : start + chunk].toarray() @ self.B
+        return out
+
+    def force(self, f) -> np.ndarray:
+        """``B^T f`` for a full field (or fields) ``f`` of shape (N,) or (N, k)."""
+        return self.B.T @ f
+
+    def rows(self, dofs) -> np.ndarray:
+        """The rows of ``B`` of some DOFs, shape (len(dofs), r)."""
+        return np.ascontiguousarray(self.B[dofs])
+
+    def coordinates(self, x, mass) -> np.ndarray:
+        """Mass-weighted least-squares coordinates of a full field ``x`` (N,) in the span of ``B``, shape (r,)."""
+        MB = self.B * mass[:, None]
+        return np.linalg.solve(self.B.T @ MB, MB.T @ np.asarray(x, float).ravel())
+
+    def positions(self, z) -> np.ndarray:
+        """Vertex positions ``B z``, shape (n, dim)."""
+        return (self.B @ np.asarray(z, float)).reshape(-1, self.dim)
+
+    def factor(self, H) -> DenseSystem:
+        return DenseSystem(H)
+
+
+class FullSpace(_MeshData):
+    """Every DOF of the mesh is an unknown: operators stay sparse, the system is factored sparse."""
+
+    dense = False
+
+    def __init__(self, mesh):
+        super().__init__(mesh)
+        self.r = self.N
+
+    def gram(self, diagonal) -> sps.csr_matrix:
+        return sps.diags(np.asarray(diagonal, float), format="csr")
+
+    def elastic_hessian(self, weights) -> sps.csr_matrix:
+        W = sps.diags(np.repeat(weights, self.dim * self.dim))
+        return (self.J.T @ W @ self.J).tocsr()
+
+    def through(self, T) -> sps.csr_matrix:
+        return sps.csr_matrix(T)
+
+    def force(self, f):
+        return f
+
+    def rows(self, dofs) -> sps.csr_matrix:
+        dofs = np.asarray(dofs)
+        return sps.csr_matrix((np.ones(dofs.size), (np.arange(dofs.size), dofs)), shape=(dofs.size, self.N))
+
+    def coordinates(self, x, mass) -> np.ndarray:
+        return np.array(x, dtype=float).ravel()
+
+    def positions(self, x) -> np.ndarray:
+        return self.full_positions(x)
+
+    def factor(self, H) -> SparseSystem:
+        return SparseSystem(H)
+
+
+class DenseSystem:
+    """The reduced system matrix, Cholesky-factored, and its dense inverse (``r`` is small).
+
+    Raises
+    ------
+    ValueError
+        When ``H`` is not positive definite (a basis without full column rank).
+    """
+
+    dense = True
+
+    def __init__(self, H):
+        H = (H + H.T) / 2
+        try:
+            chol = sla.cho_factor(H)
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                "the reduced system matrix is not positive definite: check that B has full column rank"
+            ) from None
+        self.inverse = sla.cho_solve(chol, np.eye(H.shape[0]))
+
+    def solve(self, X) -> np.ndarray:
+        """``H^-1 X`` for dense ``X`` of shape (r,) or (r, k)."""
+        return self.inverse @ X
+
+
+class SparseSystem:
+    """The full-space system matrix, factored once (sparse LU, symmetric mode)."""
+
+    dense = False
+
+    def __init__(self, H):
+        self._lu = spla.splu(
+            sps.csc_matrix(H), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
+
+    def solve(self, X) -> np.ndarray:
+        X = X.toarray() if sps.issparse(X) else np.asarray(X, dtype=np.float64)
+        return self._lu.solve(X)
