@@ -3,10 +3,15 @@
     python benchmarks/bench_step.py [--repeat 5] [--tutorial PATH]
 
 Scenes (all with 10 local/global iterations a step, the reference's default):
-  * float: the tutorial's floating caterpillar (180 steps, h = 0.02)
-  * crawl: the tutorial's crawl with gravity and 30 ground contacts (450 steps, h = 0.01)
-  * 3d:    the 24000-tetrahedron box (40 x 10 x 10), 8 skinning weights (96
-           coordinates), 20 clusters, 4 muscles, floating (100 steps, h = 0.01)
+  * float:     the tutorial's floating caterpillar (180 steps, h = 0.02)
+  * crawl:     the tutorial's crawl with gravity and 30 ground contacts (450 steps, h = 0.01)
+  * 3d:        the 24000-tetrahedron box (40 x 10 x 10), 8 skinning weights (96
+               coordinates), 20 clusters, 4 muscles, floating (100 steps, h = 0.01)
+  * seal:      a real creature, ../shared/meshes/seal.mesh (9996 vertices, 38689
+               tetrahedra, y up), 8 weights, 20 clusters, 4 muscles, floating
+               (100 steps, h = 0.01)
+  * seal-drop: the same seal dropped onto the ground under gravity (along -y,
+               the reference's up axis) with 30 contact points (150 steps)
 
 The reference (SimKit 0.1.8 and the tutorial's ModalMuscle class, see
 reference_impl.py) and skfem_modal get the same B, D, clusters, contact
@@ -59,57 +64,89 @@ def inputs(mesh, n_muscles, n_weights=8, n_clusters=20):
     return D, B, labels, sm.actuation_limits(mesh, D)
 
 
-def scenes():
+SEAL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "meshes", "seal.mesh")
+
+
+def scenes(only=None):
+    wanted = lambda name: not only or name in only  # noqa: E731
     cat = sm.caterpillar()
     D, B, labels, ceilings = inputs(cat, 4)
     X = cat.p.T
     boundary = sm.boundary_vertices(cat)
     contacts = boundary[sm.farthest_point_sampling(X[boundary], 30)]
     ground = float(X[:, 1].min()) - 0.15
-    box = sm.box3d(40, 10, 10, (4.0, 1.0, 1.0))
-    D3, B3, labels3, ceilings3 = inputs(box, 4)
+    found = []
+    if wanted("3d"):
+        box = sm.box3d(40, 10, 10, (4.0, 1.0, 1.0))
+        D3, B3, labels3, ceilings3 = inputs(box, 4)
+        found.append(
+            dict(
+                name="3d",
+                mesh=box,
+                B=B3,
+                D=D3,
+                labels=labels3,
+                mu=1e5,
+                h=0.01,
+                steps=100,
+                gait=(0.4 * ceilings3, [1.0, 0.8, 0.6, 0.9], [0.0, 0.25, 0.5, 0.75]),
+            )
+        )
+    if wanted("seal") or wanted("seal-drop"):
+        seal = sm.load_mesh(SEAL)
+        Ds, Bs, labels_s, ceilings_s = inputs(seal, 4)
+        common = dict(mesh=seal, B=Bs, D=Ds, labels=labels_s, mu=1e5, h=0.01)
+        gait = (0.4 * ceilings_s, [1.0, 0.8, 0.6, 0.9], [0.0, 0.25, 0.5, 0.75])
+        X = seal.p.T
+        boundary = sm.boundary_vertices(seal)
+        found += [
+            dict(name="seal", steps=100, gait=gait, **common),
+            dict(
+                name="seal-drop",
+                steps=150,
+                gait=gait,
+                gravity=[0.0, -9.8, 0.0],
+                contacts=boundary[sm.farthest_point_sampling(X[boundary], 30)],
+                ground=float(X[:, 1].min()) - 0.05,
+                **common,
+            ),
+        ]
     return [
-        dict(
-            name="float",
-            mesh=cat,
-            B=B,
-            D=D,
-            labels=labels,
-            mu=1e5,
-            h=0.02,
-            steps=180,
-            gait=(np.array([0.9, 0.6, 0.0, 0.0]) * ceilings, [1.0, 0.7, 1.0, 1.0], [0.0, 0.25, 0.0, 0.0]),
-        ),
-        dict(
-            name="crawl",
-            mesh=cat,
-            B=B,
-            D=D,
-            labels=labels,
-            mu=1e6,
-            h=0.01,
-            steps=450,
-            gravity=[0.0, -9.8],
-            contacts=contacts,
-            ground=ground,
-            gait=(np.array([0.45, 0.35, 0.25, 0.15]) * ceilings, [1.2, 0.8, 1.0, 0.6], [0.0, 0.25, 0.5, 0.1]),
-        ),
-        dict(
-            name="3d",
-            mesh=box,
-            B=B3,
-            D=D3,
-            labels=labels3,
-            mu=1e5,
-            h=0.01,
-            steps=100,
-            gait=(0.4 * ceilings3, [1.0, 0.8, 0.6, 0.9], [0.0, 0.25, 0.5, 0.75]),
-        ),
+        s
+        for s in [
+            dict(
+                name="float",
+                mesh=cat,
+                B=B,
+                D=D,
+                labels=labels,
+                mu=1e5,
+                h=0.02,
+                steps=180,
+                gait=(np.array([0.9, 0.6, 0.0, 0.0]) * ceilings, [1.0, 0.7, 1.0, 1.0], [0.0, 0.25, 0.0, 0.0]),
+            ),
+            dict(
+                name="crawl",
+                mesh=cat,
+                B=B,
+                D=D,
+                labels=labels,
+                mu=1e6,
+                h=0.01,
+                steps=450,
+                gravity=[0.0, -9.8],
+                contacts=contacts,
+                ground=ground,
+                gait=(np.array([0.45, 0.35, 0.25, 0.15]) * ceilings, [1.2, 0.8, 1.0, 0.6], [0.0, 0.25, 0.5, 0.1]),
+            ),
+        ]
+        + found
+        if wanted(s["name"])
     ]
 
 
-def build(scene, accelerator):
-    """Our simulator on the scene's inputs."""
+def build(scene, backend):
+    """Our simulator on the scene's inputs (up: the reference's axis 1)."""
     return ModalMuscle(
         scene["mesh"],
         scene["B"],
@@ -122,13 +159,14 @@ def build(scene, accelerator):
         gravity=scene.get("gravity"),
         contact_vertices=scene.get("contacts"),
         ground=scene.get("ground"),
-        accelerator=accelerator,
+        up=1,
+        backend=backend,
     )
 
 
-def steps_ours(scene, accelerator):
+def steps_ours(scene, backend):
     """Our simulator on the scene: yields (seconds, z) per step."""
-    sim = build(scene, accelerator)
+    sim = build(scene, backend)
     z, z_dot, _ = sim.rest_state()
     sim.step(z, z_dot, np.zeros(sim.n_muscles))  # compile / warm up
     amp, per, ph = scene["gait"]
@@ -153,9 +191,10 @@ def steps_reference(scene, RefModalMuscle):
     D = np.hstack([scene["D"], X.reshape(-1, 1)])
     kwargs = {}
     if scene.get("gravity") is not None:
-        g = scene["B"].T @ sk.gravity_force(X, T, a=scene["gravity"][-1], rho=1e3).reshape(-1, 1)
+        # SimKit's gravity and ground act along axis 1 (y up, in 2D and 3D)
+        g = scene["B"].T @ sk.gravity_force(X, T, a=scene["gravity"][1], rho=1e3).reshape(-1, 1)
         plane = np.zeros((dim, 1))
-        plane[-1] = scene["ground"]
+        plane[1] = scene["ground"]
         kwargs = dict(b0=-g, contact=True, cI=scene["contacts"], plane_pos=plane, alpha=1.0)
     sim = RefModalMuscle(
         X,
@@ -194,7 +233,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="whole runs of each scene, all steps pooled")
     parser.add_argument("--tutorial", default=reference_impl.DEFAULT_TUTORIAL)
-    parser.add_argument("--only", nargs="*", help="scene names to run (float, crawl, 3d)")
+    parser.add_argument("--only", nargs="*", help="scene names to run (float, crawl, 3d, seal, seal-drop)")
     args = parser.parse_args()
     missing = reference_impl.available(args.tutorial)
     Ref = None if missing else reference_impl.load_modal_muscle(args.tutorial)
@@ -207,12 +246,10 @@ def main():
         print(f"# reference not run: {missing}")
     impls = ["numpy"] + (["numba"] if _accel.AVAILABLE else [])
     print(
-        f"{'scene':6s} {'implementation':16s} {'median ms':>9s} {'p90 ms':>8s} {'ratio':>7s}  "
+        f"{'scene':9s} {'implementation':16s} {'median ms':>9s} {'p90 ms':>8s} {'ratio':>7s}  "
         f"{'max rel. diff of z':>18s}"
     )
-    for scene in scenes():
-        if args.only and scene["name"] not in args.only:
-            continue
+    for scene in scenes(args.only):
         # the implementations take turns every BLOCK steps through the whole
         # run, repeated: all of them see the machine's fast and slow spells
         # alike (whole runs one after the other can land in different spells),
@@ -242,7 +279,7 @@ def main():
             if "reference" in trajectories and name != "reference":
                 zr = trajectories["reference"]
                 diff = f"{np.abs(trajectories[name] - zr).max() / np.abs(zr).max():.1e}"
-            print(f"{scene['name']:6s} {name:16s} {med:9.3f} {p90:8.3f} {ratio:>7s}  {diff:>18s}")
+            print(f"{scene['name']:9s} {name:16s} {med:9.3f} {p90:8.3f} {ratio:>7s}  {diff:>18s}")
         sys.stdout.flush()
 
 

@@ -45,13 +45,13 @@ class Compiled2Backend(Step2Backend):
             self.normalize = self.kernels.normalize_cs
         super().start(z, z_dot, a)
 
-    def iterate(self, count, project):
-        if project is not None:
-            return super().iterate(count, project)
+    def iterate(self, count, contact):
+        if contact is not None:
+            return super().iterate(count, contact)
         first = self.k
         self.kernels.run2(self.G, self.W_c, self.Y, first, count)
         self.k = first + count
-        return self.Y[first : self.k + 1]
+        return self.Z[first : self.k + 1]
 
 
 class Compiled3Backend:
@@ -105,14 +105,14 @@ class Compiled3Backend:
                 self.warm = True
                 done += 1
 
-    def iterate(self, count, project):
+    def iterate(self, count, contact):
         first = self.k
-        if project is None:
+        if contact is None:
             self._run(first, count)
         else:
             for it in range(first + 1, first + count + 1):
                 self._run(it - 1, 1)
-                project(self.Y[it])
+                contact.project(self.Y[it])
         self.k = first + count
         return self.Y[first : self.k + 1]
 

@@ -39,7 +39,7 @@ from ._fast import dot as _dot
 from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
 from .solver import ActivationRows
 
-__all__ = ["KroneckerBackend", "separable_rows", "separable_columns", "separable_square"]
+__all__ = ["KroneckerBackend", "separable_rows", "separable_columns", "separable_square", "separable_watch"]
 
 MAX_SQUARINGS = 8
 
@@ -128,6 +128,26 @@ def separable_square(P, rtol=1e-11):
     return Ps
 
 
+def separable_watch(watch, up, rtol=1e-11):
+    """``watch = U kron e_up^T`` (interleaved: row j reads coordinate ``up`` only), if it is.
+
+    Parameters
+    ----------
+    watch : ndarray, shape (p, 3 K)
+    up : int
+
+    Returns
+    -------
+    U : ndarray, shape (p, K), or None
+    """
+    p, K = watch.shape[0], watch.shape[1] // 3
+    W3 = np.asarray(watch).reshape(p, K, 3)
+    U = W3[:, :, up].copy()
+    expected = np.zeros_like(W3)
+    expected[:, :, up] = U
+    return U if _close(W3, expected, rtol) else None
+
+
 def _row_blocks(Y, scale):
     """(q, 3, K) -> the (q, 4, K + 1) row blocks ``[[Y / w, 0], [0, shift]]`` (shift left 0)."""
     q, _, K = Y.shape
@@ -142,7 +162,6 @@ def _column_blocks(V):
     blocks = np.zeros((K, q, 4))
     blocks[:, :, :3] = V
     return blocks.reshape(K, 4 * q)
-
 
 
 class KroneckerBackend:
@@ -162,18 +181,25 @@ class KroneckerBackend:
     name = "numpy (Kronecker form)"
     exact = False
 
-    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter):
+    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0):
         n, _, K = Y.shape
+        # U (p, K): the contact's watched heights are U Z[:, up]; they ride
+        # along in the global product as p more rows of Z
+        U = np.zeros((0, K)) if U is None else U
+        p = U.shape[0]
+        self.watching = p > 0
         m = YA.shape[0] - 1 if YA is not None else 0
         self.K, self.n, self.m, self.max_batch = K, n, m, max_iter
         self.nc = n - n_active
         nc = self.nc
         self.Yt = _row_blocks(Y, scale).reshape(4 * n, K + 1)
         self.shift_column = self.Yt[3::4, K]
-        self.Wt = np.zeros((K + 1, 4 * n + 3))
+        self.Wt = np.zeros((K + 1 + p, 4 * n + 3))
         self.Wt[:K, : 4 * n] = _column_blocks(V)
         self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
+        self.Wt[K + 1 :, : 4 * n] = U @ self.Wt[:K, : 4 * n]
         self.C_slot = self.Wt[:K, 4 * n :]
+        self.C_slot_watched = self.Wt[K + 1 :, 4 * n :]
         self.activation = None
         if m:
             # the active clusters' F rows (not their shift rows, which the
@@ -181,13 +207,17 @@ class KroneckerBackend:
             rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3] for k in range(m + 1)])
             cols = np.stack([_column_blocks(VA[k]) for k in range(m + 1)])
             Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
-            self.activation = ActivationRows([(rows, Yt_active), (cols, self.Wt[:K, 4 * nc : 4 * n])])
+            pairs = [(rows, Yt_active), (cols, self.Wt[:K, 4 * nc : 4 * n])]
+            if p:
+                pairs.append((np.einsum("pk,mkc->mpc", U, cols), self.Wt[K + 1 :, 4 * nc : 4 * n]))
+            self.activation = ActivationRows(pairs)
         # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
         self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
+        self.C_operator_watched = U @ self.C_operator
         self.C_input = np.zeros((2 * K + 3, 3))
         self.C_input[2 * K :] = np.eye(3)
         # iterates Z (with the trailing row), rotations (with the I3 rows), powers
-        self.Z = np.zeros((max_iter + 1, K + 1, 4))
+        self.Z = np.zeros((max_iter + 1, K + 1 + p, 4))
         self.Z[:, K, 3] = 1.0
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
@@ -201,7 +231,8 @@ class KroneckerBackend:
         # certificate (level 0 as the shifts are made: s = 1.05 sqrt(t_1) / 4)
         self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
         self.levels_flat = self.levels.reshape(-1)
-        self.Z_rows = self.Z.reshape(max_iter + 1, -1)
+        self.Z_rows = self.Z[:, : K + 1].reshape(max_iter + 1, -1)
+        assert np.shares_memory(self.Z_rows, self.Z), "the rows must be a view of the iterates"
         self.C_z = self.C_input[:K].reshape(-1)  # contiguous rows: views
         self.C_z_dot = self.C_input[K : 2 * K].reshape(-1)
         self.Z0 = self.Z[0, :K, :3]
@@ -220,7 +251,7 @@ class KroneckerBackend:
         self._views = [
             [
                 (
-                    self.Z[i],
+                    self.Z[i, : K + 1],
                     self.Z[i + 1],
                     self.powers[0, i].reshape(n, 16),
                     self.powers[s, i].reshape(n, 16),
@@ -228,6 +259,7 @@ class KroneckerBackend:
                     self.R[i, : 4 * n].reshape(n, 16),
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
                     self.outputs[i + 1],
+                    self.Z[i + 1, K + 1 :, up],
                 )
                 for i in range(max_iter)
             ]
@@ -272,7 +304,13 @@ class KroneckerBackend:
         scale = np.sqrt(np.einsum("ij,ij->i", rest, rest))
         scale = np.where(scale > 0.0, scale, 1.0)
         n_active = 0 if model.A is None else model.A.shape[1] // 9
-        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.ascontiguousarray(C[:, 2 * r]), scale, n_active, max_iter)
+        U, up = None, 0
+        if model.contact is not None:
+            up = model.contact.up
+            U = separable_watch(model.contact.watch, up)
+            if U is None:
+                return None
+        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.ascontiguousarray(C[:, 2 * r]), scale, n_active, max_iter, U, up)
 
     def start(self, z, z_dot, a) -> None:
         if self.activation is not None:
@@ -280,13 +318,15 @@ class KroneckerBackend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
+        if self.watching:
+            np.matmul(self.C_operator_watched, self.C_input, self.C_slot_watched)
         np.copyto(self.Z0, self.C_z_block)
         if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best
             # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
             # with a margin for the certificate (see finish)
             self.shift_column[:] = 0.0
-            np.dot(self.Yt, self.Z[0], self.F)
+            np.dot(self.Yt, self.Z[0, : self.K + 1], self.F)
             shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", self.F16, self.F16) / 3.0)
             self.shift_column[:] = shift
             np.multiply(shift, 4.0 / 1.05, self.levels[0])
@@ -297,12 +337,12 @@ class KroneckerBackend:
     def start_row(self):
         return self.Z_rows[0]
 
-    def iterate(self, count, project):
+    def iterate(self, count, contact):
         Yt, Wt, F, F16 = self.Yt, self.Wt, self.F, self.F16
         RT, RT16, trace = self.RT, self.RT16, self.trace
         dot, matmul, divide = _dot, np.matmul, np.divide
         first = self.k
-        for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new in self._views[self.s][first : first + count]:
+        for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new, watched in self._views[self.s][first : first + count]:
             # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)
             dot(F16, HORN_BLOCK, P0)
@@ -311,9 +351,9 @@ class KroneckerBackend:
             dot(P_last, QQ_TO_BLOCK_TRACE, RT)
             divide(RT16, trace, R16)
             dot(Wt, R, Z_new)
-            if project is not None:
+            if contact is not None:
                 np.copyto(self.z_block, z_new)
-                if project(self.z_flat):
+                if contact.project(self.z_flat, watched):
                     np.copyto(z_new, self.z_block)
         self.k = first + count
         return self.Z_rows[first : self.k + 1]

@@ -59,16 +59,18 @@ class Step2Backend:
         two_n = self.G.shape[0]
         self.max_batch, self.r, self.n = max_iter, r, two_n // 2
         self.normalize = normalize
-        self.W_c = np.empty((r, two_n + 1))
-        self.W_c[:, :two_n] = from_rotations(W_all)
+        # the contact's watched values ride along: one product gives z and them
+        watch = model.contact.watch if model.contact is not None else np.zeros((0, r))
+        extend = lambda X: np.vstack([X, watch @ X])  # noqa: E731
+        self.W_c = np.empty((r + watch.shape[0], two_n + 1))
+        self.W_c[:, :two_n] = extend(from_rotations(W_all))
         self.c = self.W_c[:, two_n]
         self.activation = None
         if muscles and model.n_muscles:
             rows = G.shape[0] // 2
-            self.activation = ActivationRows(
-                [(features(model.A), self.G[rows:]), (from_rotations(model.WA), self.W_c[:, rows:two_n])]
-            )
-        self.C_operator = np.ascontiguousarray(model.C)
+            WA = np.stack([extend(Wk) for Wk in from_rotations(model.WA)])
+            self.activation = ActivationRows([(features(model.A), self.G[rows:]), (WA, self.W_c[:, rows:two_n])])
+        self.C_operator = np.ascontiguousarray(extend(model.C))
         self.C_input = np.ones(2 * r + 1)
         self.C_z, self.C_z_dot = self.C_input[:r], self.C_input[r : 2 * r]
         self.cs_1 = np.ones(two_n + 1)  # the unit pairs, then a 1 for c
@@ -77,7 +79,12 @@ class Step2Backend:
         self.cos, self.sin = self.cs[:, 0], self.cs[:, 1]
         self.norm = np.empty(self.n)
         self.norm_column = self.norm[:, None]
-        self.Y = np.empty((max_iter + 1, r))  # iterates
+        self.Y = np.empty((max_iter + 1, r + watch.shape[0]))  # iterates, then what the contact watches
+        self.Z = self.Y[:, :r]
+        # views made once: indexing costs as much as a small product
+        self.rows = list(self.Y)
+        self.z_rows = list(self.Z)
+        self.watched_rows = list(self.Y[:, r:])
         self.k = 0
 
     def start(self, z, z_dot, a) -> None:
@@ -86,19 +93,21 @@ class Step2Backend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.c)  # a strided column: matmul
-        np.copyto(self.Y[0], z)
+        np.copyto(self.z_rows[0], z)
         self.k = 0
 
     def start_row(self):
-        return self.Y[0]
+        return self.z_rows[0]
 
-    def iterate(self, count, project):
-        G, W_c, cs_1, cs_flat, cs, Y = self.G, self.W_c, self.cs_1, self.cs_flat, self.cs, self.Y
+    def iterate(self, count, contact):
+        G, W_c, cs_1, cs_flat, cs = self.G, self.W_c, self.cs_1, self.cs_flat, self.cs
         cos, sin, norm, norm_column, n = self.cos, self.sin, self.norm, self.norm_column, self.n
         hypot, divide, count_nonzero, normalize = np.hypot, np.divide, np.count_nonzero, self.normalize
-        first = self.k
-        for it in range(first + 1, first + count + 1):
-            dot(G, Y[it - 1], cs_flat)
+        first, last = self.k, self.k + count
+        z = self.z_rows[first]
+        for y, z_next, watched in zip(self.rows[first + 1 : last + 1], self.z_rows[first + 1 : last + 1],
+                                      self.watched_rows[first + 1 : last + 1]):  # fmt: skip
+            dot(G, z, cs_flat)
             if normalize is not None:
                 normalize(cs)
             else:
@@ -109,14 +118,15 @@ class Step2Backend:
                     cs[zero] = (1.0, 0.0)
                     norm[zero] = 1.0
                 divide(cs, norm_column, cs)
-            dot(W_c, cs_1, Y[it])
-            if project is not None:
-                project(Y[it])
-        self.k = first + count
-        return Y[first : self.k + 1]
+            dot(W_c, cs_1, y)
+            if contact is not None:
+                contact.project(z_next, watched)
+            z = z_next
+        self.k = last
+        return self.Z[first : last + 1]
 
     def finish(self, k) -> bool:
         return True
 
     def result(self, k):
-        return self.Y[k].copy()
+        return self.z_rows[k].copy()

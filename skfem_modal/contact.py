@@ -72,6 +72,10 @@ class GroundContact(Effect):
         self.push_out = float(push_out)
         Je = space.rows(space.dofs(vertices))
         self.Je = Je.tocsr() if sps.issparse(Je) else Je
+        self.Je_up = self.Je[up :: self.dim]  # the heights: all a projection reads when nothing touches
+        self._dot = (lambda A, x: A @ x) if sps.issparse(Je) else dot
+        #: the rows a projection reads, ``watch @ z`` (a backend may compute them in its own products)
+        self.watch = self.Je_up
         self.n_points = vertices.size
         self.active_count = 0
 
@@ -91,7 +95,6 @@ class GroundContact(Effect):
         """Remember the contact positions at the start of the step."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
-        self.up_iter = up_start
         if self.push_out:
             depth = np.maximum(self.ground - up_start, 0.0)
             # the lowest end height allowed: the ground, or on the way out of it
@@ -104,25 +107,38 @@ class GroundContact(Effect):
             # reference rule: a point below ground may not move further down
             self.limit = up_start
             self.p_target = self.p_start
+            self.below = up_start < self.ground  # at the current iterate
+            self.n_below = np.count_nonzero(self.below)
 
-    def project(self, z) -> bool:
-        """Project the active contacts of a global solution ``z`` (r,), in place; True if it changed."""
-        p = self.Je @ z
+    def project(self, z, watched=None) -> bool:
+        """Project the active contacts of a global solution, in place; True if it changed.
+
+        Parameters
+        ----------
+        z : ndarray, shape (r,)
+            Corrected in place.
+        watched : ndarray, shape (p,), optional
+            ``watch @ z`` (the contact heights) if the caller has it; corrected along with ``z``.
+        """
+        heights = self._dot(self.Je_up, z) if watched is None else watched
         if self.push_out:
-            return self._project_positions(z, p)
-        up_tent = p[self.up :: self.dim]
-        # below the plane at the current iterate and moving into it
-        mask = (self.up_iter < self.ground) & (up_tent < self.limit)
-        if not np.count_nonzero(mask):  # a third of .any()'s cost, once an iteration
+            return self._project_positions(z, heights)
+        # active: below the plane at the current iterate and moving into it
+        if self.n_below:
+            mask = np.less(heights, self.limit)
+            mask &= self.below
+            if np.count_nonzero(mask):
+                self._apply(z, heights, mask)
+            else:
+                self.active_count = 0
+        else:
             self.active_count = 0
-            self.up_iter = up_tent
-            return False
-        self._apply(z, p, mask)
-        self.up_iter = p[self.up :: self.dim]
-        return True
+        below = np.less(heights, self.ground, self.below)
+        self.n_below = np.count_nonzero(below)
+        return self.active_count > 0
 
     def _projection(self, mask: np.ndarray):
-        """Rows and the correction matrices of an active set (cached)."""
+        """The active points' position rows and correction matrices (cached per active set)."""
         key = mask.tobytes()
         entry = self._cache.get(key)
         if entry is not None:
@@ -150,34 +166,36 @@ class GroundContact(Effect):
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
         dz = np.ascontiguousarray(dz * factor)
-        entry = (active, rows, dz, np.ascontiguousarray(np.asarray(self.Je @ dz)))
+        Je_rows = self.Je[rows]
+        Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
+        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(np.asarray(self.Je_up @ dz)))
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
         return entry
 
-    def _apply(self, z, p, mask) -> None:
-        """Correct ``z`` and its contact positions ``p`` in place for an active set."""
-        active, rows, dz, dp = self._projection(mask)
+    def _apply(self, z, heights, mask) -> None:
+        """Correct ``z`` and its contact heights in place for an active set."""
+        active, rows, Je_rows, dz, dheights = self._projection(mask)
         self.active_count = active.size
-        delta = (self.p_target - p).take(rows)
+        delta = self.p_target[rows] - dot(Je_rows, z)
         z += dot(dz, delta)
-        p += dot(dp, delta)
+        heights += dot(dheights, delta)
 
-    def _project_positions(self, z, p) -> bool:
+    def _project_positions(self, z, heights) -> bool:
         """Position rule: no contact point ends below its target height."""
         tol = 1e-12 * max(1.0, abs(self.ground))
-        mask = p[self.up :: self.dim] < self.target - tol
+        mask = heights < self.target - tol
         if not np.count_nonzero(mask):
             self.active_count = 0
             return False
-        z_tent, p_tent = z.copy(), p.copy()
+        z_tent, heights_tent = z.copy(), heights.copy()
         for _ in range(4):
             np.copyto(z, z_tent)
-            np.copyto(p, p_tent)
-            self._apply(z, p, mask)
+            np.copyto(heights, heights_tent)
+            self._apply(z, heights, mask)
             # a correction moves other points too: add any now below target
-            violated = p[self.up :: self.dim] < self.target - tol
+            violated = heights < self.target - tol
             if not (violated & ~mask).any():
                 break
             mask = mask | violated

@@ -19,11 +19,13 @@ driver calls:
     set up a step (its constant part and the muscles' activation);
 ``start_row()``
     the start state as a row of the backend's choosing;
-``iterate(count, project)``
-    run ``count`` iterations (``project(z)`` corrects each global solution
-    in place, or is None); return the last iterate before them and the
-    ``count`` new ones as rows, shape (count + 1, q), whose differences have
-    the norms of the differences of the ``z``'s;
+``iterate(count, contact)``
+    run ``count`` iterations, the contact (or None) projecting each global
+    solution (``contact.project(z, watched)``, where a backend may compute
+    ``watched = contact.watch @ z`` within its own products); return the
+    last iterate before them and the ``count`` new ones as rows, shape
+    (count + 1, q), whose differences have the norms of the differences of
+    the ``z``'s;
 ``finish(k)``
     the step stopped after ``k`` iterations (None: it went non-finite):
     True accepts it; a backend whose rotations are not *exact* may check
@@ -151,7 +153,7 @@ class PlainBackend:
         R, self.q = closest_rotations3(S.reshape(-1, 9), self.q)
         return R
 
-    def iterate(self, count, project):
+    def iterate(self, count, contact):
         self.Y[0] = self.Y[1]
         z = self.Y[0]
         R = self._rotations(self.rows @ z).ravel()
@@ -159,8 +161,8 @@ class PlainBackend:
             z_next = self.c + self.cols_buffer @ R
         else:
             z_next = self.c + self.model.system.solve(self.rows.T @ R)
-        if project is not None:
-            project(z_next)
+        if contact is not None:
+            contact.project(z_next)
         self.Y[1] = z_next
         self.k += 1
         return self.Y
@@ -213,30 +215,30 @@ class LocalGlobal:
             if contact is not None:
                 contact.start_step(z, z_dot)
             backend.start(z, z_dot, a)
-            found = self._run(backend, None if contact is None else contact.project)
+            found = self._run(backend, contact)
             if found is not None:
                 return found
             self.redone += 1
         raise AssertionError("the last backend must accept every step")
 
-    def _run(self, backend, project):
+    def _run(self, backend, contact):
         start = backend.start_row()
-        done = 0
-        limit = self.max_iter
+        done, limit, batch = 0, self.max_iter, min(backend.max_batch, self.predicted if self.batch else 1)
         while True:
-            ahead = self.predicted - done if self.batch else 1
-            count = min(limit - done, backend.max_batch, max(1, ahead))
-            rows = backend.iterate(count, project)
-            hit = self._first_stop(rows, start)
-            if hit < 0:
-                if backend.exact:
-                    raise SimulationError("the state became non-finite")
-                backend.finish(None)
-                return None
-            if hit or done + count == limit:
-                k = done + (hit or count)
-                break
+            count = min(limit - done, max(1, batch - done))
+            hit = self._first_stop(backend.iterate(count, contact), start)
             done += count
+            if hit:
+                break
+            if done == limit:
+                hit = count
+                break
+        if hit < 0:
+            if backend.exact:
+                raise SimulationError("the state became non-finite")
+            backend.finish(None)
+            return None
+        k = done - count + hit
         if not backend.finish(k):
             return None
         self.predicted = k
@@ -247,21 +249,29 @@ class LocalGlobal:
         count, q = rows.shape[0] - 1, rows.shape[1]
         work = self._work.get(q)
         if work is None or work[0].shape[0] < count:
-            work = self._work[q] = (np.empty((max(count, self.max_iter), q)), np.ones(q), np.empty(self.max_iter))
-        steps, ones, out = work[0][:count], work[1], work[2][:count]
+            size = max(count, self.max_iter)
+            work = self._work[q] = (np.empty((size, q)), np.ones(q), np.empty(size), np.ones(size))
+        steps, ones, change2 = work[0][:count], work[1], work[2][:count]
         np.subtract(rows[1:], rows[:-1], steps)
         np.multiply(steps, steps, steps)
-        change2 = dot(steps, ones, out)
-        stop = ~(change2 < np.inf)  # not finite: stops the step too, as an error
-        stop |= change2 < self.tol**2
+        dot(steps, ones, change2)
+        if not dot(change2, work[3][:count]) < np.inf:
+            # some change is not finite: that is an error, unless an earlier iteration stopped
+            first_bad = int(np.argmin(change2 < np.inf))
+            stopped = self._stops(change2[:first_bad], rows[: first_bad + 1], start, work)
+            return stopped if stopped else -(first_bad + 1)
+        return self._stops(change2, rows, start, work)
+
+    def _stops(self, change2, rows, start, work) -> int:
+        """The first of finite changes (1-based) that meets the stopping rule, 0 if none."""
+        stop = change2 < self.tol**2
         if self.rtol:
-            motion = np.subtract(rows[1:], start, steps)
+            motion = np.subtract(rows[1:], start, work[0][: change2.size])
             np.multiply(motion, motion, motion)
-            stop |= change2 <= self.rtol**2 * dot(motion, ones)
+            stop |= change2 <= self.rtol**2 * dot(motion, work[1])
         if not np.count_nonzero(stop):
             return 0
-        j = int(stop.argmax())
-        return j + 1 if change2[j] < np.inf else -(j + 1)
+        return int(stop.argmax()) + 1
 
 
 def make_backends(model, name: str, max_iter: int) -> list:
