@@ -31,7 +31,9 @@ from .mesh import (
     farthest_point_sampling,
     load_mesh,
     make_mesh,
+    mirror,
     normalize_and_center,
+    tangled_elements,
     vertices_where,
 )
 from .modal import (
@@ -42,6 +44,7 @@ from .modal import (
     rigid_mode_count,
     rigid_motions,
 )
+from .units import ScaleWarning, scale_mismatch, up_axis
 
 __version__ = "0.1.0"
 
@@ -67,7 +70,9 @@ __all__ = [
     "farthest_point_sampling",
     "load_mesh",
     "make_mesh",
+    "mirror",
     "normalize_and_center",
+    "tangled_elements",
     "vertices_where",
     "actuation_limits",
     "linear_modal_analysis",
@@ -75,4 +80,7 @@ __all__ = [
     "natural_frequencies",
     "rigid_mode_count",
     "rigid_motions",
+    "ScaleWarning",
+    "scale_mismatch",
+    "up_axis",
 ]
