@@ -305,7 +305,7 @@ def canonical_eigenpairs(K, M, k: int, weight, node_dim: int = 1, null=None):
     _check_count(K, k, null)
     available = K.shape[0] - (0 if null is None else null.shape[1])
     pairs = _pairs_solver(K, M, node_dim, null)
-    extra = node_dim + 2
+    extra = 1  # one more pair tells whether the k-th one's group goes on
     while True:
         count = min(k + extra, available)
         values, vectors = pairs(count)
