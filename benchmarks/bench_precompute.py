@@ -60,6 +60,7 @@ def case_mesh(case: dict, shared: str = SHARED):
         mesh = mesh.refined(np.arange(0, mesh.t.shape[1], case["refine_every"]))
     return normalize_and_center(mesh)
 
+
 OURS = r"""
 import json, resource, sys, time
 import numpy as np
