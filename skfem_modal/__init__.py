@@ -32,7 +32,9 @@ from .mesh import (
     farthest_point_sampling,
     load_mesh,
     make_mesh,
+    mirror,
     normalize_and_center,
+    tangled_elements,
     vertices_where,
 )
 from .modal import (
@@ -49,6 +51,7 @@ from .reference import FullSpaceSimulator
 from .run import run_scene
 from .scene import Scene, SceneError
 from .sim import ModalMuscle, SimulationError, StepRecord, simulate
+from .units import ScaleWarning, scale_mismatch, up_axis
 
 __version__ = "0.1.0"
 
@@ -74,7 +77,9 @@ __all__ = [
     "farthest_point_sampling",
     "load_mesh",
     "make_mesh",
+    "mirror",
     "normalize_and_center",
+    "tangled_elements",
     "vertices_where",
     "actuation_limits",
     "linear_modal_analysis",
@@ -92,4 +97,7 @@ __all__ = [
     "Scene",
     "SceneError",
     "run_scene",
+    "ScaleWarning",
+    "scale_mismatch",
+    "up_axis",
 ]

@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from .mesh import check_mesh
+from .mesh import check_mesh, connected_parts
 
 __all__ = ["average_onto_elements", "spectral_clusters"]
 
@@ -93,13 +93,54 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
         W = W[:, None]
     if W.shape[0] != mesh.p.shape[1] or not np.all(np.isfinite(W)):
         raise ValueError(f"weights must be finite with shape ({mesh.p.shape[1]}, m), got {W.shape}")
-    if k == nT:
-        return np.arange(nT, dtype=np.int64)
-    if k == 1:
-        return np.zeros(nT, dtype=np.int64)
     points = average_onto_elements(mesh, W)
+    parts = connected_parts(mesh)[mesh.t[0]]
+    n_parts = int(parts.max()) + 1
+    if n_parts == 1:
+        return _kmeans(points, k, seed)
+    # a rotation cluster never spans two separate parts: each part gets its
+    # share of the clusters (by element count, at least one) and its own k-means
+    sizes = np.bincount(parts, minlength=n_parts)
+    if k < n_parts:
+        raise ValueError(
+            f"k (the number of clusters) must be at least the mesh's {n_parts} separate parts "
+            f"(a cluster shares one rotation, so it cannot span two parts), got {k}"
+        )
+    shares = _shares(sizes, k)
+    labels = np.empty(nT, dtype=np.int64)
+    offset = 0
+    for part in range(n_parts):
+        inside = np.nonzero(parts == part)[0]
+        labels[inside] = offset + _kmeans(points[inside], int(shares[part]), seed)
+        offset += int(shares[part])
+    return labels
+
+
+def _kmeans(points: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """k-means++ labels of the rows of ``points`` (``1 <= k <= len(points)``), no cluster empty."""
+    if k == points.shape[0]:
+        return np.arange(k, dtype=np.int64)
+    if k == 1:
+        return np.zeros(points.shape[0], dtype=np.int64)
     with warnings.catch_warnings():
         # empty clusters are repaired below
         warnings.filterwarnings("ignore", message="One of the clusters is empty")
         _, labels = kmeans2(points, k, seed=seed, minit="++")
     return _fill_empty(points, labels.astype(np.int64), k)
+
+
+
+def _shares(sizes: np.ndarray, k: int) -> np.ndarray:
+    """Split ``k`` clusters over parts of ``sizes`` elements: proportional, at least 1, at most the size.
+
+    Largest remainders first, ties to the lower part index, so the split is deterministic.
+    """
+    ideal = k * sizes / sizes.sum()
+    shares = np.clip(np.floor(ideal).astype(np.int64), 1, sizes)
+    while shares.sum() < k:
+        room = np.where(shares < sizes, ideal - shares, -np.inf)
+        shares[int(np.argmax(room))] += 1
+    while shares.sum() > k:
+        excess = np.where(shares > 1, shares - ideal, -np.inf)
+        shares[int(np.argmax(excess))] -= 1
+    return shares

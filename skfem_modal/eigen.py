@@ -14,7 +14,14 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-__all__ = ["lowest_eigenpairs", "sign_convention", "canonical_repeated", "generic_weight"]
+__all__ = [
+    "lowest_eigenpairs",
+    "canonical_eigenpairs",
+    "spd_solver",
+    "sign_convention",
+    "canonical_repeated",
+    "generic_weight",
+]
 
 # Eigenvalues closer than this (relative) form one repeated group.
 _REPEATED_RTOL = 1e-8
@@ -22,60 +29,187 @@ _REPEATED_RTOL = 1e-8
 _SIGN_TIE_RTOL = 1e-6
 # Below this many DOFs, a dense solve is both faster and exact.
 _DENSE_LIMIT = 600
-# Use a banded Cholesky (3D) when its band holds at most this many entries (480 MB).
+# Factorisation speeds measured on this project's machine kind (one BLAS
+# thread): LAPACK's banded Cholesky runs at about 25 GFlop/s, SuperLU at
+# about 5 (docs/performance.md, "Set-up at the paper's scale"). The
+# factorisation whose predicted time is smaller is used.
+_BANDED_RATE = 25e9
+_SPARSE_RATE = 5e9
+# Never build a band of more entries than this (480 MB).
 _BANDED_ENTRIES = 60_000_000
 
 
-def _banded_solver(A, node_dim: int):
-    """LAPACK banded Cholesky after reverse Cuthill-McKee, or None if the band is too wide."""
-    n = A.shape[0]
+def _node_graph(A, node_dim: int) -> sps.csc_matrix:
+    """The graph of ``A``'s nodes as a diagonally dominant M-matrix (safe to factor without pivoting)."""
     coo = A.tocoo()
-    nodes = n // node_dim
-    node_graph = sps.csr_matrix(
-        (np.ones(coo.nnz, dtype=np.int8), (coo.row // node_dim, coo.col // node_dim)),
-        shape=(nodes, nodes),
+    nodes = A.shape[0] // node_dim
+    off = coo.row // node_dim != coo.col // node_dim
+    G = sps.csr_matrix(
+        (-np.ones(int(off.sum())), (coo.row[off] // node_dim, coo.col[off] // node_dim)), shape=(nodes, nodes)
     )
-    order = reverse_cuthill_mckee(node_graph, symmetric_mode=True)
-    rank = np.empty(nodes, dtype=np.int64)
-    rank[order] = np.arange(nodes)
-    # position of every DOF in the reordered matrix
-    new_index = (rank[:, None] * node_dim + np.arange(node_dim)).ravel()
-    i, j = new_index[coo.row], new_index[coo.col]
-    lower = i >= j
-    band = int((i - j)[lower].max())
-    if (band + 1) * n <= _BANDED_ENTRIES:
-        ab = np.zeros((band + 1, n))
-        ab[(i - j)[lower], j[lower]] = coo.data[lower]
-        factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
-        perm = np.empty(n, dtype=np.int64)
-        perm[new_index] = np.arange(n)
+    G.data[:] = -1.0  # duplicates summed: back to one entry per edge
+    degree = -np.asarray(G.sum(axis=1)).ravel()
+    return (G + sps.diags(degree + 1.0)).tocsc()
+
+
+def _dof_order(node_order: np.ndarray, node_dim: int) -> np.ndarray:
+    """DOF permutation (new position -> old DOF) that keeps each node's DOFs together."""
+    return (node_order[:, None] * node_dim + np.arange(node_dim)).ravel()
+
+
+def _sparse_plan(G, node_dim: int):
+    """A fill-reducing node ordering and the flops of a sparse factorisation with it.
+
+    SuperLU's minimum-degree ordering is computed on the node graph ``G``
+    (``node_dim`` times smaller than the matrix) by factoring it; the column
+    counts of that factor predict the fill of the matrix's own factor, whose
+    DOFs are then ordered node by node (giving SuperLU dense blocks).
+    """
+    lu = spla.splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    order = np.empty_like(lu.perm_c)
+    order[lu.perm_c] = np.arange(order.size)
+    counts = np.diff(lu.L.tocsc().indptr).astype(np.float64)
+    return order, node_dim**3 * float((counts**2).sum())
+
+
+def _banded_plan(G, node_dim: int):
+    """Reverse Cuthill-McKee node ordering and the band (in DOFs) it gives the matrix."""
+    order = reverse_cuthill_mckee(G.tocsr(), symmetric_mode=True)
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    coo = G.tocoo()
+    band = int(np.abs(rank[coo.row] - rank[coo.col]).max()) * node_dim + node_dim - 1
+    return order, band
+
+
+def _permuted(factor_solve, dof_order: np.ndarray | None, method: str):
+    """``b -> x`` for ``A``, given the solve of ``A`` with rows and columns in ``dof_order`` (None: as is)."""
+    if dof_order is None:
 
         def solve(b):
-            return sla.cho_solve_banded((factor, True), b[perm], check_finite=False)[new_index]
+            return factor_solve(b)
 
-        return solve
-    return None
+    else:
+        position = np.empty_like(dof_order)
+        position[dof_order] = np.arange(dof_order.size)
+
+        def solve(b):
+            return factor_solve(b[dof_order])[position]
+
+    solve.method = method
+    return solve
 
 
-def _shift_invert_solver(K, M, sigma: float, node_dim: int):
-    """A solver for the symmetric positive definite ``A = K - sigma M``: ``b -> A^{-1} b``.
+def spd_solver(A, node_dim: int = 1):
+    """A direct solver for a sparse symmetric positive definite ``A``: ``b -> A^{-1} b``.
 
-    3D elasticity (three DOFs per node) fills in badly in a general sparse LU;
-    after reverse Cuthill-McKee ordering LAPACK's banded Cholesky is 3 to 10
-    times faster there (measured: 0.17 s instead of 2.0 s on the 24000-tet
-    box, 2.5 s instead of 34 s on a 20^3 cube), as long as the band fits in
-    memory. Otherwise (2D, scalar problems) SuperLU with a symmetric
-    minimum-degree ordering and diagonal pivots (``A`` is SPD, so no pivoting
-    is needed), which is faster there.
+    Two factorisations, chosen by their predicted time: LAPACK's banded
+    Cholesky after a reverse Cuthill-McKee ordering (fast per flop, but the
+    band of an unstructured 3D mesh is wide: 3.3 s on the 38689-tetrahedron
+    seal, against 0.3 s sparse), and SuperLU with a minimum-degree ordering of
+    the nodes and diagonal pivots (``A`` is SPD), each node's DOFs kept
+    together. Both predictions come from the orderings alone (the band; the
+    column counts of the node graph's factor), at the measured speeds
+    ``_BANDED_RATE`` and ``_SPARSE_RATE``.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Symmetric positive definite.
+    node_dim : int
+        DOFs per node, interleaved (orderings work on nodes).
+
+    Returns
+    -------
+    solve : callable
+        ``solve(b)`` for ``b`` of shape (n,) or (n, m); its attribute
+        ``method`` is ``"banded"`` or ``"sparse"``.
+
+    Examples
+    --------
+    >>> import scipy.sparse as sps
+    >>> A = sps.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(5, 5))
+    >>> solve = spd_solver(A)
+    >>> bool(np.allclose(A @ solve(np.ones(5)), 1.0))
+    True
     """
-    if node_dim == 3:
-        factor_solve = _banded_solver(K - sigma * M, node_dim)
-        if factor_solve is not None:
-            return factor_solve
-    # built here, so only the compressed-column copy stays alive while factoring
-    A = (K - sigma * M).tocsc()
-    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-    return lu.solve
+    n = A.shape[0]
+    if node_dim < 1 or n % node_dim:
+        raise ValueError(f"node_dim must divide the matrix size {n}, got {node_dim}")
+    A = A.tocsr()
+    if node_dim == 1:
+        # a scalar problem: its own graph is the node graph, and factoring it
+        # to plan would double the cost
+        lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        return _permuted(lu.solve, None, "sparse")
+    G = _node_graph(A, node_dim)
+    band_order, band = _banded_plan(G, node_dim)
+    banded_time = n * (band + 1) ** 2 / _BANDED_RATE
+    sparse_order, sparse_flops = _sparse_plan(G, node_dim)
+    if (band + 1) * n <= _BANDED_ENTRIES and banded_time < sparse_flops / _SPARSE_RATE:
+        dofs = _dof_order(band_order, node_dim)
+        Ap = A[dofs][:, dofs].tocoo()
+        lower = Ap.row >= Ap.col
+        ab = np.zeros((band + 1, n))
+        ab[(Ap.row - Ap.col)[lower], Ap.col[lower]] = Ap.data[lower]
+        factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
+        return _permuted(lambda b: sla.cho_solve_banded((factor, True), b, check_finite=False), dofs, "banded")
+    dofs = _dof_order(sparse_order, node_dim)
+    lu = spla.splu(
+        A[dofs][:, dofs].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+    )
+    return _permuted(lu.solve, dofs, "sparse")
+
+
+def _dense_pairs(K, M, null, MN):
+    """Every eigenpair, densely; in the M-orthogonal complement of ``null`` if given."""
+    Kd, Md = K.toarray(), M.toarray()
+    C = None
+    if null is not None:
+        # an orthonormal basis of the M-orthogonal complement of the null space
+        C = sla.null_space(MN.T)
+        Kd, Md = C.T @ Kd @ C, C.T @ Md @ C
+    values, vectors = sla.eigh((Kd + Kd.T) / 2, (Md + Md.T) / 2)
+    return values, (vectors if C is None else C @ vectors)
+
+
+def _pairs_solver(K, M, node_dim: int, null):
+    """``k -> (values, vectors)``: the ``k`` lowest eigenpairs, one factorisation for every ``k``."""
+    n = K.shape[0]
+    q = 0 if null is None else null.shape[1]
+    MN = None if null is None else np.asarray(M @ null)
+    if n <= _DENSE_LIMIT:
+        all_values, all_vectors = _dense_pairs(K, M, null, MN)
+        return lambda k: (all_values[:k], all_vectors[:, :k])
+    # a shift just below zero: K - sigma M is positive definite even for a
+    # free body, and the modes nearest sigma are the lowest ones
+    sigma = -1e-6 * float(np.median(K.diagonal() / M.diagonal()))
+    solve = spd_solver(K - sigma * M, node_dim)
+    if q:
+
+        def deflated(b):
+            x = solve(b)
+            return x - null @ (MN.T @ x)
+
+        op = spla.LinearOperator(K.shape, matvec=deflated, dtype=np.float64)
+    else:
+        op = spla.LinearOperator(K.shape, matvec=solve, dtype=np.float64)
+    v0 = np.random.default_rng(20261121).standard_normal(n)
+    if q:
+        v0 -= null @ (MN.T @ v0)
+
+    def shift_invert(k):
+        if k + q >= n - 1:
+            # ARPACK needs k < n - 1: every pair, densely
+            all_values, all_vectors = _dense_pairs(K, M, null, MN)
+            return all_values[:k], all_vectors[:, :k]
+        # a slightly larger Krylov space than ARPACK's default saves restarts
+        ncv = min(n - q, max(2 * k + 1, 20))
+        values, vectors = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
+        order = np.argsort(values)
+        return values[order], vectors[:, order]
+
+    return shift_invert
 
 
 def lowest_eigenpairs(K, M, k: int, node_dim: int = 1, null=None):
@@ -84,13 +218,14 @@ def lowest_eigenpairs(K, M, k: int, node_dim: int = 1, null=None):
     ``K`` symmetric positive semi-definite (a free body's stiffness, a
     Laplacian), ``M`` symmetric positive definite. Shift-invert Lanczos
     (:func:`scipy.sparse.linalg.eigsh`) about a shift just below zero, so a
-    singular ``K`` is never factored; small problems are solved densely.
+    singular ``K`` is never factored (:func:`spd_solver` factors it); small
+    problems are solved densely.
 
     Parameters
     ----------
     K, M : scipy.sparse matrix, shape (n, n)
     k : int
-        ``1 <= k <= n``.
+        ``1 <= k <= n - q``.
     node_dim : int
         DOFs per node, interleaved (orderings work on nodes).
     null : ndarray, shape (n, q), optional
@@ -105,40 +240,82 @@ def lowest_eigenpairs(K, M, k: int, node_dim: int = 1, null=None):
     vectors : ndarray, shape (n, k)
         M-orthonormal (and M-orthogonal to ``null``). Signs and
         repeated-eigenvalue bases are whatever the solver returns; see
-        :func:`sign_convention` and :func:`canonical_repeated`.
+        :func:`canonical_eigenpairs` for reproducible ones.
     """
+    _check_count(K, k, null)
+    return _pairs_solver(K, M, node_dim, null)(k)
+
+
+def _check_count(K, k: int, null) -> None:
     n = K.shape[0]
     q = 0 if null is None else null.shape[1]
     if k < 1 or k + q > n:
         raise ValueError(f"cannot compute {k} eigenpairs besides {q} null vectors of a {n}-DOF problem")
-    if n <= _DENSE_LIMIT or k + q >= n - 1:
-        values, vectors = sla.eigh(K.toarray(), M.toarray())
-        if q:
-            # drop the eigenvectors that span the null space (the lowest ones)
-            values, vectors = values[q:], vectors[:, q:]
-        return values[:k], vectors[:, :k]
-    # a shift just below zero: K - sigma M is positive definite even for a
-    # free body, and the modes nearest sigma are the lowest ones
-    sigma = -1e-6 * float(np.median(K.diagonal() / M.diagonal()))
-    solve = _shift_invert_solver(K, M, sigma, node_dim)
-    if q:
-        MN = np.asarray(M @ null)
 
-        def deflated(b):
-            x = solve(b)
-            return x - null @ (MN.T @ x)
 
-        op = spla.LinearOperator(K.shape, matvec=deflated, dtype=np.float64)
-    else:
-        op = spla.LinearOperator(K.shape, matvec=solve, dtype=np.float64)
-    v0 = np.random.default_rng(20261121).standard_normal(n)
-    if q:
-        v0 -= null @ (MN.T @ v0)
-    # a slightly larger Krylov space than ARPACK's default saves restarts
-    ncv = min(n, max(2 * k + 1, 20))
-    values, vectors = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
-    order = np.argsort(values)
-    return values[order], vectors[:, order]
+def _group_end(values: np.ndarray, i: int, scale: float) -> int:
+    """One past the last eigenvalue in the repeated group that holds ``values[i]``."""
+    stop = i + 1
+    while stop < values.size and _repeated(values[stop - 1], values[stop], scale):
+        stop += 1
+    return stop
+
+
+def _repeated(a: float, b: float, scale: float) -> bool:
+    """Whether neighbouring eigenvalues ``a <= b`` belong to one repeated group."""
+    return abs(b - a) <= _REPEATED_RTOL * max(abs(b), 1e-3 * scale)
+
+
+def canonical_eigenpairs(K, M, k: int, weight, node_dim: int = 1, null=None):
+    """The ``k`` lowest eigenpairs with a reproducible basis: the same on every machine.
+
+    Like :func:`lowest_eigenpairs`, then :func:`canonical_repeated` and
+    :func:`sign_convention`. A repeated group that the ``k``-th eigenvalue
+    belongs to is solved whole before the basis is fixed (a few more pairs
+    are computed until one beyond the group is found), so which vectors of a
+    cut group are kept does not depend on the solver.
+
+    Parameters
+    ----------
+    K, M : scipy.sparse matrix, shape (n, n)
+    k : int
+    weight : ndarray, shape (n,)
+        :func:`generic_weight` of the nodes.
+    node_dim : int
+    null : ndarray, shape (n, q), optional
+        See :func:`lowest_eigenpairs`.
+
+    Returns
+    -------
+    values : ndarray, shape (k,)
+    vectors : ndarray, shape (n, k)
+        M-orthonormal, M-orthogonal to ``null``.
+
+    Examples
+    --------
+    >>> from skfem import MeshTri
+    >>> from skfem_modal.subspace import laplacian
+    >>> from skfem_modal.fem import _mass
+    >>> square = MeshTri.init_symmetric().refined(2)  # symmetric: repeated eigenvalues
+    >>> M = _mass(square, 1.0, True, "P1", False)
+    >>> values, _ = canonical_eigenpairs(laplacian(square), M, 3, generic_weight(square.p.T, 1))
+    >>> bool(values[1] == values[2])
+    True
+    """
+    _check_count(K, k, null)
+    available = K.shape[0] - (0 if null is None else null.shape[1])
+    pairs = _pairs_solver(K, M, node_dim, null)
+    extra = 1  # one more pair tells whether the k-th one's group goes on
+    while True:
+        count = min(k + extra, available)
+        values, vectors = pairs(count)
+        scale = max(float(np.abs(values).max()), 1e-300)
+        end = _group_end(values, k - 1, scale)
+        if end < count or count == available:
+            break
+        extra *= 2
+    values, vectors = canonical_repeated(values[:end].copy(), vectors[:, :end].copy(), M, weight)
+    return values[:k], sign_convention(vectors[:, :k])
 
 
 def sign_convention(modes: np.ndarray) -> np.ndarray:
@@ -169,13 +346,26 @@ def sign_convention(modes: np.ndarray) -> np.ndarray:
     return out
 
 
-def generic_weight(x: np.ndarray) -> np.ndarray:
-    """A smooth, generic positive weight per DOF, shape (n * dim,).
+def generic_weight(x: np.ndarray, components: int | None = None) -> np.ndarray:
+    """A smooth, generic positive weight per DOF, shape (n * components,).
 
     Used to split repeated eigenvalues deterministically: it has no symmetry a
     mesh can share (different along each axis and for each component).
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, dim)
+        Node positions.
+    components : int, optional
+        DOFs per node, interleaved: ``dim`` for vector fields (the default),
+        1 for scalar ones.
+
+    Returns
+    -------
+    weight : ndarray, shape (n * components,)
     """
     n, dim = x.shape
+    components = dim if components is None else components
     lo, hi = x.min(axis=0), x.max(axis=0)
     xi = (x - (lo + hi) / 2) / np.maximum((hi - lo) / 2, 1e-300)
     lin = np.array([0.31, 0.17, 0.11])[:dim]
@@ -185,7 +375,7 @@ def generic_weight(x: np.ndarray) -> np.ndarray:
         f += 0.013 * xi[:, 0] * xi[:, 1]
     if dim == 3:
         f += 0.007 * xi[:, 1] * xi[:, 2] + 0.019 * xi[:, 0] * xi[:, 2]
-    comp = 1.0 + 0.03 * np.arange(dim)
+    comp = 1.0 + 0.03 * np.arange(components)
     return (f[:, None] * comp[None, :]).ravel()
 
 
@@ -213,13 +403,9 @@ def canonical_repeated(values, vectors, M, weight):
     """
     k = values.size
     start = 0
-    scale = max(np.abs(values).max(), 1e-300)
+    scale = max(float(np.abs(values).max()), 1e-300) if k else 1.0
     while start < k:
-        stop = start + 1
-        while stop < k and abs(values[stop] - values[stop - 1]) <= _REPEATED_RTOL * max(
-            abs(values[stop]), 1e-3 * scale
-        ):
-            stop += 1
+        stop = _group_end(values, start, scale)
         if stop - start > 1:
             V = vectors[:, start:stop]
             S = V.T @ (M @ (weight[:, None] * V))

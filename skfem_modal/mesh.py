@@ -23,6 +23,8 @@ __all__ = [
     "check_mesh",
     "validated",
     "load_mesh",
+    "mirror",
+    "tangled_elements",
     "caterpillar",
     "beam2d",
     "beam3d",
@@ -66,16 +68,19 @@ def _element_name(dim: int, plural: bool = True) -> str:
 def _signed_measures(p: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Signed area/volume of each simplex; ``p`` (dim, n), ``t`` (dim+1, nT)."""
     dim = p.shape[0]
-    e = p[:, t[1:]] - p[:, t[0]][:, None, :]  # (dim, dim, nT): edge vectors from vertex 0
-    if dim == 2:
-        det = e[0, 0] * e[1, 1] - e[0, 1] * e[1, 0]
-        return det / 2.0
-    det = (
-        e[0, 0] * (e[1, 1] * e[2, 2] - e[1, 2] * e[2, 1])
-        - e[0, 1] * (e[1, 0] * e[2, 2] - e[1, 2] * e[2, 0])
-        + e[0, 2] * (e[1, 0] * e[2, 1] - e[1, 1] * e[2, 0])
+    edges = p[:, t[1:]] - p[:, t[0]][:, None, :]  # (dim, dim, nT): edge vectors from vertex 0
+    return _determinants(edges.transpose(0, 2, 1)) / (2.0 if dim == 2 else 6.0)
+
+
+def _determinants(e: np.ndarray) -> np.ndarray:
+    """Determinants of a stack of square matrices laid out (dim, m, dim): row, matrix, column."""
+    if e.shape[0] == 2:
+        return e[0, :, 0] * e[1, :, 1] - e[0, :, 1] * e[1, :, 0]
+    return (
+        e[0, :, 0] * (e[1, :, 1] * e[2, :, 2] - e[1, :, 2] * e[2, :, 1])
+        - e[0, :, 1] * (e[1, :, 0] * e[2, :, 2] - e[1, :, 2] * e[2, :, 0])
+        + e[0, :, 2] * (e[1, :, 0] * e[2, :, 1] - e[1, :, 1] * e[2, :, 0])
     )
-    return det / 6.0
 
 
 def _longest_edges(p: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -132,6 +137,83 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
             f"{what}: {unused.size} vertices belong to no element: {_listing(unused)}; "
             "remove them (load_mesh does this for files)"
         )
+    tangled = tangled_elements(p, t)
+    if tangled.size:
+        facet = "edge" if dim == 2 else "face"
+        raise MeshError(
+            f"{what}: {tangled.size} tangled (inverted or folded) {_element_name(dim)}: {_listing(tangled)}; "
+            f"each overlaps a neighbour across a shared {facet} (e.g. a vertex moved across its neighbours)"
+        )
+
+
+def _facets(t: np.ndarray):
+    """Every element's facets: (sorted vertices (nv, dim, nT), opposite vertex (nv, nT))."""
+    nv = t.shape[0]
+    faces = np.stack([np.sort(np.delete(t, i, axis=0), axis=0) for i in range(nv)])
+    return faces, t
+
+
+def _facet_keys(faces: np.ndarray, n: int) -> np.ndarray:
+    """One integer (or row) per facet, equal for equal vertex sets; ``faces`` (k, m) sorted rows."""
+    if float(n) ** faces.shape[1] < 2.0**62:
+        return np.ravel_multi_index(tuple(faces.T), (n,) * faces.shape[1])
+    return np.unique(faces, axis=0, return_inverse=True)[1].ravel()
+
+
+def tangled_elements(p: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Elements that overlap a neighbour: inverted or folded, e.g. by a vertex moved across its neighbours.
+
+    In a valid mesh every interior facet (edge in 2D, triangle in 3D) has
+    exactly two elements, one on each side of it. An element is tangled when
+    it shares a facet with a neighbour that lies on the same side, or shares
+    it with two or more other elements. The test does not use the elements'
+    orientation (scikit-fem sorts each element's vertices), only where their
+    vertices are.
+
+    Parameters
+    ----------
+    p : ndarray, shape (dim, n)
+    t : ndarray of int, shape (dim + 1, nT)
+
+    Returns
+    -------
+    indices : ndarray of int
+        Tangled elements, ascending (empty for a valid mesh).
+
+    Examples
+    --------
+    >>> from skfem import MeshTri
+    >>> square = MeshTri.init_symmetric()  # four triangles around the centre vertex 4
+    >>> tangled_elements(square.p, square.t).tolist()
+    []
+    >>> p = square.p.copy(); p[:, 4] = [1.2, 0.5]  # the centre moved out across the right edge
+    >>> tangled_elements(p, square.t).tolist()
+    [0, 1, 2]
+    """
+    dim, n = p.shape
+    nv, nT = t.shape
+    faces, opposite = _facets(t)
+    flat = faces.transpose(0, 2, 1).reshape(nv * nT, dim)  # facet i of element e at row i * nT + e
+    keys = _facet_keys(flat, n)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+    counts = np.diff(np.r_[starts, sorted_keys.size])
+    bad = [order[np.repeat(counts > 2, counts)] % nT]
+    pairs = starts[counts == 2]
+    first, second = order[pairs], order[pairs + 1]
+    # the side of the shared facet each opposite vertex lies on
+    corners = p[:, flat[first]]  # (dim, pairs, dim)
+    edges = corners[:, :, 1:] - corners[:, :, :1]  # (dim, pairs, dim - 1)
+
+    def side(rows):
+        v = p[:, opposite.ravel()[rows]] - corners[:, :, 0]
+        return _determinants(np.concatenate([edges, v[:, :, None]], axis=2))
+
+    same = side(first) * side(second) > 0
+    bad.append(first[same] % nT)
+    bad.append(second[same] % nT)
+    return np.unique(np.concatenate(bad))
 
 
 # ids of meshes checked by an enclosing `validated` block
@@ -255,20 +337,47 @@ def _compact(p: np.ndarray, t: np.ndarray):
     return p[:, used], renumber[t]
 
 
+def _read_meshio(path: str):
+    """``meshio.read(path)``, with every failure a :class:`MeshError` naming the file.
+
+    meshio prints its reasons and calls ``sys.exit`` when no reader accepts a
+    file; those reasons become the message instead.
+    """
+    import contextlib
+    import io
+
+    import meshio
+
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            return meshio.read(path)
+    except (Exception, SystemExit) as err:
+        reasons = [line.strip().removeprefix("Error:").strip() for line in said.getvalue().splitlines()]
+        reasons = [reason for reason in reasons if reason]
+        if not isinstance(err, SystemExit):
+            reasons.append(f"{type(err).__name__}: {err}" if not isinstance(err, meshio.ReadError) else str(err))
+        detail = "; ".join(dict.fromkeys(reasons)) or type(err).__name__
+        raise MeshError(f"cannot read mesh file {path!r}: {detail}") from None
+
+
 def load_mesh(path: str | os.PathLike):
     """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
 
     Tetrahedra make a 3D ``MeshTet``. Otherwise triangles make a 2D ``MeshTri``;
-    a z column is dropped when it is constant (a flat mesh), and refused
-    otherwise (a curved surface is not a planar body). Quadratic cells
-    (``triangle6``, ``tetra10``) keep their corner vertices. Vertices no
-    element uses (e.g. gmsh's geometry points) are removed.
+    a z column is dropped when it is constant (a flat mesh, e.g. an OBJ
+    outline with z = 0), and refused otherwise (a curved surface is not a
+    planar body). Quadratic cells (``triangle6``, ``tetra10``) keep their
+    corner vertices. Vertices no element uses (e.g. gmsh's geometry points)
+    are removed. Coordinates are kept as they are in the file (see
+    :func:`normalize_and_center` and :func:`mirror` for units and y-down
+    outlines).
 
     Parameters
     ----------
     path : str or path-like
-        The mesh file (``.msh``, ``.vtu``, ``.vtk``, ``.obj``, ``.off``,
-        ``.xdmf``, ``.mesh``, ``.stl`` and everything else meshio reads).
+        The mesh file: Medit ``.mesh``, Gmsh ``.msh``, ``.vtu``, ``.vtk``,
+        ``.obj``, ``.off``, ``.xdmf``, ``.stl`` and everything else meshio reads.
 
     Returns
     -------
@@ -278,22 +387,15 @@ def load_mesh(path: str | os.PathLike):
     ------
     FileNotFoundError
         No such file.
-    ValueError
-        Unknown format, no usable cells, a non-flat triangle surface, or an
+    MeshError
+        (a ``ValueError``) naming the file: unreadable or unknown format, no
+        triangle or tetrahedron cells, a non-flat triangle surface, or an
         invalid mesh (see :func:`check_mesh`).
     """
-    import meshio
-
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file not found: {path!r}")
-    try:
-        raw = meshio.read(path)
-    except meshio.ReadError as err:
-        raise ValueError(f"cannot read mesh {path!r}: {err}") from err
-    except Exception as err:  # meshio raises many kinds for broken files
-        raise ValueError(f"cannot read mesh {path!r}: {type(err).__name__}: {err}") from err
-
+    raw = _read_meshio(path)
     blocks = {}
     for block in raw.cells:
         kind = {"tetra10": "tetra", "triangle6": "triangle"}.get(block.type, block.type)
@@ -302,9 +404,13 @@ def load_mesh(path: str | os.PathLike):
             continue
         blocks.setdefault(kind, []).append(np.asarray(block.data)[:, :ncorner])
     points = np.asarray(raw.points, dtype=np.float64)
+    if points.size == 0:
+        raise MeshError(f"mesh file {path!r} holds no vertices")
+    if points.ndim != 2 or points.shape[1] not in (2, 3):
+        raise MeshError(f"mesh file {path!r}: points must have 2 or 3 coordinates, got shape {points.shape}")
     if "tetra" in blocks:
         if points.shape[1] != 3:
-            raise ValueError(f"{path!r}: tetrahedra need 3D points, got {points.shape[1]} columns")
+            raise MeshError(f"mesh file {path!r}: tetrahedra need 3D points, got {points.shape[1]} columns")
         cells = np.vstack(blocks["tetra"])
     elif "triangle" in blocks:
         cells = np.vstack(blocks["triangle"])
@@ -312,16 +418,56 @@ def load_mesh(path: str | os.PathLike):
             z = points[:, 2]
             extent = np.ptp(points[:, :2], axis=0).max() if len(points) else 0.0
             if np.ptp(z) > 1e-12 * max(extent, 1.0):
-                raise ValueError(
-                    f"{path!r}: triangles are not in a plane of constant z "
+                raise MeshError(
+                    f"mesh file {path!r}: triangles are not in a plane of constant z "
                     f"(z spans {np.ptp(z):.3g}); a 2D mesh must be flat, a 3D body needs tetrahedra"
                 )
             points = points[:, :2]
     else:
         found = sorted({b.type for b in raw.cells}) or ["none"]
-        raise ValueError(f"{path!r}: no triangle or tetrahedron cells (found: {', '.join(found)})")
+        raise MeshError(
+            f"mesh file {path!r}: no triangle or tetrahedron cells (found: {', '.join(found)}); "
+            "a 2D body needs triangles, a 3D one tetrahedra"
+        )
+    if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
+        raise MeshError(f"mesh file {path!r}: cells reference vertices outside 0..{len(points) - 1}")
     p, t = _compact(points.T, cells.T.astype(np.int64))
-    return make_mesh(p.T, t.T, what=f"mesh {os.path.basename(path)!r}")
+    return make_mesh(p.T, t.T, what=f"mesh file {path!r}")
+
+
+def mirror(mesh, axes):
+    """Mirror a mesh along some axes, e.g. a y-down image outline into y up.
+
+    Each named coordinate ``c`` becomes ``min + max - c``, so the mesh keeps
+    its bounding box.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    axes : str or sequence of str
+        Axis names among ``"x"``, ``"y"``, ``"z"`` (the mesh's own).
+
+    Returns
+    -------
+    mesh : same type
+        A new mesh; vertex and element order unchanged.
+
+    Examples
+    --------
+    >>> m = mirror(beam2d(2.0, 1.0, 2, 1), "y")
+    >>> m.p[:, 0].tolist()  # vertex 0 was at (0, 0)
+    [0.0, 1.0]
+    """
+    check_mesh(mesh)
+    dim = mesh.p.shape[0]
+    names = [axes] if isinstance(axes, str) else list(axes)
+    p = mesh.p.copy()
+    for name in names:
+        if name not in "xyz"[:dim] or len(name) != 1:
+            raise ValueError(f"mirror: axis {name!r} is not one of {list('xyz'[:dim])} for this {dim}D mesh")
+        axis = "xyz".index(name)
+        p[axis] = p[axis].min() + p[axis].max() - p[axis]
+    return type(mesh)(p, mesh.t.copy(), sort_t=False)
 
 
 def normalize_and_center(mesh):

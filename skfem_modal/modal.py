@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 import scipy.linalg as sla
 
-from .eigen import canonical_repeated, generic_weight, lowest_eigenpairs, sign_convention
+from .eigen import canonical_eigenpairs, generic_weight, sign_convention
 from .fem import ELEMENTS, _jacobian, _mass, _stiffness, node_positions, scalar_basis, vector_dofs
 from .mesh import check_mesh, connected_parts
 
@@ -44,9 +44,6 @@ __all__ = [
 
 #: Deterministic sign of each mode (see :func:`skfem_modal.eigen.sign_convention`).
 mode_sign_convention = sign_convention
-
-# Extra modes solved beyond k, so a repeated group at the end is not cut.
-_EXTRA_MODES = 1
 
 
 def _node_parts(mesh, element: str) -> np.ndarray:
@@ -251,18 +248,16 @@ def linear_modal_analysis(
 
     R = _rigid_motions(mesh, fixed, element)[free]
     n_rigid = R.shape[1]
-    k_solve = min(k + _EXTRA_MODES, free.size)
     rigid = _m_orthonormalize(R, Mf) if n_rigid else np.zeros((free.size, 0))
-    n_elastic = max(0, k_solve - n_rigid)
-    values = np.zeros(k_solve)
-    vectors = np.zeros((free.size, k_solve))
-    if n_rigid:
-        # the rigid motions are known exactly: they are the first modes
-        stop = min(n_rigid, k_solve)
-        vectors[:, :stop] = rigid[:, :stop]
-        values[:stop] = np.einsum("ij,ij->j", rigid[:, :stop], Kf @ rigid[:, :stop])
-    if n_elastic:
-        ev, evec = lowest_eigenpairs(Kf, Mf, n_elastic, dim, null=rigid if n_rigid else None)
+    values = np.zeros(k)
+    vectors = np.zeros((free.size, k))
+    # the rigid motions are known exactly: they are the first modes
+    stop = min(n_rigid, k)
+    vectors[:, :stop] = rigid[:, :stop]
+    values[:stop] = np.einsum("ij,ij->j", rigid[:, :stop], Kf @ rigid[:, :stop])
+    if k > n_rigid:
+        weight = generic_weight(node_positions(mesh, element)).reshape(-1)[free]
+        ev, evec = canonical_eigenpairs(Kf, Mf, k - n_rigid, weight, dim, null=rigid if n_rigid else None)
         values[n_rigid:], vectors[:, n_rigid:] = ev, evec
         scale = float(np.abs(ev).max())
         n_zero = int((np.abs(ev) <= 1e-8 * max(scale, 1e-300)).sum())
@@ -273,12 +268,7 @@ def linear_modal_analysis(
                 RuntimeWarning,
                 stacklevel=2,
             )
-    elastic = slice(min(n_rigid, k_solve), k_solve)
-    weight = generic_weight(node_positions(mesh, element)).reshape(-1)[free]
-    values[elastic], vectors[:, elastic] = canonical_repeated(
-        values[elastic].copy(), vectors[:, elastic].copy(), Mf, weight
-    )
-    vectors = sign_convention(vectors[:, :k])
+    vectors = sign_convention(vectors)
     modes = np.zeros((n_dofs, k))
     modes[free] = vectors
     return values[:k], modes

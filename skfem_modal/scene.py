@@ -14,13 +14,15 @@ import csv
 import math
 import os
 import tomllib
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .mesh import _CONDITION, BUILTIN_SHAPES, builtin_mesh, load_mesh, normalize_and_center, vertices_where
+from .mesh import _CONDITION, BUILTIN_SHAPES, builtin_mesh, load_mesh, mirror, normalize_and_center, vertices_where
+from .units import ScaleWarning, scale_mismatch, up_axis
 
 __all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
 
@@ -99,7 +101,19 @@ SCHEMA: dict[str, Any] = {
             "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }` "
             "(see the shape functions in `skfem_modal.mesh`).",
         ),
-        "normalize": Key("bool", False, "Centre the mesh at its vertex mean and scale its largest extent to 2."),
+        "flip": Key(
+            "strs",
+            None,
+            'Mirror the mesh along these axes first, e.g. ["y"] for an outline traced in image coordinates (y down).',
+            check=lambda v: None if all(a in ("x", "y", "z") for a in v) else 'a list of "x", "y", "z"',
+        ),
+        "normalize": Key(
+            "bool",
+            False,
+            "Centre the mesh at its vertex mean and scale its largest extent to 2 (for meshes in other "
+            "units, e.g. pixels: a warning says when the mesh's size and the material's length scale are far "
+            "apart).",
+        ),
         "scale": Key(
             "float", 1.0, "Multiply every coordinate by this factor (after normalising).", "length", _positive
         ),
@@ -221,7 +235,12 @@ SCHEMA: dict[str, Any] = {
             "length",
             _non_negative,
         ),
-        "up": Key("int", None, "Index of the up axis (default: the last, y in 2D, z in 3D)."),
+        "up": Key(
+            "int",
+            None,
+            "Index of the up axis (default: the axis gravity pulls down along; without gravity the last, "
+            "y in 2D, z in 3D). Gravity must have a component along -up.",
+        ),
         "stickiness": Key(
             "float",
             1.0,
@@ -495,7 +514,11 @@ class Scene:
         if errors:
             head = f"{source}: " if source not in ("dict", "built-in") else ""
             raise SceneError(f"{head}{len(errors)} problem(s) in the scene:\n  " + "\n  ".join(errors))
-        return cls(config=config, mesh=mesh, source=source, _table=table)
+        scene = cls(config=config, mesh=mesh, source=source, _table=table)
+        message = scene.scale_warning()
+        if message:
+            warnings.warn(message, ScaleWarning, stacklevel=2)
+        return scene
 
     # ---------------------------------------------------------- properties
     @property
@@ -540,6 +563,25 @@ class Scene:
         gamma = mu if m["gamma"] is None else m["gamma"]
         return {"mu": mu, "gamma": gamma, "lam": lam, "rho": m["rho"]}
 
+    def scale_warning(self) -> str | None:
+        """Why the mesh's size and the material's length scales are far apart (wrong units?), or None.
+
+        See :func:`~skfem_modal.units.scale_mismatch`; :meth:`from_dict` warns
+        with it (:class:`~skfem_modal.units.ScaleWarning`).
+        """
+        spec = self.config["mesh"]
+        name = os.path.basename(spec["file"]) if spec["file"] else (spec["shape"] or "caterpillar")
+        gravity = self.config["gravity"]
+        mat = self.material()
+        return scale_mismatch(
+            self.mesh,
+            mat["mu"],
+            mat["rho"],
+            None if gravity is None else gravity["acceleration"],
+            self.n_steps * self.h,
+            what=f"mesh {name!r}",
+        )
+
     def ground_height(self) -> float | None:
         g = self.config["ground"]
         if g is None:
@@ -550,8 +592,10 @@ class Scene:
 
     @property
     def up(self) -> int:
+        """The up axis: ``ground.up``, or the axis gravity pulls down along (:func:`~skfem_modal.units.up_axis`)."""
         g = self.config["ground"]
-        return self.dim - 1 if g is None or g["up"] is None else g["up"]
+        gravity = self.config["gravity"]
+        return up_axis(None if gravity is None else gravity["acceleration"], self.dim, None if g is None else g["up"])
 
     def contact_candidates(self) -> np.ndarray | None:
         g = self.config["ground"]
@@ -729,6 +773,11 @@ def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
     except (ValueError, TypeError) as err:
         errors.append(f"mesh: {err}")
         return None
+    if spec["flip"]:
+        if any("xyz".index(axis) >= mesh.p.shape[0] for axis in spec["flip"]):
+            errors.append(f"mesh.flip: expected axes of this {mesh.p.shape[0]}D mesh, got {spec['flip']!r}")
+            return None
+        mesh = mirror(mesh, spec["flip"])
     if spec["normalize"]:
         mesh = normalize_and_center(mesh)
     if spec["scale"] != 1.0:
@@ -767,16 +816,24 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
     t = config["time"]
     if t["steps"] is not None and t["duration"] is not None:
         errors.append("time: give duration or steps, not both")
+    acc = None
     if config["gravity"] is not None:
         acc = config["gravity"]["acceleration"]
         if acc is not None and len(acc) != dim:
             errors.append(f"gravity.acceleration: expected {dim} values for this {dim}D mesh, got {len(acc)}")
+            acc = None
     ground = config["ground"]
+    up = None if ground is None else ground["up"]
+    if up is not None and not 0 <= up < dim:
+        errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {up}")
+    elif acc is not None:
+        try:
+            up_axis(acc, dim, up)
+        except ValueError as err:
+            errors.append(f"gravity.acceleration and ground.up: {err}")
     if ground is not None:
         if ground["height"] is not None and ground["offset"] is not None:
             errors.append("ground: give height or offset, not both")
-        if ground["up"] is not None and not 0 <= ground["up"] < dim:
-            errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {ground['up']}")
         for cond in ground["contacts_where"] or []:
             match = _CONDITION.match(cond)
             if match is None or "xyz".index(match.group(1)) >= dim:

@@ -18,9 +18,9 @@ import scipy.sparse as sps
 from skfem import asm
 from skfem.models.poisson import laplace
 
-from .eigen import canonical_repeated, generic_weight, lowest_eigenpairs, sign_convention
+from .eigen import canonical_eigenpairs, generic_weight
 from .fem import _mass, scalar_basis
-from .mesh import check_mesh
+from .mesh import check_mesh, connected_parts
 
 __all__ = [
     "laplacian",
@@ -124,16 +124,26 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
         raise TypeError(f"k (the number of skinning weights) must be an integer, got {type(k).__name__}")
     if not 1 <= k < n:
         raise ValueError(f"k (the number of skinning weights) must be in 1..{n - 1}, got {k}")
+    parts = connected_parts(mesh)
+    n_parts = int(parts.max()) + 1
+    if k < n_parts:
+        raise ValueError(
+            f"k (the number of skinning weights) must be at least the mesh's {n_parts} separate parts "
+            f"(one constant weight each, so every part can move on its own), got {k}"
+        )
     L = laplacian(mesh)
     M = _mass(mesh, rho, True, "P1", False)
-    # the constant is the first eigenfunction, known exactly (eigenvalue 0 on a
-    # connected mesh): the solver only looks for the others
-    constant = np.full((n, 1), 1.0 / np.sqrt(M.diagonal().sum()))
-    values, W = lowest_eigenpairs(L, M, k - 1, null=constant) if k > 1 else (np.zeros(0), np.zeros((n, 0)))
-    values = np.concatenate([[float(constant[:, 0] @ (L @ constant[:, 0]))], values])
-    W = np.hstack([constant, W])
-    values, W = canonical_repeated(values.copy(), W.copy(), M, generic_weight(mesh.p.T))
-    W = sign_convention(W)
+    # the first eigenfunctions are known exactly: the constant on each
+    # connected part (eigenvalue 0); the solver only looks for the others
+    m = M.diagonal()
+    indicators = np.zeros((n, n_parts))
+    indicators[np.arange(n), parts] = 1.0
+    indicators /= np.sqrt(m @ indicators)
+    values = np.einsum("ij,ij->j", indicators, L @ indicators)
+    W = indicators
+    if k > n_parts:
+        found, vectors = canonical_eigenpairs(L, M, k - n_parts, generic_weight(mesh.p.T, 1), null=indicators)
+        values, W = np.concatenate([values, found]), np.hstack([indicators, vectors])
     return values, W, lbs_basis(mesh.p.T, W)
 
 

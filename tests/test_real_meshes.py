@@ -1,0 +1,243 @@
+"""Meshes users bring: the real creature files in ../shared/meshes, other formats, bad files, units, axes.
+
+The real meshes come from the public simkit-data repository (see
+../shared/meshes/README.md): 2D outlines in pixel units, 3D tetrahedral
+Medit files, y up. CI has ../shared beside the checkout.
+"""
+
+import json
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import warnings
+
+import meshio
+import numpy as np
+import pytest
+from skfem import MeshTri
+
+from skfem_modal import MeshError, load_mesh, mirror, normalize_and_center, tangled_elements
+from skfem_modal.mesh import check_mesh, make_mesh
+from skfem_modal.run import run_scene
+from skfem_modal.scene import Scene, SceneError
+from skfem_modal.units import ScaleWarning, material_length_scales, scale_mismatch, up_axis
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "meshes"
+EXAMPLES = ROOT / "examples"
+
+# ../shared/meshes/README.md: vertices / elements, dimension, extent
+REAL = {
+    "batsy.obj": (5535, 10737, 2, (1700, 720)),
+    "ghost.obj": (2038, 3720, 2, (1600, 990)),
+    "elephant.mesh": (7842, 29011, 3, (113, 128, 74)),
+    "seal.mesh": (9996, 38689, 3, (1.9, 1.0, 1.5)),
+}
+
+needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason=f"the real meshes are not at {SHARED}")
+
+
+@needs_shared
+@pytest.mark.parametrize("name", REAL)
+def test_real_meshes_load_with_their_sizes_and_extents(name):
+    vertices, elements, dim, extent = REAL[name]
+    mesh = load_mesh(SHARED / name)
+    assert mesh.p.shape == (dim, vertices) and mesh.t.shape == (dim + 1, elements)
+    assert np.allclose(np.ptp(mesh.p, axis=1), extent, rtol=0.06)
+    assert tangled_elements(mesh.p, mesh.t).size == 0
+
+
+@needs_shared
+def test_a_pixel_outline_warns_naming_both_lengths_and_normalize_silences_it():
+    scene = {"mesh": {"file": str(SHARED / "ghost.obj")}, "gravity": {"acceleration": [0.0, -9.8]}, "ground": {}}
+    with pytest.warns(ScaleWarning) as caught:
+        Scene.from_dict(scene)
+    message = str(caught[0].message)
+    # 1631 pixels across, the default material (mu 1e5, rho 1e3) with g = 9.8: 10.2
+    assert "mesh 'ghost.obj' is 1631 length units across" in message
+    assert "length scale 10.2" in message and "normalize" in message
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        normalised = Scene.from_dict({**scene, "mesh": {**scene["mesh"], "normalize": True}})
+    assert np.ptp(normalised.mesh.p, axis=1).max() == pytest.approx(2.0)
+
+
+def test_the_length_scales_are_the_material_s():
+    assert material_length_scales(1e5, 1e3, [0.0, -9.8]) == {"weight": pytest.approx(1e5 / 9.8e3)}
+    assert material_length_scales(4e4, 1e2, duration=3.0) == {"waves": pytest.approx(60.0)}
+    body = MeshTri.init_symmetric()  # 1 across
+    # without gravity: a wave at 20 / s crosses 1 unit many times in 3 s; 100 units not once in 0.3 s
+    assert scale_mismatch(body, 4e4, 1e2, duration=3.0) is None
+    big = MeshTri(body.p * 100.0, body.t)
+    assert "barely move in the run" in scale_mismatch(big, 4e4, 1e2, duration=0.3)
+
+
+@needs_shared
+@pytest.mark.parametrize("name", ["seal.mesh", "elephant.mesh"])
+def test_y_up_files_get_the_up_axis_from_gravity_and_the_ground_below_them(name):
+    base = {"mesh": {"file": str(SHARED / name), "normalize": True}, "gravity": {"acceleration": [0.0, -9.8, 0.0]}}
+    scene = Scene.from_dict({**base, "ground": {"offset": 0.1}})
+    assert scene.up == 1
+    assert scene.ground_height() == pytest.approx(scene.mesh.p[1].min() - 0.1)
+    with pytest.raises(SceneError, match=r"gravity \[0, -9.8, 0\] has no component along -z.*up = 1 \(y\)"):
+        Scene.from_dict({**base, "ground": {"up": 2}})
+
+
+def test_up_axis_follows_gravity_and_refuses_gravity_without_a_downward_component():
+    assert up_axis([0.0, -9.8], 2) == 1
+    assert up_axis([-9.8, 0.0, 0.0], 3) == 0
+    assert up_axis([0.5, 0.0, -9.8], 3) == 2  # a tilted gravity: its largest component
+    assert up_axis(None, 2) == 1 and up_axis([0.0, 0.0], 2, up=0) == 0
+    with pytest.raises(ValueError, match=r"gravity \[0, 9.8\] pulls along \+y.*mesh.flip"):
+        up_axis([0.0, 9.8], 2)
+    with pytest.raises(ValueError, match=r"gravity \[-9.8, 0\] has no component along -y.*give up = 0 \(x\)"):
+        up_axis([-9.8, 0.0], 2, up=1)
+    with pytest.raises(ValueError, match="up must be an axis index in 0..2"):
+        up_axis([0.0, 0.0, -1.0], 3, up=3)
+
+
+@needs_shared
+def test_mirror_turns_a_y_down_outline_over_in_its_own_box():
+    ghost = load_mesh(SHARED / "ghost.obj")
+    flipped = mirror(ghost, "y")
+    assert np.allclose(flipped.p.min(axis=1), ghost.p.min(axis=1))
+    assert np.allclose(flipped.p.max(axis=1), ghost.p.max(axis=1))
+    assert np.allclose(flipped.p[1], ghost.p[1].min() + ghost.p[1].max() - ghost.p[1])
+    assert np.array_equal(flipped.p[0], ghost.p[0])
+    scene = Scene.from_dict({"mesh": {"file": str(SHARED / "ghost.obj"), "flip": ["y"], "normalize": True}})
+    assert np.allclose(scene.mesh.p, normalize_and_center(flipped).p)
+    with pytest.raises(SceneError, match="mesh.flip: expected axes of this 2D mesh"):
+        Scene.from_dict({"mesh": {"file": str(SHARED / "ghost.obj"), "flip": ["z"]}})
+
+
+@needs_shared
+@pytest.mark.parametrize("name,formats", [("ghost.obj", ["msh", "vtu", "mesh"]), ("seal.mesh", ["msh", "vtu"])])
+def test_the_same_mesh_reads_back_from_every_format(name, formats, tmp_path):
+    mesh = load_mesh(SHARED / name)
+    cell = "triangle" if mesh.p.shape[0] == 2 else "tetra"
+    points = mesh.p.T if cell == "tetra" else np.column_stack([mesh.p.T, np.zeros(mesh.p.shape[1])])
+    for ext in formats:
+        path = tmp_path / f"copy.{ext}"
+        kwargs = {"file_format": "gmsh22", "binary": False} if ext == "msh" else {}
+        meshio.write(path, meshio.Mesh(points, [(cell, mesh.t.T)]), **kwargs)
+        back = load_mesh(path)
+        assert np.allclose(back.p, mesh.p) and np.array_equal(back.t, mesh.t), ext
+
+
+@pytest.mark.parametrize("ext", ["msh", "vtu", "mesh", "obj", "xyz"])
+def test_a_garbage_file_is_a_mesh_error_naming_it_never_system_exit(ext, tmp_path):
+    path = tmp_path / f"garbage.{ext}"
+    path.write_bytes(b"\x00\x01 this is not a mesh\n")
+    with pytest.raises(MeshError, match=re.escape(f"garbage.{ext}")):
+        load_mesh(path)
+
+
+def test_a_vtu_without_cells_or_with_only_lines_is_a_mesh_error(tmp_path):
+    points = np.random.default_rng(0).random((5, 3))
+    empty = tmp_path / "empty.vtu"
+    meshio.write(empty, meshio.Mesh(points, []))
+    with pytest.raises(MeshError, match="empty.vtu"):
+        load_mesh(empty)
+    lines = tmp_path / "lines.vtu"
+    meshio.write(lines, meshio.Mesh(points, [("line", np.array([[0, 1], [1, 2]]))]))
+    with pytest.raises(MeshError, match=r"lines.vtu.*no triangle or tetrahedron cells \(found: line\)"):
+        load_mesh(lines)
+    nothing = tmp_path / "nothing.obj"
+    nothing.write_text("")
+    with pytest.raises(MeshError, match="nothing.obj' holds no vertices"):
+        load_mesh(nothing)
+
+
+def test_the_cli_says_which_file_it_cannot_read(tmp_path):
+    path = tmp_path / "garbage.msh"
+    path.write_bytes(b"\x00 not a mesh")
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "modes", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode != 0
+    assert "garbage.msh" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_vertex_moved_across_its_neighbours_is_reported_with_the_tangled_elements():
+    square = MeshTri.init_symmetric().refined(2)
+    centre = int(np.argmin(((square.p - 0.5) ** 2).sum(axis=0)))
+    p = square.p.copy()
+    p[:, centre] += [0.3, 0.0]  # past the next vertex to the right (0.25 away)
+    star = np.nonzero((square.t == centre).any(axis=0))[0]
+    tangled = tangled_elements(p, square.t)
+    assert tangled.size and set(tangled) <= set(star) | set(np.nonzero(np.isin(square.t, square.t[:, star]).any(0))[0])
+    assert np.intersect1d(tangled, star).size >= 2
+    with pytest.raises(MeshError, match=r"tangled \(inverted or folded\) triangles: \[" + str(tangled[0])):
+        make_mesh(p.T, square.t.T)
+    # nothing is degenerate: every element still has a positive area, only the overlaps tell
+    with pytest.raises(MeshError, match="shared edge"):
+        check_mesh(MeshTri(p, square.t))
+
+
+@needs_shared
+def test_a_tangled_real_tetrahedral_mesh_is_reported(tmp_path):
+    seal = load_mesh(SHARED / "seal.mesh")
+    vertex = int(np.argmax(seal.p[0]))  # the tip of the tail... any boundary vertex
+    neighbours = np.unique(seal.t[:, (seal.t == vertex).any(axis=0)])
+    p = seal.p.copy()
+    # move it through the opposite side of its star: beyond the farthest neighbour
+    p[:, vertex] -= 2.5 * (p[:, vertex] - p[:, neighbours].mean(axis=1))
+    tangled = tangled_elements(p, seal.t)
+    star = np.nonzero((seal.t == vertex).any(axis=0))[0]
+    assert np.intersect1d(tangled, star).size >= 1
+    path = tmp_path / "tangled.mesh"
+    meshio.write(path, meshio.Mesh(p.T, [("tetra", seal.t.T)]))
+    with pytest.raises(MeshError, match=r"tangled.mesh.*tangled \(inverted or folded\) tetrahedra"):
+        load_mesh(path)
+
+
+def short(scene, steps):
+    scene.config["time"]["steps"] = steps
+    return scene
+
+
+@needs_shared
+def test_the_ghost_example_lands_and_crawls_on_the_ground():
+    scene = short(Scene.from_toml(EXAMPLES / "ghost_crawl.toml"), 150)
+    assert scene.up == 1 and scene.effects[-2:] == ("gravity", "contact")
+    summary = run_scene(scene, None)
+    com = summary["com"]
+    # dropped 0.05 onto the ground: it lands and stays there, no bounce, no blow-up
+    assert -0.15 < com["min"][1] - com["start"][1] < -0.04
+    assert com["max"][1] - com["start"][1] < 0.05
+    assert summary["ground"]["worst_penetration_contacts"] < 1e-6
+    assert 0.01 < abs(com["travel"][0]) < 1.0
+
+
+@needs_shared
+@pytest.mark.slow
+def test_the_seal_example_lies_on_the_ground_and_wriggles():
+    scene = short(Scene.from_toml(EXAMPLES / "seal_crawl.toml"), 120)
+    assert scene.up == 1 and scene.mesh.t.shape[1] == 38689
+    summary = run_scene(scene, None)
+    com = summary["com"]
+    assert abs(com["min"][1] - com["start"][1]) < 0.1 and com["max"][1] - com["start"][1] < 0.15
+    assert summary["ground"]["worst_penetration_contacts"] < 1e-6
+    assert 0.01 < np.hypot(com["travel"][0], com["travel"][2]) < 1.0
+
+
+@needs_shared
+def test_the_ghost_runs_on_the_default_install_without_numba(tmp_path):
+    scene = tmp_path / "ghost.toml"
+    text = (EXAMPLES / "ghost_crawl.toml").read_text()
+    text = text.replace('"../../shared/meshes/ghost.obj"', repr(str(SHARED / "ghost.obj")).replace("'", '"'))
+    text = text.replace("duration = 4.0", "steps = 40")
+    scene.write_text(text)
+    env = {**os.environ, "SKFEM_MODAL_NUMBA": "0", "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "run", str(scene), "--out", str(tmp_path / "out"), "-q"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["steps"] == 40 and np.all(np.isfinite(summary["com"]["end"]))
