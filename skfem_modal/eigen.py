@@ -213,7 +213,7 @@ def canonical_repeated(values, vectors, M, weight):
     """
     k = values.size
     start = 0
-    scale = max(np.abs(values).max(), 1e-300)
+    scale = max(np.abs(values).max(initial=0.0), 1e-300)
     while start < k:
         stop = start + 1
         while stop < k and abs(values[stop] - values[stop - 1]) <= _REPEATED_RTOL * max(

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-__all__ = ["read_run", "gl_available", "plot_com", "plot_amplitudes", "render_run"]
+__all__ = ["read_run", "gl_available", "render_problems", "plot_com", "plot_amplitudes", "render_run"]
 
 
 def read_run(run_dir) -> dict:
@@ -80,6 +80,56 @@ def gl_available() -> bool:
     except (OSError, subprocess.TimeoutExpired):
         return False
     return result.returncode == 0
+
+
+def render_problems(backend: str = "auto", fmt: str = "gif") -> list[str]:
+    """What stops :func:`render_run` here, checked before any drawing.
+
+    Parameters
+    ----------
+    backend : {"auto", "pyvista", "matplotlib"}
+    fmt : {"gif", "mp4"}
+
+    Returns
+    -------
+    problems : list of str
+        Each names what is missing and how to get it; empty when rendering can go ahead.
+    """
+    problems = []
+    for module, package in (("matplotlib", "matplotlib"), ("PIL", "pillow")):
+        try:
+            __import__(module)
+        except ImportError:
+            problems.append(f"{package} is not installed: pip install 'skfem_modal[plot]'")
+    if backend == "pyvista":
+        try:
+            import pyvista  # noqa: F401
+        except ImportError:
+            problems.append("pyvista is not installed: pip install 'skfem_modal[plot]', or use --backend matplotlib")
+        else:
+            if not gl_available():
+                problems.append("pyvista cannot render off-screen here (no working OpenGL): use --backend matplotlib")
+    if fmt == "mp4":
+        problem = _mp4_problem()
+        if problem:
+            problems.append(problem)
+    return problems
+
+
+def _mp4_problem() -> str | None:
+    """Why an mp4 cannot be written here (a two-frame trial in a scratch folder), or None."""
+    import tempfile
+
+    try:
+        import imageio.v2 as imageio
+    except ImportError:
+        return "writing mp4 needs imageio with ffmpeg: pip install 'imageio[ffmpeg]', or use --format gif"
+    with tempfile.TemporaryDirectory() as scratch:
+        try:
+            imageio.mimwrite(os.path.join(scratch, "trial.mp4"), [np.zeros((16, 16, 3), np.uint8)] * 2, fps=10)
+        except Exception:  # imageio names no single error for a missing plugin
+            return "writing mp4 needs an ffmpeg plugin for imageio: pip install 'imageio[ffmpeg]', or use --format gif"
+    return None
 
 
 def _pyplot():
@@ -239,12 +289,9 @@ def _save_animation(images, path, fps: int):
         frames = [Image.fromarray(im) for im in images]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
         return os.fspath(path)
-    try:
-        import imageio.v2 as imageio
+    import imageio.v2 as imageio
 
-        imageio.mimwrite(path, images, fps=fps)
-    except Exception as err:  # no ffmpeg plugin
-        raise ValueError(f"cannot write {path!r} ({err}); install imageio[ffmpeg] or use --format gif") from None
+    imageio.mimwrite(path, images, fps=fps)
     return os.fspath(path)
 
 
@@ -274,6 +321,9 @@ def render_run(run_dir, *, backend: str = "auto", fmt: str = "gif", max_frames: 
     run_dir = os.fspath(run_dir)
     if not os.path.isfile(os.path.join(run_dir, "summary.json")):
         raise FileNotFoundError(f"{run_dir!r} is not a run directory (no summary.json)")
+    problems = render_problems(backend, fmt)
+    if problems:
+        raise ImportError("cannot render: " + "; ".join(problems))
     run = read_run(run_dir)
     if not run["frames"]:
         raise ValueError(f"{run_dir!r} holds no frames")
