@@ -168,7 +168,7 @@ def _render(run_dir, args, say) -> int:
     from .plot import render_run
 
     _check_render(args)
-    written = render_run(run_dir, backend=args.backend, fmt=args.format, max_frames=args.max_frames)
+    written = render_run(run_dir, backend=args.backend, fmt=args.format, max_frames=args.max_frames, size=args.size)
     backend = written.pop("backend")
     say(f"rendered with {backend}: " + ", ".join(os.path.basename(p) for p in written.values()))
     return EXIT_OK
@@ -337,6 +337,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _picture_size(text: str) -> tuple[int, int]:
+    width, x, height = text.lower().partition("x")
+    if not (x and width.isdigit() and height.isdigit() and min(int(width), int(height)) >= 16):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels (each at least 16), got {text!r}")
+    return int(width), int(height)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -394,6 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
         )
         p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
         p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
+        p.add_argument("--size", type=_picture_size, default="1280x720", metavar="WxH", help="picture size in pixels")
 
     p = command("run", help="run a scene (default: the tutorial's caterpillar crawl)")
     p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")

@@ -122,6 +122,19 @@ def test_an_earlier_run_is_refused_or_replaced_never_mixed(tmp_path, capsys, sma
         run_scene(Scene.from_toml(small_scene), out)
 
 
+def test_the_cleaner_knows_every_file_a_run_and_render_write(tmp_path, small_scene):
+    from skfem_modal.outputs import earlier_run
+
+    out = tmp_path / "out"
+    assert main(["run", str(small_scene), "--out", str(out), "-q", "--render", "--backend", "matplotlib"]) == 0
+    assert main(["render", str(out), "-q", "--backend", "matplotlib", "--max-frames", "2", "--size", "320x180"]) == 0
+    written = sorted(str(p) for p in out.rglob("*") if p.is_file())
+    assert len(written) == 21 + 4 + 5 and earlier_run(out) == written
+    from PIL import Image
+
+    assert Image.open(out / "last_frame.png").size == (320, 180)
+
+
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])
 def test_written_files_follow_the_umask(tmp_path, small_scene, umask, mode):
     old = os.umask(umask)
