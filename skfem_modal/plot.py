@@ -100,11 +100,14 @@ def render_problems(backend: str = "auto", fmt: str = "gif") -> list[str]:
         Each names what is missing and how to get it; empty when rendering can go ahead.
     """
     problems = []
+    missing = []
     for module, package in (("matplotlib", "matplotlib"), ("PIL", "pillow")):
         try:
             __import__(module)
         except ImportError:
-            problems.append(f"{package} is not installed: pip install 'skfem_modal[plot]'")
+            missing.append(package)
+    if missing:
+        problems.append(f"{' and '.join(missing)} not installed: pip install 'skfem_modal[plot]'")
     if backend == "pyvista":
         try:
             import pyvista  # noqa: F401
@@ -194,6 +197,7 @@ class _Frame:
     points: np.ndarray  # (n, dim)
     rest: np.ndarray  # (n, dim)
     cells: np.ndarray  # (nT, dim + 1)
+    deformation: np.ndarray  # (n,) distance from the best rigid motion of the rest shape
 
 
 def _read_frame(time: float, path: str) -> _Frame:
@@ -205,7 +209,8 @@ def _read_frame(time: float, path: str) -> _Frame:
     else:
         cells, dim = m.cells_dict["tetra"], 3
     points = m.points[:, :dim]
-    return _Frame(time, points, points - m.point_data["displacement"][:, :dim], cells)
+    rest = points - m.point_data["displacement"][:, :dim]
+    return _Frame(time, points, rest, cells, deformation(rest, points))
 
 
 def _surface(tets):
@@ -252,10 +257,10 @@ def _plan(frames: list[_Frame], summary: dict, size) -> _View:
     for f in frames:
         seen = f.points
         if ground is not None:  # the floor under the body is seen too
-            seen = np.vstack([seen, f.points - np.outer(f.points @ up - ground, up)])
+            seen = np.vstack([seen, _on_floor(f.points, up, ground)])
         screen = camera.screen(seen)
         boxes.append([screen.min(axis=0), screen.max(axis=0)])
-        deform.append(deformation(f.rest, f.points).max())
+        deform.append(f.deformation.max())
         lows.append(f.points.min(axis=0))
         highs.append(f.points.max(axis=0))
     aspect = _DRAWING_WIDTH * size[0] / size[1]
@@ -298,9 +303,9 @@ def _floor_lines(view: _View) -> np.ndarray:
     return np.array(lines)
 
 
-def _on_floor(view: _View, points) -> np.ndarray:
-    """Points moved straight down (along up) onto the floor, shape (n, dim)."""
-    return points - np.outer(points @ view.up - view.ground, view.up)
+def _on_floor(points, up, ground: float) -> np.ndarray:
+    """Points (n, dim) moved straight down (along ``up``) onto the floor at height ``ground``."""
+    return points - np.outer(points @ up - ground, up)
 
 
 def _floor_corners(view: _View) -> np.ndarray:
@@ -309,7 +314,7 @@ def _floor_corners(view: _View) -> np.ndarray:
     lo, hi = view.floor_lo, view.floor_hi
     corners = np.array([(lo @ a) * a + (lo @ b) * b, (hi @ a) * a + (lo @ b) * b, (hi @ a) * a + (hi @ b) * b])
     corners = np.vstack([corners, (lo @ a) * a + (hi @ b) * b])
-    return _on_floor(view, corners)
+    return _on_floor(corners, view.up, view.ground)
 
 
 def _matplotlib_frames(frames: list[_Frame], view: _View, size):
@@ -340,9 +345,9 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
                 ax.add_patch(plt.Polygon(camera.screen(_floor_corners(view)), color="0.92", zorder=0))
             ax.add_collection(LineCollection(floor, colors="0.6", linewidths=0.8, zorder=1))
         screen = camera.screen(f.points)
-        values = deformation(f.rest, f.points)
+        values = f.deformation
         if view.dim == 3 and view.ground is not None:  # the body's shadow straight below: how high it is
-            shadow = camera.screen(_on_floor(view, f.points)[faces].reshape(-1, 3)).reshape(-1, 3, 2)
+            shadow = camera.screen(_on_floor(f.points, view.up, view.ground)[faces].reshape(-1, 3)).reshape(-1, 3, 2)
             ax.add_collection(PolyCollection(shadow, facecolors="0.75", edgecolors="none", zorder=1.5))
         if view.dim == 2:
             tri = Triangulation(screen[:, 0], screen[:, 1], f.cells)
@@ -379,7 +384,7 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
     dim = view.dim
     cells = frames[0].cells if dim == 2 else _surface(frames[0].cells)
     body = pv.PolyData.from_regular_faces(pad3(frames[0].points), cells)
-    body.point_data["deformation"] = deformation(frames[0].rest, frames[0].points)
+    body.point_data["deformation"] = frames[0].deformation
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
     plotter.set_background("white")
     plotter.add_mesh(
@@ -416,18 +421,18 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
             below = -1e-3 * view.spacing * view.up  # under the lines and the shadow
             floor = pv.PolyData(_floor_corners(view) + below, faces=[4, 0, 1, 2, 3])
             plotter.add_mesh(floor, color="#ebebeb", lighting=False)
-            shadow = pv.PolyData.from_regular_faces(_on_floor(view, frames[0].points), cells)
+            shadow = pv.PolyData.from_regular_faces(_on_floor(frames[0].points, view.up, view.ground), cells)
             plotter.add_mesh(shadow, color="#bfbfbf", lighting=False)
     text = plotter.add_text("", position=(20, size[1] - 44), font_size=14, color="black")
     depth = float(np.median(camera.depth(pad3(frames[0].points))))
     images = []
     for k, f in enumerate(frames):
         body.points = pad3(f.points)
-        body.point_data["deformation"] = deformation(f.rest, f.points)
+        body.point_data["deformation"] = f.deformation
         if dim == 3:
             body.compute_normals(inplace=True, cell_normals=False, auto_orient_normals=False)
             if view.ground is not None:
-                shadow.points = _on_floor(view, f.points)
+                shadow.points = _on_floor(f.points, view.up, view.ground)
         text.SetInput(f"t = {f.time:.3f}")
         # the window's centre sits left of the picture's (the colour bar takes the right)
         u = view.centres[k, 0] + (0.5 - _DRAWING_WIDTH / 2) * 2.0 * view.half_height * size[0] / size[1]

@@ -494,7 +494,7 @@ class Scene:
         table = None
         # every problem at once: the mesh is built when its own keys are right,
         # and the checks across keys run whatever else is wrong
-        if not any(e.startswith("mesh") for e in errors):
+        if not any(e.split(":", 1)[0].split(".", 1)[0] == "mesh" for e in errors):
             mesh = _build_mesh(config["mesh"], base_dir, errors)
         _check_cross(config, mesh, errors)
         muscles = config["muscles"]
