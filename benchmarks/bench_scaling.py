@@ -39,10 +39,10 @@ def step_ms(sim, steps=100):
     return 1e3 * float(np.median(times))
 
 
-def build(mesh, accelerator="numpy", **kw):
+def build(mesh, backend="numpy", **kw):
     kw = {"n_muscles": 4, "mu": 1e6, "rho": 1e3, "h": 0.01, "parallel": False, **kw}
     start = time.perf_counter()
-    sim = ModalMuscle.from_mesh(mesh, accelerator=accelerator, **kw)
+    sim = ModalMuscle.from_mesh(mesh, backend=backend, **kw)
     return sim, time.perf_counter() - start
 
 
@@ -54,7 +54,7 @@ def row(label, **kw):
         f"| {pre:.2f} | {step_ms(sim):.3f} |"
     )
     if _accel.AVAILABLE:
-        fast, _ = build(mesh, accelerator="numba", **kw)
+        fast, _ = build(mesh, backend="numba", **kw)
         out += f" {step_ms(fast):.3f} |"
     print(out, flush=True)
 

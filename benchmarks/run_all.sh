@@ -1,6 +1,6 @@
 #!/bin/sh
 # Every benchmark, one after the other (never two at once: they time each
-# other), each one's output saved to DIR/<name>.txt. About 10 minutes on 2 cores.
+# other), each one's output saved to DIR/<name>.txt. About 16 minutes on 2 cores.
 #
 #     pip install -e ".[bench,fast,distributed,optimize]"
 #     sh benchmarks/run_all.sh [DIR]
@@ -9,7 +9,7 @@ out=${1:-benchmark-results}
 mkdir -p "$out"
 here=$(dirname "$0")
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
-for bench in modal step precompute effects scaling optimize; do
+for bench in modal step precompute blas_threads effects scaling optimize; do
     echo "== $bench"
     python "$here/bench_$bench.py" | tee "$out/$bench.txt"
 done

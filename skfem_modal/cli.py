@@ -1,7 +1,9 @@
 """The ``skfem-modal`` command.
 
 Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
-file); 3 numerical failure (a simulation that went non-finite); 130 interrupted.
+file, an output folder holding an earlier run, a missing extra); 3 numerical
+failure (a simulation that went non-finite); 130 interrupted; 141 the reader
+of the output went away (e.g. ``| head``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,10 @@ EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_NUMERICAL = 3
 EXIT_INTERRUPTED = 130
+EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
+
+#: Elastic modes ``modes`` finds besides the rigid motions, unless -k says otherwise.
+ELASTIC_MODES = 6
 
 
 def parse_mesh_spec(spec: str):
@@ -78,20 +84,24 @@ def cmd_modes(args) -> int:
         f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
         f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
     )
+    n_rigid = rigid_mode_count(mesh, fixed)
+    k = n_rigid + ELASTIC_MODES if args.k is None else args.k
     start = time.perf_counter()
     values, modes = linear_modal_analysis(
-        mesh, args.k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element
+        mesh, k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element
     )
     elapsed = time.perf_counter() - start
-    n_rigid = rigid_mode_count(mesh, fixed)
     freqs = natural_frequencies(values)
     ceilings = actuation_limits(mesh, modes, max_s=args.max_s, element=args.element)
-    say(f"{args.k} modes in {elapsed:.3f} s; {n_rigid} rigid motions ({info['parts']} connected part(s))")
+    say(f"{k} modes in {elapsed:.3f} s; {n_rigid} rigid motions ({info['parts']} connected part(s))")
+    if k <= n_rigid:
+        say(f"all {k} are rigid motions: ask for more than {n_rigid} (-k) to see elastic modes")
     say(f"{'mode':>5}  {'eigenvalue':>16}  {'frequency [Hz]':>15}  {'ceiling':>10}  kind")
     for i, (val, f, c) in enumerate(zip(values, freqs, ceilings)):
-        kind = "rigid" if i < n_rigid else "elastic"
-        ceiling = "-" if not np.isfinite(c) else f"{c:10.6g}"
-        say(f"{i:5d}  {val:16.9e}  {f:15.6g}  {ceiling:>10}  {kind}")
+        rigid = i < n_rigid
+        # a rigid motion is no muscle: its "ceiling" only measures a rotation's gradient, or is infinite
+        ceiling = "-" if rigid or not np.isfinite(c) else f"{c:10.6g}"
+        say(f"{i:5d}  {val:16.9e}  {f:15.6g}  {ceiling:>10}  {'rigid' if rigid else 'elastic'}")
     export_modes(args.out, mesh, modes, values, element=args.element)
     say(f"wrote {args.out} (ParaView: Warp By Vector on mode_NN)")
     return EXIT_OK
@@ -104,18 +114,29 @@ def _load_scene(path):
 
 
 def cmd_run(args) -> int:
+    import warnings
+
+    from .monitor import MotionWarning
+    from .outputs import clear_earlier_run
     from .run import run_scene
     from .sim import SimulationError
 
     scene = _load_scene(args.scene)
+    if args.render:
+        _check_render(args)
+    clear_earlier_run(args.out, args.overwrite, how="--overwrite")
     say = (lambda *a: None) if args.quiet else print
     say(f"scene: {scene.config['name']} ({scene.source}); effects: {', '.join(scene.effects)}")
     say(f"{scene.n_steps} steps of {scene.h:g}; writing to {args.out}")
     try:
-        summary = run_scene(scene, args.out, every=args.every, progress=not args.quiet)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MotionWarning)  # said below, once, in the command's words
+            summary = run_scene(scene, args.out, every=args.every, progress=not args.quiet)
     except SimulationError as err:
         print(f"skfem-modal run: simulation failed: {err}", file=sys.stderr)
         return EXIT_NUMERICAL
+    for text in summary["motion"]["warnings"]:
+        print(f"skfem-modal run: warning: {text}", file=sys.stderr)
     step = summary["timings"]["step_ms"]
     travel = np.round(summary["com"]["travel"], 4).tolist()
     say(
@@ -131,13 +152,23 @@ def cmd_run(args) -> int:
     return EXIT_OK
 
 
+class _RenderUnavailable(Exception):
+    """Rendering cannot work here (a missing extra or plugin); said before any work."""
+
+
+def _check_render(args) -> None:
+    from .plot import render_problems
+
+    problems = render_problems(args.backend, args.format)
+    if problems:
+        raise _RenderUnavailable("cannot render: " + "; ".join(problems))
+
+
 def _render(run_dir, args, say) -> int:
-    try:
-        from .plot import render_run
-    except ImportError as err:  # pragma: no cover - needs the plot extra missing
-        print(f"skfem-modal render: needs the plot extra (pip install 'skfem_modal[plot]'): {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    written = render_run(run_dir, backend=args.backend, fmt=args.format, max_frames=args.max_frames)
+    from .plot import render_run
+
+    _check_render(args)
+    written = render_run(run_dir, backend=args.backend, fmt=args.format, max_frames=args.max_frames, size=args.size)
     backend = written.pop("backend")
     say(f"rendered with {backend}: " + ", ".join(os.path.basename(p) for p in written.values()))
     return EXIT_OK
@@ -287,37 +318,77 @@ def cmd_optimize(args) -> int:
     return EXIT_OK
 
 
+class _HelpWithDefaults(argparse.HelpFormatter):
+    """Help that ends each option with its default, where it has one worth saying."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if not action.option_strings or "default" in text or default in (None, False, argparse.SUPPRESS):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else "%(default)s"
+        return f"{text} (default: {shown})"
+
+
+def _positive_int(text: str) -> int:
+    value = int(text) if text.lstrip("+-").isdigit() else None
+    if value is None or value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def _picture_size(text: str) -> tuple[int, int]:
+    width, x, height = text.lower().partition("x")
+    if not (x and width.isdigit() and height.isdigit() and min(int(width), int(height)) >= 16):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels (each at least 16), got {text!r}")
+    return int(width), int(height)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     parser = argparse.ArgumentParser(
         prog="skfem-modal",
         description="Linear modal analysis and modal-muscle soft-body simulation on scikit-fem.",
+        formatter_class=_HelpWithDefaults,
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("modes", help="linear vibration modes of a mesh, written for ParaView")
+    def command(name, **kwargs):
+        return sub.add_parser(name, formatter_class=_HelpWithDefaults, **kwargs)
+
+    p = command("modes", help="linear vibration modes of a mesh, written for ParaView")
     p.add_argument(
         "mesh",
         nargs="?",
         default="caterpillar",
         help="mesh file (any format meshio reads) or built-in NAME[:key=value,...] "
-        "(caterpillar, beam2d, beam3d, box3d, creature); default: caterpillar",
+        "(caterpillar, beam2d, beam3d, box3d, creature; parameters and defaults: "
+        "skfem-modal info --scene-reference); default: caterpillar",
     )
-    p.add_argument("-k", type=int, default=7, help="number of modes, rigid ones included (default 7)")
-    p.add_argument("--mu", type=float, default=1.0, help="Lame shear modulus (default 1)")
-    p.add_argument("--lam", type=float, default=1.0, help="Lame first parameter (default 1)")
+    p.add_argument(
+        "-k",
+        type=_positive_int,
+        help=f"number of modes, rigid ones included (default: the rigid motions and {ELASTIC_MODES} elastic modes)",
+    )
+    p.add_argument("--mu", type=float, default=1.0, help="Lame shear modulus")
+    p.add_argument("--lam", type=float, default=1.0, help="Lame first parameter")
     p.add_argument("--young", type=float, help="Young's modulus (with --poisson, instead of --mu/--lam)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio")
-    p.add_argument("--rho", type=float, default=1.0, help="density (default 1)")
-    p.add_argument("--element", choices=["P1", "P2"], default="P1")
-    p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped")
+    p.add_argument("--rho", type=float, default=1.0, help="density")
+    p.add_argument("--element", choices=["P1", "P2"], default="P1", help="linear or quadratic elements")
+    p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped", help="mass matrix")
     p.add_argument(
         "--fix",
         action="append",
         metavar="COND",
         help="pin the vertices where COND holds, e.g. 'x <= 0' or 'x == min' (repeatable)",
     )
-    p.add_argument("--max-s", type=float, default=2.0, help="gradient change defining the ceilings")
-    p.add_argument("--out", default="modes.vtu", help="output .vtu file (default modes.vtu)")
+    p.add_argument(
+        "--max-s", type=float, default=2.0, help="gradient change (Frobenius norm) that defines the ceilings"
+    )
+    p.add_argument("--out", default="modes.vtu", help="output .vtu file")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_modes)
 
@@ -328,59 +399,72 @@ def build_parser() -> argparse.ArgumentParser:
             default="auto",
             help="auto: pyvista where off-screen OpenGL works, else matplotlib",
         )
-        p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (default gif)")
-        p.add_argument("--max-frames", type=int, default=120, help="frames in the animation, at most")
+        p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
+        p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
+        p.add_argument("--size", type=_picture_size, default="1280x720", metavar="WxH", help="picture size in pixels")
 
-    p = sub.add_parser("run", help="run a scene (default: the tutorial's caterpillar crawl)")
+    p = command("run", help="run a scene (default: the tutorial's caterpillar crawl)")
     p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
-    p.add_argument("--out", default="out", help="output directory (default: out)")
-    p.add_argument("--every", type=int, help="write every k-th frame (default: the scene's output.every)")
+    p.add_argument("--out", default="out", help="output directory")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an earlier run in --out (only its files are removed)"
+    )
+    p.add_argument("--every", type=_positive_int, help="write every k-th frame (default: the scene's output.every)")
     p.add_argument("--render", action="store_true", help="also draw pictures and an animation (plot extra)")
     render_options(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress, no messages")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress, no messages (warnings and errors only)")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("info", help="what a scene or mesh holds: sizes, effects, material")
+    p = command("info", help="what a scene or mesh holds: sizes, effects, material")
     p.add_argument("target", nargs="?", help="scene .toml, mesh file or built-in NAME (default: the built-in scene)")
     p.add_argument("--scene-reference", action="store_true", help="print the scene file reference (markdown)")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("study", help="accuracy against cost: the reduced simulator against the full-space reference")
+    p = command("study", help="accuracy against cost: the reduced simulator against the full-space reference")
     p.add_argument("scene", nargs="?", help="scene .toml (default: the floating caterpillar)")
-    p.add_argument("--out", default="study", help="output directory (default: study)")
+    p.add_argument("--out", default="study", help="output directory")
     p.add_argument("--quick", action="store_true", help="the short preset (under two minutes on 2 cores)")
-    p.add_argument("--workers", type=int, default=1, help="processes of the local pool (default 1: clean timings)")
+    p.add_argument("--workers", type=_positive_int, default=1, help="processes of the local pool (1: clean timings)")
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the sweep on")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_study)
 
-    p = sub.add_parser("optimize", help="search the gait that travels furthest (CMA-ES)")
+    p = command("optimize", help="search the gait that travels furthest (CMA-ES)")
     p.add_argument("scene", nargs="?", help="scene .toml (default: the built-in caterpillar crawl)")
-    p.add_argument("--generations", type=int, default=20)
-    p.add_argument("--popsize", type=int, default=12)
+    p.add_argument("--generations", type=_positive_int, default=20, help="CMA-ES generations")
+    p.add_argument("--popsize", type=_positive_int, default=12, help="candidates per generation")
     p.add_argument("--seed", type=int, default=0, help="the same seed gives the same search")
-    p.add_argument("--steps", type=int, help="rollout length in steps (default: the scene's)")
-    p.add_argument("--direction", default="x", help="travel direction: x, -x, y, ... (default x)")
-    p.add_argument("--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the ceiling")
-    p.add_argument("--period-range", type=float, nargs=2, default=(0.3, 2.0), metavar=("MIN", "MAX"))
+    p.add_argument("--steps", type=_positive_int, help="rollout length in steps (default: the scene's)")
+    p.add_argument("--direction", default="x", help="travel direction: x, -x, y, -y, z or -z")
+    p.add_argument(
+        "--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the muscle's ceiling"
+    )
+    p.add_argument(
+        "--period-range",
+        type=float,
+        nargs=2,
+        default=(0.3, 2.0),
+        metavar=("MIN", "MAX"),
+        help="shortest and longest gait period",
+    )
     p.add_argument(
         "--samples",
-        type=int,
+        type=_positive_int,
         default=1,
-        help="rollouts per candidate: its gait and jittered copies, fitness their mean (default 1)",
+        help="rollouts per candidate: its gait and jittered copies, fitness their mean",
     )
-    p.add_argument("--jitter", type=float, default=0.01, help="relative size of the copies' changes (default 0.01)")
-    p.add_argument("--out", default="search", help="output directory (default: search)")
+    p.add_argument("--jitter", type=float, default=0.01, help="relative size of the copies' changes")
+    p.add_argument("--out", default="search", help="output directory")
     p.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
-    p.add_argument("--workers", type=int, default=2, help="processes of the local pool (default 2)")
+    p.add_argument("--workers", type=_positive_int, default=2, help="processes of the local pool")
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_optimize)
 
-    p = sub.add_parser("render", help="pictures and an animation of a finished run")
+    p = command("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")
     render_options(p)
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_render)
     return parser
 
@@ -390,13 +474,28 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
-    except (ValueError, TypeError, FileNotFoundError) as err:
+        code = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
+        return code
+    except BrokenPipeError:
+        return _reader_gone()
+    except (ValueError, TypeError, OSError, _RenderUnavailable) as err:
+        # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"skfem-modal {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _reader_gone() -> int:
+    """The reader of our output went away (``| head``): stop quietly, as other tools do."""
+    try:
+        # what is still buffered for stdout goes nowhere, not into a second error at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file behind sys.stdout
+        pass
+    return EXIT_PIPE_CLOSED
 
 
 if __name__ == "__main__":  # pragma: no cover

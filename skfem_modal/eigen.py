@@ -403,7 +403,7 @@ def canonical_repeated(values, vectors, M, weight):
     """
     k = values.size
     start = 0
-    scale = max(float(np.abs(values).max()), 1e-300) if k else 1.0
+    scale = max(float(np.abs(values).max(initial=0.0)), 1e-300)
     while start < k:
         stop = _group_end(values, start, scale)
         if stop - start > 1:

@@ -9,7 +9,7 @@ so an interrupted write never leaves a half-written file behind.
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 
 import numpy as np
 
@@ -76,20 +76,27 @@ def vtk_cells(mesh, element: str = "P1"):
 
 
 def atomic_path(path: str | os.PathLike):
-    """A temporary path beside ``path``; rename it onto ``path`` when complete.
+    """A new, empty temporary file beside ``path``; rename it onto ``path`` when complete.
+
+    Created with the permissions of any new file (``0o666`` less the umask),
+    so the renamed file is readable as the user expects.
 
     Returns
     -------
     tmp : str
-        Same directory and extension as ``path``.
+        Same directory and extension as ``path``, a hidden name.
     """
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     stem, ext = os.path.splitext(os.path.basename(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=ext, dir=directory)
-    os.close(fd)
-    return tmp
+    while True:
+        tmp = os.path.join(directory, f".{stem}.{secrets.token_hex(4)}{ext}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        return tmp
 
 
 def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=None, field_data=None):

@@ -8,6 +8,7 @@ arrays handed back to users hold positions as ``(n, dim)``.
 
 from __future__ import annotations
 
+import inspect
 import os
 import re
 from collections.abc import Sequence
@@ -38,6 +39,8 @@ __all__ = [
     "mesh_summary",
     "BUILTIN_SHAPES",
     "builtin_mesh",
+    "shape_parameters",
+    "shape_parameter_problems",
     "vertices_where",
 ]
 
@@ -470,6 +473,32 @@ def mirror(mesh, axes):
     return type(mesh)(p, mesh.t.copy(), sort_t=False)
 
 
+def _read_meshio(path: str):
+    """``meshio.read``, with every failure a :class:`MeshError` naming the file.
+
+    When no reader understands a file, meshio prints each reader's complaint
+    and calls ``sys.exit``; those complaints become the error's message.
+    """
+    import contextlib
+    import io
+
+    import meshio
+
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            return meshio.read(path)
+    except SystemExit:
+        # the readers' complaints, then meshio's "Error: Couldn't read file ... as FORMATS"
+        complaints, _, summary = " ".join(said.getvalue().split()).partition("Error: ")
+        tried = re.search(r" as (?:either of )?([\w, -]+)$", summary)
+        what = f"not a file meshio reads as {tried.group(1)}" if tried else "not a file meshio reads"
+        reason = f"{complaints.strip()} ({what})" if complaints.strip() else what
+        raise MeshError(f"cannot read mesh {path!r}: {reason}") from None
+    except Exception as err:  # meshio raises many kinds for broken files
+        raise MeshError(f"cannot read mesh {path!r}: {type(err).__name__}: {err}") from None
+
+
 def normalize_and_center(mesh):
     """Translate the vertex mean to the origin and scale the largest extent to 2.
 
@@ -601,11 +630,18 @@ def beam2d(length: float = 10.0, height: float = 1.0, nx: int = 80, ny: int = 8)
     return MeshTri.init_tensor(np.linspace(0.0, length, nx + 1), np.linspace(0.0, height, ny + 1))
 
 
-def box3d(nx: int, ny: int, nz: int, size: Sequence[float] = (1.0, 1.0, 1.0)):
+def box3d(nx: int = 8, ny: int = 8, nz: int = 8, size: Sequence[float] = (1.0, 1.0, 1.0)):
     """A box ``[0, size[0]] x [0, size[1]] x [0, size[2]]`` of tetrahedra.
 
     Each of the ``nx * ny * nz`` cells is split into 6 tetrahedra; ``box3d(40, 10,
     10, (4, 1, 1))`` is the 24000-tetrahedron benchmark box.
+
+    Parameters
+    ----------
+    nx, ny, nz : int
+        Cells along x, y and z.
+    size : sequence of 3 floats
+        Edge lengths of the box.
 
     Returns
     -------
@@ -853,6 +889,72 @@ BUILTIN_SHAPES = {
 }
 
 
+def shape_parameters(name: str) -> dict:
+    """The parameters of a built-in shape and their defaults.
+
+    Parameters
+    ----------
+    name : {"caterpillar", "beam2d", "beam3d", "box3d", "creature"}
+
+    Returns
+    -------
+    defaults : dict of str to int, float, bool or tuple
+        In the order of the shape function's signature.
+
+    Examples
+    --------
+    >>> shape_parameters("box3d")
+    {'nx': 8, 'ny': 8, 'nz': 8, 'size': (1.0, 1.0, 1.0)}
+    """
+    if name not in BUILTIN_SHAPES:
+        raise ValueError(f"unknown built-in shape {name!r}; expected one of {sorted(BUILTIN_SHAPES)}")
+    return {k: p.default for k, p in inspect.signature(BUILTIN_SHAPES[name]).parameters.items()}
+
+
+def _expected_like(default, value) -> str | None:
+    """What ``value`` should be, for a parameter whose default is ``default``; None if it fits."""
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else "true or false"
+    if isinstance(default, int):
+        return None if isinstance(value, int) and not isinstance(value, bool) else "an integer"
+    if isinstance(default, float):
+        return None if number(value) else "a finite number"
+    ok = isinstance(value, (list, tuple)) and len(value) == len(default) and all(map(number, value))
+    return None if ok else f"a list of {len(default)} numbers"
+
+
+def shape_parameter_problems(name: str, params: dict) -> list[tuple[str, str]]:
+    """What is wrong with parameters given to a built-in shape, by parameter.
+
+    Types are checked against the defaults (:func:`shape_parameters`); ranges
+    are checked by the shape function itself.
+
+    Returns
+    -------
+    problems : list of (parameter, message)
+        Empty when every parameter is known and of the right type.
+
+    Examples
+    --------
+    >>> shape_parameter_problems("beam2d", {"nx": "a", "wide": 2})
+    [('nx', "expected an integer, got 'a' (str)"), ('wide', 'unknown; beam2d takes length, height, nx, ny')]
+    """
+    defaults = shape_parameters(name)
+    problems = []
+    for key, value in params.items():
+        if key not in defaults:
+            problems.append((key, f"unknown; {name} takes {', '.join(defaults)}"))
+            continue
+        expected = _expected_like(defaults[key], value)
+        if expected:
+            problems.append((key, f"expected {expected}, got {value!r} ({type(value).__name__})"))
+    return problems
+
+
 def builtin_mesh(name: str, **params):
     """A built-in shape by name, with keyword parameters.
 
@@ -860,22 +962,23 @@ def builtin_mesh(name: str, **params):
     ----------
     name : {"caterpillar", "beam2d", "beam3d", "box3d", "creature"}
     **params
-        Passed to the shape's function (e.g. ``nx=280``).
+        Passed to the shape's function (e.g. ``nx=280``); every parameter has
+        a default (:func:`shape_parameters`).
 
     Returns
     -------
     mesh : skfem.MeshTri or skfem.MeshTet
-    """
-    import inspect
 
-    if name not in BUILTIN_SHAPES:
-        raise ValueError(f"unknown built-in shape {name!r}; expected one of {sorted(BUILTIN_SHAPES)}")
-    func = BUILTIN_SHAPES[name]
-    accepted = inspect.signature(func).parameters
-    unknown = sorted(set(params) - set(accepted))
-    if unknown:
-        raise ValueError(f"shape {name!r} has no parameter {', '.join(unknown)}; it takes {', '.join(accepted)}")
-    return func(**params)
+    Raises
+    ------
+    ValueError
+        An unknown shape, or a parameter that is unknown or of the wrong
+        type (named), or out of range.
+    """
+    problems = shape_parameter_problems(name, params)
+    if problems:
+        raise ValueError(f"shape {name!r}: " + "; ".join(f"parameter {key}: {text}" for key, text in problems))
+    return BUILTIN_SHAPES[name](**params)
 
 
 _CONDITION = re.compile(r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s*$")

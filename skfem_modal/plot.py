@@ -15,10 +15,14 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["read_run", "gl_available", "plot_com", "plot_amplitudes", "render_run"]
+from .camera import ELEVATION, Camera, deformation, frame_windows, grid_spacing, up_vector
+from .export import pad3
+
+__all__ = ["read_run", "gl_available", "render_problems", "plot_com", "plot_amplitudes", "render_run"]
 
 
 def read_run(run_dir) -> dict:
@@ -82,6 +86,59 @@ def gl_available() -> bool:
     return result.returncode == 0
 
 
+def render_problems(backend: str = "auto", fmt: str = "gif") -> list[str]:
+    """What stops :func:`render_run` here, checked before any drawing.
+
+    Parameters
+    ----------
+    backend : {"auto", "pyvista", "matplotlib"}
+    fmt : {"gif", "mp4"}
+
+    Returns
+    -------
+    problems : list of str
+        Each names what is missing and how to get it; empty when rendering can go ahead.
+    """
+    problems = []
+    missing = []
+    for module, package in (("matplotlib", "matplotlib"), ("PIL", "pillow")):
+        try:
+            __import__(module)
+        except ImportError:
+            missing.append(package)
+    if missing:
+        problems.append(f"{' and '.join(missing)} not installed: pip install 'skfem_modal[plot]'")
+    if backend == "pyvista":
+        try:
+            import pyvista  # noqa: F401
+        except ImportError:
+            problems.append("pyvista is not installed: pip install 'skfem_modal[plot]', or use --backend matplotlib")
+        else:
+            if not gl_available():
+                problems.append("pyvista cannot render off-screen here (no working OpenGL): use --backend matplotlib")
+    if fmt == "mp4":
+        problem = _mp4_problem()
+        if problem:
+            problems.append(problem)
+    return problems
+
+
+def _mp4_problem() -> str | None:
+    """Why an mp4 cannot be written here (a two-frame trial in a scratch folder), or None."""
+    import tempfile
+
+    try:
+        import imageio.v2 as imageio
+    except ImportError:
+        return "writing mp4 needs imageio with ffmpeg: pip install 'imageio[ffmpeg]', or use --format gif"
+    with tempfile.TemporaryDirectory() as scratch:
+        try:
+            imageio.mimwrite(os.path.join(scratch, "trial.mp4"), [np.zeros((16, 16, 3), np.uint8)] * 2, fps=10)
+        except Exception:  # imageio names no single error for a missing plugin
+            return "writing mp4 needs an ffmpeg plugin for imageio: pip install 'imageio[ffmpeg]', or use --format gif"
+    return None
+
+
 def _pyplot():
     import matplotlib
 
@@ -134,14 +191,26 @@ def plot_amplitudes(run, path) -> str:
     return os.fspath(path)
 
 
-def _read_frame(path):
+@dataclass
+class _Frame:
+    time: float
+    points: np.ndarray  # (n, dim)
+    rest: np.ndarray  # (n, dim)
+    cells: np.ndarray  # (nT, dim + 1)
+    deformation: np.ndarray  # (n,) distance from the best rigid motion of the rest shape
+
+
+def _read_frame(time: float, path: str) -> _Frame:
     import meshio
 
     m = meshio.read(path)
-    cells = m.cells_dict.get("triangle")
-    if cells is not None:
-        return m.points[:, :2], cells, 2
-    return m.points, m.cells_dict["tetra"], 3
+    if "triangle" in m.cells_dict:
+        cells, dim = m.cells_dict["triangle"], 2
+    else:
+        cells, dim = m.cells_dict["tetra"], 3
+    points = m.points[:, :dim]
+    rest = points - m.point_data["displacement"][:, :dim]
+    return _Frame(time, points, rest, cells, deformation(rest, points))
 
 
 def _surface(tets):
@@ -150,76 +219,231 @@ def _surface(tets):
     return uniq[counts == 1]
 
 
-def _matplotlib_frames(frames, ground, up, size=(640, 360)):
-    """RGB images of the frames, drawn with matplotlib."""
-    plt = _pyplot()
-    points = [_read_frame(p) for _, p in frames]
-    allx = np.vstack([x for x, _, _ in points])
-    lo, hi = allx.min(axis=0), allx.max(axis=0)
-    pad = 0.08 * (hi - lo).max()
-    images = []
-    for (t, _), (x, cells, dim) in zip(frames, points):
-        fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
-        if dim == 2:
-            ax = fig.add_subplot(111)
-            if ground is not None:
-                ax.axhspan(lo[1] - pad, ground, color="0.88")
-                ax.axhline(ground, color="0.5", lw=1)
-            ax.triplot(x[:, 0], x[:, 1], cells, color="C2", lw=0.4)
-            ax.set_xlim(lo[0] - pad, hi[0] + pad)
-            ax.set_ylim(lo[1] - pad, hi[1] + pad)
-            ax.set_aspect("equal")
-        else:
-            from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+#: Colour map, colour bar title and label of the deformation colour.
+CMAP = "viridis"
+COLOUR_TITLE = "deformation"
+COLOUR_LABEL = "deformation (distance from rigid motion)"
+#: Share of the picture's width the drawing takes (the colour bar has the rest).
+_DRAWING_WIDTH = 0.86
 
-            ax = fig.add_subplot(111, projection="3d")
-            faces = _surface(cells)
-            ax.add_collection3d(Poly3DCollection(x[faces], facecolor="C2", edgecolor="k", linewidths=0.1, alpha=0.9))
-            for k, (a, b) in enumerate(zip(lo, hi)):
-                getattr(ax, f"set_{'xyz'[k]}lim")(a - pad, b + pad)
-            ax.set_box_aspect(tuple(hi - lo + 2 * pad))
-        ax.set_title(f"t = {t:.3f}", fontsize=9)
+
+@dataclass
+class _View:
+    """Everything fixed for a whole animation: camera, windows, colour range, floor."""
+
+    camera: Camera
+    centres: np.ndarray  # (k, 2) screen centre of each frame's window
+    half_height: float
+    aspect: float
+    vmax: float
+    ground: float | None
+    up: np.ndarray  # (dim,)
+    dim: int
+    spacing: float  # floor lines
+    floor_lo: np.ndarray  # (dim,) the floor covers this box (ground height along up)
+    floor_hi: np.ndarray
+
+    def limits(self, k: int):
+        half = np.array([self.half_height * self.aspect, self.half_height])
+        return self.centres[k] - half, self.centres[k] + half
+
+
+def _plan(frames: list[_Frame], summary: dict, size) -> _View:
+    dim = frames[0].points.shape[1]
+    up = up_vector(summary)
+    camera = Camera.looking_at(up, dim)
+    ground = summary["ground"]["height"] if summary.get("ground") else None
+    boxes, deform, lows, highs = [], [], [], []
+    for f in frames:
+        seen = f.points
+        if ground is not None:  # the floor under the body is seen too
+            seen = np.vstack([seen, _on_floor(f.points, up, ground)])
+        screen = camera.screen(seen)
+        boxes.append([screen.min(axis=0), screen.max(axis=0)])
+        deform.append(f.deformation.max())
+        lows.append(f.points.min(axis=0))
+        highs.append(f.points.max(axis=0))
+    aspect = _DRAWING_WIDTH * size[0] / size[1]
+    centres, half_height = frame_windows(np.array(boxes), aspect, follow_vertically=dim == 3)
+    body = float(np.ptp(frames[0].rest, axis=0).max())
+    lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
+    # the floor fills every view: in 3D the far floor rises up the screen slowly, as sin(elevation)
+    reach = 2.0 * half_height * max(aspect, 1.0 / np.sin(np.radians(ELEVATION)) if dim == 3 else 0.0)
+    return _View(
+        camera=camera,
+        centres=centres,
+        half_height=half_height,
+        aspect=aspect,
+        # round-off of a body at rest never shows as colour
+        vmax=max(float(np.max(deform)), 1e-3 * body),
+        ground=ground,
+        up=up,
+        dim=dim,
+        spacing=grid_spacing(body),
+        floor_lo=lo - reach,
+        floor_hi=hi + reach,
+    )
+
+
+def _floor_lines(view: _View) -> np.ndarray:
+    """Floor grid lines (3D) or ticks along the ground (2D), world coordinates, shape (lines, 2, dim)."""
+    up, g, s = view.up, view.ground, view.spacing
+    if view.dim == 2:
+        right = view.camera.right[:2]
+        ticks = np.arange(np.floor(view.floor_lo @ np.abs(right) / s), np.ceil(view.floor_hi @ np.abs(right) / s) + 1)
+        feet = np.outer(ticks * s, right) + g * up
+        return np.stack([feet, feet - 0.25 * s * up], axis=1)
+    axes = [a for a in np.eye(3) if abs(a @ up) < 0.5]
+    lines = []
+    for a, b in (axes, axes[::-1]):
+        for k in np.arange(np.floor(view.floor_lo @ a / s), np.ceil(view.floor_hi @ a / s) + 1):
+            start = k * s * a + (view.floor_lo @ b) * b
+            end = k * s * a + (view.floor_hi @ b) * b
+            lines.append([start - (start @ up - g) * up, end - (end @ up - g) * up])
+    return np.array(lines)
+
+
+def _on_floor(points, up, ground: float) -> np.ndarray:
+    """Points (n, dim) moved straight down (along ``up``) onto the floor at height ``ground``."""
+    return points - np.outer(points @ up - ground, up)
+
+
+def _floor_corners(view: _View) -> np.ndarray:
+    """The floor rectangle (3D), world coordinates, shape (4, 3)."""
+    a, b = [x for x in np.eye(3) if abs(x @ view.up) < 0.5]
+    lo, hi = view.floor_lo, view.floor_hi
+    corners = np.array([(lo @ a) * a + (lo @ b) * b, (hi @ a) * a + (lo @ b) * b, (hi @ a) * a + (hi @ b) * b])
+    corners = np.vstack([corners, (lo @ a) * a + (hi @ b) * b])
+    return _on_floor(corners, view.up, view.ground)
+
+
+def _matplotlib_frames(frames: list[_Frame], view: _View, size):
+    """RGB images of the frames, drawn with matplotlib through the view's camera."""
+    plt = _pyplot()
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.colors import Normalize
+    from matplotlib.tri import Triangulation
+
+    cmap = plt.get_cmap(CMAP)
+    norm = Normalize(0.0, view.vmax)
+    camera = view.camera
+    faces = _surface(frames[0].cells) if view.dim == 3 else None
+    light = camera.towards + 0.6 * camera.screen_up + 0.3 * camera.right
+    light /= np.linalg.norm(light)
+    fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
+    images = []
+    for k, f in enumerate(frames):
+        fig.clear()
+        ax = fig.add_axes([0.0, 0.0, _DRAWING_WIDTH, 1.0])
+        lo, hi = view.limits(k)
+        if view.ground is not None:
+            floor = camera.screen(_floor_lines(view).reshape(-1, view.dim)).reshape(-1, 2, 2)
+            if view.dim == 2:
+                ax.axhspan(lo[1] - 1e9, view.ground, color="0.9", zorder=0)
+                ax.axhline(view.ground, color="0.45", lw=1.2, zorder=1)
+            else:
+                ax.add_patch(plt.Polygon(camera.screen(_floor_corners(view)), color="0.92", zorder=0))
+            ax.add_collection(LineCollection(floor, colors="0.6", linewidths=0.8, zorder=1))
+        screen = camera.screen(f.points)
+        values = f.deformation
+        if view.dim == 3 and view.ground is not None:  # the body's shadow straight below: how high it is
+            shadow = camera.screen(_on_floor(f.points, view.up, view.ground)[faces].reshape(-1, 3)).reshape(-1, 3, 2)
+            ax.add_collection(PolyCollection(shadow, facecolors="0.75", edgecolors="none", zorder=1.5))
+        if view.dim == 2:
+            tri = Triangulation(screen[:, 0], screen[:, 1], f.cells)
+            ax.tripcolor(tri, values, shading="gouraud", cmap=cmap, norm=norm, zorder=2)
+            ax.triplot(tri, color="k", lw=0.15, alpha=0.35, zorder=3)
+        else:
+            corners = f.points[faces]  # (F, 3, 3)
+            normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-300
+            shade = 0.55 + 0.45 * np.abs(normal @ light)
+            order = np.argsort(camera.depth(corners.mean(axis=1)))  # far first: nearer faces drawn over them
+            colours = cmap(norm(values[faces].mean(axis=1)))[:, :3] * shade[:, None]
+            polys = camera.screen(corners.reshape(-1, 3)).reshape(-1, 3, 2)
+            ax.add_collection(PolyCollection(polys[order], facecolors=colours[order], edgecolors="none", zorder=2))
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal")
         ax.set_axis_off()
+        ax.text(0.02, 0.96, f"t = {f.time:.3f}", transform=ax.transAxes, fontsize=14, va="top")
+        bar = fig.add_axes([_DRAWING_WIDTH + 0.02, 0.12, 0.018, 0.76])
+        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=bar).set_label(COLOUR_LABEL, fontsize=11)
         fig.canvas.draw()
         images.append(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy())
-        plt.close(fig)
+    plt.close(fig)
     return images
 
 
-def _pyvista_frames(frames, ground, up, size=(640, 360)):
-    """RGB images of the frames, rendered off-screen with pyvista."""
+def _pyvista_frames(frames: list[_Frame], view: _View, size):
+    """RGB images of the frames, rendered off-screen with pyvista through the view's camera."""
     _headless_vtk()
     import pyvista as pv
 
-    meshes = [pv.read(p) for _, p in frames]
-    bounds = np.array([m.bounds for m in meshes])
-    lo = bounds[:, ::2].min(axis=0)
-    hi = bounds[:, 1::2].max(axis=0)
-    dim = 2 if np.allclose(lo[2], hi[2]) else 3
-    plotter = pv.Plotter(off_screen=True, window_size=size)
-    images = []
-    for (t, _), mesh in zip(frames, meshes):
-        plotter.clear()
-        mag = np.linalg.norm(mesh.point_data["displacement"], axis=1)
-        plotter.add_mesh(mesh, scalars=mag, cmap="viridis", show_scalar_bar=False)
-        if ground is not None:
-            if dim == 2:
-                plotter.add_mesh(pv.Line((lo[0] - 1, ground, 0), (hi[0] + 1, ground, 0)), color="gray", line_width=3)
-            else:
-                centre = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2]
-                centre[up] = ground
-                normal = [0, 0, 0]
-                normal[up] = 1
-                extent = float((hi - lo).max()) * 1.5
-                plotter.add_mesh(
-                    pv.Plane(center=centre, direction=normal, i_size=extent, j_size=extent), color="lightgray"
-                )
-        plotter.add_text(f"t = {t:.3f}", font_size=10)
+    camera = view.camera
+    dim = view.dim
+    cells = frames[0].cells if dim == 2 else _surface(frames[0].cells)
+    body = pv.PolyData.from_regular_faces(pad3(frames[0].points), cells)
+    body.point_data["deformation"] = frames[0].deformation
+    plotter = pv.Plotter(off_screen=True, window_size=list(size))
+    plotter.set_background("white")
+    plotter.add_mesh(
+        body,
+        scalars="deformation",
+        cmap=CMAP,
+        clim=(0.0, view.vmax),
+        smooth_shading=dim == 3,
+        scalar_bar_args={
+            "title": COLOUR_TITLE,
+            "vertical": True,
+            "position_x": _DRAWING_WIDTH + 0.02,
+            "position_y": 0.12,
+            "height": 0.76,
+            "width": 0.05,
+            "color": "black",
+            "title_font_size": 14,
+            "label_font_size": 12,
+        },
+    )
+    if view.ground is not None:
+        lines = pad3(_floor_lines(view).reshape(-1, dim))
+        plotter.add_mesh(pv.line_segments_from_points(lines), color="#999999", line_width=1.5, lighting=False)
         if dim == 2:
-            plotter.view_xy()
+            lo = np.min([view.limits(k)[0] for k in range(len(frames))], axis=0)
+            hi = np.max([view.limits(k)[1] for k in range(len(frames))], axis=0)
+            right, up = camera.right[:2], view.up
+            a = np.array([lo[0], hi[0]])
+            ground = [pad3(np.outer(a, right) + w * up) for w in (view.ground, lo[1])]
+            quad = np.vstack([ground[0], ground[1][::-1]]) - [0.0, 0.0, 1e-3 * view.spacing]
+            plotter.add_mesh(pv.PolyData(quad, faces=[4, 0, 1, 2, 3]), color="#e6e6e6", lighting=False)
+            plotter.add_mesh(pv.Line(*ground[0]), color="#737373", line_width=2, lighting=False)
         else:
-            plotter.view_isometric()
-        plotter.reset_camera(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
+            below = -1e-3 * view.spacing * view.up  # under the lines and the shadow
+            floor = pv.PolyData(_floor_corners(view) + below, faces=[4, 0, 1, 2, 3])
+            plotter.add_mesh(floor, color="#ebebeb", lighting=False)
+            shadow = pv.PolyData.from_regular_faces(_on_floor(frames[0].points, view.up, view.ground), cells)
+            plotter.add_mesh(shadow, color="#bfbfbf", lighting=False)
+    text = plotter.add_text("", position=(20, size[1] - 44), font_size=14, color="black")
+    depth = float(np.median(camera.depth(pad3(frames[0].points))))
+    images = []
+    for k, f in enumerate(frames):
+        body.points = pad3(f.points)
+        body.point_data["deformation"] = f.deformation
+        if dim == 3:
+            body.compute_normals(inplace=True, cell_normals=False, auto_orient_normals=False)
+            if view.ground is not None:
+                shadow.points = _on_floor(f.points, view.up, view.ground)
+        text.SetInput(f"t = {f.time:.3f}")
+        # the window's centre sits left of the picture's (the colour bar takes the right)
+        u = view.centres[k, 0] + (0.5 - _DRAWING_WIDTH / 2) * 2.0 * view.half_height * size[0] / size[1]
+        focal = u * camera.right + view.centres[k, 1] * camera.screen_up + depth * camera.towards
+        plotter.camera.parallel_projection = True
+        plotter.camera.focal_point = focal
+        plotter.camera.position = focal + 4.0 * view.half_height * view.aspect * camera.towards
+        plotter.camera.up = camera.screen_up
+        plotter.camera.parallel_scale = view.half_height
+        plotter.renderer.ResetCameraClippingRange()
+        plotter.render()
         images.append(plotter.screenshot(return_img=True)[:, :, :3].copy())
     plotter.close()
     return images
@@ -239,17 +463,28 @@ def _save_animation(images, path, fps: int):
         frames = [Image.fromarray(im) for im in images]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
         return os.fspath(path)
-    try:
-        import imageio.v2 as imageio
+    import imageio.v2 as imageio
 
-        imageio.mimwrite(path, images, fps=fps)
-    except Exception as err:  # no ffmpeg plugin
-        raise ValueError(f"cannot write {path!r} ({err}); install imageio[ffmpeg] or use --format gif") from None
+    imageio.mimwrite(path, images, fps=fps)
     return os.fspath(path)
 
 
-def render_run(run_dir, *, backend: str = "auto", fmt: str = "gif", max_frames: int = 120, fps: int = 20) -> dict:
+def render_run(
+    run_dir,
+    *,
+    backend: str = "auto",
+    fmt: str = "gif",
+    max_frames: int = 120,
+    fps: int = 20,
+    size: tuple[int, int] = (1280, 720),
+) -> dict:
     """Pictures and an animation of a finished run, written into its directory.
+
+    Frames are coloured by deformation (distance from the best rigid motion
+    of the rest shape) on one range for the whole run, with a colour bar; the
+    camera keeps one scale for every frame and follows the body when its
+    motion does not fit one view; the ground is drawn as a floor under the
+    scene's up axis (see :mod:`skfem_modal.camera`).
 
     Parameters
     ----------
@@ -261,37 +496,49 @@ def render_run(run_dir, *, backend: str = "auto", fmt: str = "gif", max_frames: 
     max_frames : int
         At most this many frames in the animation (evenly spaced).
     fps : int
+    size : (int, int)
+        Width and height of the frames in pixels.
 
     Returns
     -------
     written : dict
         ``backend`` used and the path of each picture.
+
+    Raises
+    ------
+    ImportError
+        Something rendering needs is missing (said before any drawing, see
+        :func:`render_problems`).
     """
     if backend not in ("auto", "pyvista", "matplotlib"):
         raise ValueError(f"backend must be auto, pyvista or matplotlib, got {backend!r}")
     if fmt not in ("gif", "mp4"):
         raise ValueError(f"format must be gif or mp4, got {fmt!r}")
+    if len(size) != 2 or min(size) < 16:
+        raise ValueError(f"size must be (width, height) of at least 16 pixels each, got {size!r}")
     run_dir = os.fspath(run_dir)
     if not os.path.isfile(os.path.join(run_dir, "summary.json")):
         raise FileNotFoundError(f"{run_dir!r} is not a run directory (no summary.json)")
+    problems = render_problems(backend, fmt)
+    if problems:
+        raise ImportError("cannot render: " + "; ".join(problems))
     run = read_run(run_dir)
     if not run["frames"]:
         raise ValueError(f"{run_dir!r} holds no frames")
     if backend == "auto":
         backend = "pyvista" if gl_available() else "matplotlib"
     summary = run["summary"]
-    ground = summary["ground"]["height"] if summary.get("ground") else None
-    scene_ground = summary["scene"].get("ground") or {}
-    dim = summary["mesh"]["dim"]
-    up = dim - 1 if scene_ground.get("up") is None else scene_ground["up"]
+    frames = run["frames"]
+    pick = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))
+    frames = [_read_frame(*frames[i]) for i in pick]
+    size = (int(size[0]), int(size[1]))
+    view = _plan(frames, summary, size)
     draw = _pyvista_frames if backend == "pyvista" else _matplotlib_frames
     written = {"backend": backend}
     written["com"] = plot_com(run, os.path.join(run_dir, "com.png"))
     if summary["sizes"]["muscles"]:
         written["amplitudes"] = plot_amplitudes(run, os.path.join(run_dir, "amplitudes.png"))
-    frames = run["frames"]
-    pick = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))
-    images = draw([frames[i] for i in pick], ground, up)
+    images = draw(frames, view, size)
     written["first_frame"] = _save_png(images[0], os.path.join(run_dir, "first_frame.png"))
     written["last_frame"] = _save_png(images[-1], os.path.join(run_dir, "last_frame.png"))
     written["animation"] = _save_animation(images, os.path.join(run_dir, f"animation.{fmt}"), fps)

@@ -28,6 +28,8 @@ import numpy as np
 
 from .export import FrameWriter, atomic_path
 from .mesh import mesh_summary
+from .monitor import MotionMonitor
+from .outputs import clear_earlier_run
 from .sim import SimulationError, simulate
 
 __all__ = ["run_scene", "Progress"]
@@ -132,7 +134,9 @@ def _stats_ms(seconds: list[float]) -> dict:
     }
 
 
-def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool = False, sim=None) -> dict:
+def run_scene(
+    scene, out_dir=None, *, every: int | None = None, progress: bool = False, sim=None, overwrite: bool = False
+) -> dict:
     """Run a scene.
 
     Parameters
@@ -146,6 +150,9 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
         Show the precompute stages and a progress bar.
     sim : skfem_modal.sim.ModalMuscle, optional
         A simulator already built from this scene (its precompute is reused).
+    overwrite : bool
+        Remove an earlier run's files from ``out_dir`` first (other files
+        stay); without it, an earlier run there is an error.
 
     Returns
     -------
@@ -156,10 +163,20 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
     ------
     SimulationError
         If the state goes non-finite (the outputs so far are kept).
+    FileExistsError
+        ``out_dir`` holds an earlier run and ``overwrite`` is false (before any work).
+
+    Warns
+    -----
+    MotionWarning
+        The run completed, but its motion is not physical for the scene
+        (see :mod:`skfem_modal.monitor`); ``summary["motion"]`` says why.
     """
-    every = every or scene.config["output"]["every"]
-    if every < 1:
-        raise ValueError(f"every must be a positive integer, got {every}")
+    every = scene.config["output"]["every"] if every is None else every
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"every must be a positive integer, got {every!r}")
+    if out_dir is not None:
+        clear_earlier_run(out_dir, overwrite)
     started = time.perf_counter()
     if sim is None:
         sim = scene.build(progress=_stage_printer(progress))
@@ -207,6 +224,7 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
 
     z, z_dot, a = sim.rest_state()
     start_com = sim.com(z)
+    monitor = MotionMonitor(sim, None if scene.config["gravity"] is None else scene.config["gravity"]["acceleration"])
     coms = [start_com]
     step_seconds, iterations = [], []
     worst_contact = 0.0
@@ -248,6 +266,7 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
             if ground is not None:
                 worst_contact = max(worst_contact, float(ground - sim.contact_positions(done.z)[:, sim.up].min()))
             coms.append(record(step, done.z, done.a))
+            monitor.update(step, done.z)
             bar.update()
     except SimulationError as err:
         step = err.step or step + 1
@@ -266,6 +285,7 @@ def run_scene(scene, out_dir=None, *, every: int | None = None, progress: bool =
                 "status": status,
                 "error": error,
                 "steps_completed": steps_done,
+                "motion": monitor.finish(),
                 "timings": {
                     **summary["timings"],
                     "steps_total_s": float(np.sum(step_seconds)),

@@ -21,7 +21,17 @@ from typing import Any
 
 import numpy as np
 
-from .mesh import _CONDITION, BUILTIN_SHAPES, builtin_mesh, load_mesh, mirror, normalize_and_center, vertices_where
+from .mesh import (
+    _CONDITION,
+    BUILTIN_SHAPES,
+    builtin_mesh,
+    load_mesh,
+    mirror,
+    normalize_and_center,
+    shape_parameter_problems,
+    shape_parameters,
+    vertices_where,
+)
 from .units import ScaleWarning, scale_mismatch, up_axis
 
 __all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
@@ -98,8 +108,8 @@ SCHEMA: dict[str, Any] = {
         "params": Key(
             "table",
             {},
-            "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }` "
-            "(see the shape functions in `skfem_modal.mesh`).",
+            "Parameters of the built-in shape, e.g. `{ nx = 280, ny = 136 }`; each has a default "
+            "(see Built-in shapes below).",
         ),
         "flip": Key(
             "strs",
@@ -502,15 +512,16 @@ class Scene:
         base_dir = base_dir or os.getcwd()
         mesh = None
         table = None
-        if not errors:
+        # every problem at once: the mesh is built when its own keys are right,
+        # and the checks across keys run whatever else is wrong
+        if not any(e.split(":", 1)[0].split(".", 1)[0] == "mesh" for e in errors):
             mesh = _build_mesh(config["mesh"], base_dir, errors)
-        if mesh is not None:
-            _check_cross(config, mesh, errors)
-            muscles = config["muscles"]
-            if muscles["table"] is not None and not errors:
-                path = muscles["table"]
-                path = path if os.path.isabs(path) else os.path.join(base_dir, path)
-                table = _read_table(path, muscles["count"], errors)
+        _check_cross(config, mesh, errors)
+        muscles = config["muscles"]
+        if muscles["table"] is not None and muscles["count"] is not None:
+            path = muscles["table"]
+            path = path if os.path.isabs(path) else os.path.join(base_dir, path)
+            table = _read_table(path, muscles["count"], errors)
         if errors:
             head = f"{source}: " if source not in ("dict", "built-in") else ""
             raise SceneError(f"{head}{len(errors)} problem(s) in the scene:\n  " + "\n  ".join(errors))
@@ -545,9 +556,6 @@ class Scene:
         for key in ("gravity", "ground", "pinned", "damping"):
             if self.config[key] is not None:
                 names.append("contact" if key == "ground" else key)
-        damping = self.config["damping"]
-        if damping is not None and not (damping["mass"] or damping["stiffness"]):
-            names.remove("damping")
         return tuple(names)
 
     def material(self) -> dict:
@@ -769,7 +777,12 @@ def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
                 return None
             mesh = load_mesh(path)
         else:
-            mesh = builtin_mesh(spec["shape"] or "caterpillar", **spec["params"])
+            shape = spec["shape"] or "caterpillar"
+            problems = shape_parameter_problems(shape, spec["params"])
+            if problems:
+                errors.extend(f"mesh.params.{key}: {text}" for key, text in problems)
+                return None
+            mesh = builtin_mesh(shape, **spec["params"])
     except (ValueError, TypeError) as err:
         errors.append(f"mesh: {err}")
         return None
@@ -794,28 +807,65 @@ def _pinned(spec: dict, mesh) -> np.ndarray:
     return np.nonzero(inside)[0]
 
 
+def _bad_condition(cond: str, dim: int) -> bool:
+    match = _CONDITION.match(cond)
+    return match is None or "xyz".index(match.group(1)) >= dim
+
+
 def _check_cross(config: dict, mesh, errors: list[str]) -> None:
-    """Checks that involve several keys or the mesh's dimension."""
-    dim = mesh.p.shape[0]
+    """Checks that involve several keys or the mesh (skipped where a key involved is already wrong)."""
+    flagged = {e.split(":", 1)[0] for e in errors}
+
+    def valid(*paths):
+        return not any(p in flagged for p in paths)
+
     mat = config["material"]
-    if (mat["young"] is None) != (mat["poisson"] is None):
+    if valid("material.young", "material.poisson") and (mat["young"] is None) != (mat["poisson"] is None):
         errors.append("material: young and poisson go together")
     if mat["young"] is not None and (mat["mu"] is not None or mat["lam"] is not None):
         errors.append("material: give mu (and lam) or young and poisson, not both")
     muscles = config["muscles"]
     m = muscles["count"]
-    if muscles["signs"] is not None and len(muscles["signs"]) != m:
+    if m is not None and muscles["signs"] is not None and len(muscles["signs"]) != m:
         errors.append(f"muscles.signs: expected {m} values (muscles.count), got {len(muscles['signs'])}")
     gait = muscles["gait"]
     if gait is not None and muscles["table"] is not None:
         errors.append("muscles: give a gait or a table, not both")
-    if gait is not None:
+    if gait is not None and m is not None:
         for key in ("amplitude", "period", "phase"):
             if gait[key] is not None and len(gait[key]) != m:
                 errors.append(f"muscles.gait.{key}: expected {m} values (muscles.count), got {len(gait[key])}")
     t = config["time"]
     if t["steps"] is not None and t["duration"] is not None:
         errors.append("time: give duration or steps, not both")
+    ground = config["ground"]
+    if ground is not None and ground["height"] is not None and ground["offset"] is not None:
+        errors.append("ground: give height or offset, not both")
+    damping = config["damping"]
+    if (
+        damping is not None
+        and valid("damping.mass", "damping.stiffness")
+        and not (damping["mass"] or damping["stiffness"])
+    ):
+        errors.append(
+            "damping: expected mass (1 / time) or stiffness (time) above 0: a [damping] section switches damping "
+            "on, so say how much (or remove the section)"
+        )
+    pinned = config["pinned"]
+    if (
+        pinned is not None
+        and valid("pinned.where", "pinned.box")
+        and (pinned["where"] is None) == (pinned["box"] is None)
+    ):
+        errors.append("pinned: give where (conditions) or box, exactly one")
+    if mesh is None:
+        return
+    _check_against_mesh(config, mesh, errors, valid)
+
+
+def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
+    """Checks of lengths, axes and sizes that depend on the mesh."""
+    dim = mesh.p.shape[0]
     acc = None
     if config["gravity"] is not None:
         acc = config["gravity"]["acceleration"]
@@ -832,38 +882,35 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         except ValueError as err:
             errors.append(f"gravity.acceleration and ground.up: {err}")
     if ground is not None:
-        if ground["height"] is not None and ground["offset"] is not None:
-            errors.append("ground: give height or offset, not both")
         for cond in ground["contacts_where"] or []:
-            match = _CONDITION.match(cond)
-            if match is None or "xyz".index(match.group(1)) >= dim:
+            if _bad_condition(cond, dim):
                 errors.append(
                     f"ground.contacts_where: cannot use {cond!r}; expected e.g. 'z <= 0.1' with an axis of this "
                     f"{dim}D mesh"
                 )
     pinned = config["pinned"]
-    if pinned is not None:
-        if (pinned["where"] is None) == (pinned["box"] is None):
-            errors.append("pinned: give where (conditions) or box, exactly one")
-        elif pinned["where"] is not None:
+    if pinned is not None and valid("pinned", "pinned.where", "pinned.box"):
+        usable = True
+        if pinned["where"] is not None:
             for cond in pinned["where"]:
-                match = _CONDITION.match(cond)
-                if match is None or "xyz".index(match.group(1)) >= dim:
+                if _bad_condition(cond, dim):
+                    usable = False
                     errors.append(
                         f"pinned.where: cannot use {cond!r}; expected e.g. 'x <= 0.01' or 'x == min' "
                         f"with an axis of this {dim}D mesh"
                     )
         else:
             box = pinned["box"]
-            ok = (
+            usable = (
                 set(box) == {"min", "max"}
                 and all(isinstance(box[k], list) and len(box[k]) == dim for k in ("min", "max"))
                 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for k in ("min", "max") for v in box[k])
             )
-            if not ok:
+            if not usable:
                 errors.append(f"pinned.box: expected {{ min = [{dim} numbers], max = [{dim} numbers] }}, got {box!r}")
-        if not errors and _pinned(pinned, mesh).size == 0:
+        if usable and _pinned(pinned, mesh).size == 0:
             errors.append("pinned: the conditions select no vertex")
+    m = config["muscles"]["count"]
     n_rigid = 3 if dim == 2 else 6
     if m and m + n_rigid >= mesh.p.size:
         errors.append(f"muscles.count: {m} is too many for a mesh with {mesh.p.size} degrees of freedom")
@@ -911,4 +958,32 @@ def schema_markdown() -> str:
     lines.append("")
     table(top, "")
     table({k: v for k, v in SCHEMA.items() if isinstance(v, dict)}, "")
+    lines.extend(_shapes_markdown())
     return "\n".join(lines)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(map(repr, value)) + "]"
+    return repr(value)
+
+
+def _shapes_markdown() -> list[str]:
+    """The built-in shapes, each parameter with its default (from the shape functions)."""
+    lines = [
+        "### Built-in shapes (`mesh.shape`, `mesh.params`)",
+        "",
+        "Every parameter has a default; `params` changes any of them "
+        "(`skfem-modal modes NAME:key=value,...` on the command line).",
+        "",
+        "| shape | parameters and defaults | what |",
+        "|---|---|---|",
+    ]
+    for name, func in BUILTIN_SHAPES.items():
+        params = ", ".join(f"`{k} = {_toml_value(v)}`" for k, v in shape_parameters(name).items())
+        summary = func.__doc__.strip().splitlines()[0].replace("``", "`")
+        lines.append(f"| `{name}` | {params} | {summary} |")
+    lines.append("")
+    return lines

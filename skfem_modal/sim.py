@@ -42,6 +42,7 @@ from .modal import muscle_modes
 from .model import Model
 from .solver import BACKENDS, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
+from .threads import limited_blas_threads
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -758,6 +759,7 @@ class ModalMuscle:
         progress=None,
         backend="auto",
         parallel: bool = True,
+        blas_threads: int | None = 1,
     ):
         """Build every ingredient from a mesh and a few numbers.
 
@@ -774,7 +776,10 @@ class ModalMuscle:
         vertices the muscles are the modes of the body clamped there.
         ``progress(stage)``, if given, is called before each stage. With
         ``parallel`` the modal analysis runs in a second thread beside the
-        subspace and clusters (the results do not change).
+        subspace and clusters (the results do not change). Each BLAS call
+        uses at most ``blas_threads`` threads meanwhile (``None``: as the
+        BLAS library is set), so the two threads do not oversubscribe the
+        cores (:mod:`skfem_modal.threads`).
 
         Returns
         -------
@@ -796,7 +801,7 @@ class ModalMuscle:
                 raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
         say = progress or (lambda stage: None)
         timings = {}
-        with validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
+        with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
             # scikit-fem caches mesh data on first use; build it here, before
             # the two threads read it
             scalar_basis(mesh)

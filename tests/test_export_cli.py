@@ -60,7 +60,14 @@ def test_cli_modes_default_caterpillar(tmp_path, capsys, reference):
     for value in reference["eigenvalues_3_6"]:
         assert f"{value:.8e}"[:9] in text
     back = meshio.read(out)
-    assert len(back.point_data) == 7
+    assert len(back.point_data) == 9  # the 3 rigid motions and 6 elastic modes
+    rows = [line.split() for line in text.splitlines() if line.split()[-1:] in (["rigid"], ["elastic"])]
+    assert [r[-1] for r in rows] == ["rigid"] * 3 + ["elastic"] * 6
+    # a rigid motion has no ceiling; the elastic ones are the tutorial's
+    assert [r[3] for r in rows[:3]] == ["-"] * 3
+    np.testing.assert_allclose(
+        [float(r[3]) for r in rows[3:7]], reference["ceilings_3_6"], rtol=1e-5
+    )  # printed to 6 digits
 
 
 def test_cli_modes_mesh_file_and_clamp(tmp_path, capsys):

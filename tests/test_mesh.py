@@ -1,3 +1,5 @@
+import inspect
+
 import meshio
 import numpy as np
 import pytest
@@ -19,7 +21,7 @@ from skfem_modal import (
     vertices_where,
 )
 from skfem_modal.fem import element_volumes
-from skfem_modal.mesh import builtin_mesh, connected_parts, mesh_summary
+from skfem_modal.mesh import BUILTIN_SHAPES, builtin_mesh, connected_parts, mesh_summary, shape_parameters
 
 
 def test_caterpillar_matches_the_tutorial(cat_mesh, reference):
@@ -126,7 +128,7 @@ def test_builtin_mesh_by_name():
     assert builtin_mesh("beam2d", nx=3, ny=1).t.shape[1] == 6
     with pytest.raises(ValueError, match="unknown built-in shape 'blob'"):
         builtin_mesh("blob")
-    with pytest.raises(ValueError, match="has no parameter width2"):
+    with pytest.raises(ValueError, match="parameter width2: unknown; beam2d takes length, height, nx, ny"):
         builtin_mesh("beam2d", width2=3)
 
 
@@ -223,6 +225,41 @@ def test_load_refuses_curved_surfaces_and_unknown_formats(tmp_path):
     meshio.write(lines, meshio.Mesh(pts, [("line", [[0, 1]])]))
     with pytest.raises(ValueError, match="no triangle or tetrahedron cells"):
         load_mesh(lines)
+
+
+def test_unreadable_files_are_mesh_errors_naming_the_file(tmp_path, capsys):
+    # meshio prints each reader's complaint and calls sys.exit when none can read a file
+    garbage = tmp_path / "garbage.msh"
+    garbage.write_text("garbage\n")
+    with pytest.raises(MeshError, match=r"cannot read mesh '.*garbage.msh': not a file meshio reads as ansys, gmsh$"):
+        load_mesh(garbage)
+    empty = tmp_path / "nocells.vtu"
+    meshio.write(empty, meshio.Mesh(np.random.default_rng(0).random((5, 3)), []))
+    with pytest.raises(
+        MeshError, match=r"cannot read mesh '.*nocells.vtu': Inconsistent data! \(not a file meshio reads as vtu\)$"
+    ):
+        load_mesh(empty)
+    # meshio's own printing does not reach the terminal
+    assert capsys.readouterr() == ("", "")
+
+
+def test_builtin_shape_parameters_are_typed_and_all_have_defaults():
+    for name in BUILTIN_SHAPES:
+        defaults = shape_parameters(name)
+        assert all(value is not inspect.Parameter.empty for value in defaults.values()), name
+        assert builtin_mesh(name).p.shape[1] > 0  # every shape builds from its defaults alone
+    box = builtin_mesh("box3d")
+    assert box.t.shape[1] == 6 * 8**3 and np.ptp(box.p, axis=1).tolist() == [1.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match=r"shape 'caterpillar': parameter nx: expected an integer, got 'a' \(str\)"):
+        builtin_mesh("caterpillar", nx="a")
+    with pytest.raises(ValueError, match=r"parameter width: expected a finite number, got '2' \(str\)"):
+        builtin_mesh("caterpillar", width="2")
+    with pytest.raises(ValueError, match=r"parameter size: expected a list of 3 numbers, got \[1, 2\]"):
+        builtin_mesh("box3d", size=[1, 2])
+    with pytest.raises(ValueError, match=r"parameter normalize: expected true or false, got 1"):
+        builtin_mesh("caterpillar", normalize=1)
+    # an integer is a fine float, and a list a fine size
+    assert builtin_mesh("box3d", nx=1, ny=1, nz=1, size=[2, 1, 1]).p[0].max() == 2.0
 
 
 def test_connected_parts():

@@ -169,7 +169,14 @@ def test_cli_render_with_matplotlib(default_run, capsys):
     from PIL import Image
 
     gif = Image.open(default_run / "animation.gif")
-    assert gif.n_frames == 6
+    assert gif.n_frames == 6 and gif.size == (1280, 720)
+    floor_rows = []
+    for k in range(gif.n_frames):
+        gif.seek(k)
+        column = np.asarray(gif.convert("RGB")).astype(int)[:, 3]  # left edge: floor and sky only
+        floor_rows.append(int(np.argmax(column.mean(axis=1) < 245)))
+    # the camera follows the crawl sideways, but the ground stays put on screen
+    assert 360 < floor_rows[0] < 700 and len(set(floor_rows)) == 1, floor_rows
 
 
 def test_progress_without_tqdm_writes_lines_to_a_log(monkeypatch, capsys):

@@ -1,0 +1,155 @@
+"""Watching a run for motion its scene cannot produce physically.
+
+A step that is far too large for a scene (``time.step = 1e6`` in a crawl)
+still gives finite numbers, just meaningless ones: the body flies off by
+billions of body sizes or swells to millions of times its size. Two cheap
+measures, read from the reduced state each step, tell such runs apart from
+physical ones:
+
+- the body's *spread* (root-mean-square distance of the vertices from their
+  mean) against its rest spread: the forces of a scene (elasticity, muscles
+  with ceilings, gravity, contact) stretch or squash a soft body by tens of
+  percent, never by a factor of :data:`SPREAD_LIMIT`;
+- the centre of mass's *push*: how far forces other than gravity move it in
+  one step, ``h^2 |a - g|`` with ``a`` its acceleration (second difference).
+  Elasticity and muscles are internal and never move it (momentum is
+  conserved); contact and pins move it by a small fraction of the body's size
+  a step when the step resolves the motion. More than :data:`PUSH_LIMIT`
+  body sizes in one step is a step far too large for the scene.
+
+Measured on the examples and the default crawl: spread
+ratios 0.74-1.33, pushes below 0.04 body sizes; with ``time.step = 1e6`` the
+crawl's spread ratio reaches 5.9e6.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+__all__ = ["MotionMonitor", "MotionWarning", "SPREAD_LIMIT", "PUSH_LIMIT"]
+
+#: A spread this many times the rest spread (or this many times smaller) is not physical.
+SPREAD_LIMIT = 3.0
+#: Forces other than gravity moving the centre of mass this many body sizes in one step are not physical.
+PUSH_LIMIT = 1.0
+
+
+class MotionWarning(RuntimeWarning):
+    """A run completed, but its motion is not physical for its scene."""
+
+
+class MotionMonitor:
+    """Spread and push of a run's body, fed one reduced state a step.
+
+    Costs one ``(r, r)`` product a step (the spread is ``z^T G z`` with a
+    Gram matrix made once), so it runs beside every step.
+
+    Parameters
+    ----------
+    sim : skfem_modal.sim.ModalMuscle
+        Its basis ``B``, ``com``, ``h`` and rest state are used.
+    gravity : array_like, shape (dim,), optional
+        The scene's gravitational acceleration (the push leaves it out).
+
+    Examples
+    --------
+    >>> from skfem_modal.sim import ModalMuscle
+    >>> from skfem_modal.mesh import beam2d
+    >>> sim = ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01)
+    >>> monitor = MotionMonitor(sim)
+    >>> z, z_dot, a = sim.rest_state()
+    >>> monitor.update(1, z + 0.0)
+    >>> monitor.finish()["physical"]
+    True
+    """
+
+    def __init__(self, sim, gravity=None):
+        B = np.asarray(sim.B)
+        dim = sim.dim
+        n = B.shape[0] // dim
+        self._mean = B.reshape(n, dim, -1).mean(axis=0)  # (dim, r): the vertices' mean position
+        self._gram = B.T @ B / n  # (r, r): z^T G z is the mean squared distance from the origin
+        self._com = sim.com
+        self.h = float(sim.h)
+        z_rest = sim.rest_state()[0]
+        rest = sim.positions(z_rest)
+        self.size = float(np.ptp(rest, axis=0).max())
+        self.rest_spread = self._spread(z_rest)
+        g = np.zeros(dim) if gravity is None else np.asarray(gravity, dtype=np.float64)
+        self._gravity_step = self.h**2 * g  # the second difference of free fall
+        self._previous = self._com(z_rest)
+        self._velocity_step = np.zeros(dim)  # the last step's change of the centre of mass
+        self.spread_ratio = [1.0, 1.0]  # least and largest
+        self.push = 0.0  # largest, in body sizes
+        self.first_problem_step = {}
+
+    def _spread(self, z) -> float:
+        mean = self._mean @ z
+        return math.sqrt(max(float(z @ (self._gram @ z) - mean @ mean), 0.0))
+
+    def update(self, step: int, z) -> None:
+        """Take the state after ``step`` steps.
+
+        Parameters
+        ----------
+        step : int
+        z : ndarray, shape (r,)
+        """
+        com = self._com(z)
+        change = com - self._previous
+        excess = change - self._velocity_step - self._gravity_step
+        push = math.sqrt(float(excess @ excess)) / self.size
+        self._previous, self._velocity_step = com, change
+        ratio = self._spread(z) / self.rest_spread
+        if ratio < self.spread_ratio[0]:
+            self.spread_ratio[0] = ratio
+        elif ratio > self.spread_ratio[1]:
+            self.spread_ratio[1] = ratio
+        if push > self.push:
+            self.push = push
+        if push > PUSH_LIMIT:
+            self.first_problem_step.setdefault("push", step)
+        if not 1.0 / SPREAD_LIMIT <= ratio <= SPREAD_LIMIT:
+            self.first_problem_step.setdefault("spread", step)
+
+    def finish(self, warn: bool = True) -> dict:
+        """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
+
+        Returns
+        -------
+        report : dict
+            ``physical``, ``warnings`` (sentences), ``body_size`` (largest
+            rest extent), ``spread_ratio`` (least and largest),
+            ``largest_push_body_sizes`` and ``first_problem_step``.
+        """
+        texts = []
+        low, high = self.spread_ratio
+        if "spread" in self.first_problem_step:
+            step = self.first_problem_step["spread"]
+            size = f"grew to {high:.3g} times" if high > SPREAD_LIMIT else f"shrank to {low:.3g} times"
+            texts.append(
+                f"from step {step} (t = {step * self.h:g}) the body {size} its rest size: "
+                "no force in this scene deforms it so far"
+            )
+        if "push" in self.first_problem_step:
+            step = self.first_problem_step["push"]
+            texts.append(
+                f"from step {step} (t = {step * self.h:g}) forces other than gravity moved the centre of mass up to "
+                f"{self.push:.3g} body sizes in one step: the motion is not resolved"
+            )
+        if texts:
+            texts.append(f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step")
+            if warn:
+                for text in texts:
+                    warnings.warn(text, MotionWarning, stacklevel=2)
+        return {
+            "physical": not texts,
+            "warnings": texts,
+            "body_size": self.size,
+            "spread_ratio": [low, high],
+            "largest_push_body_sizes": self.push,
+            "first_problem_step": dict(self.first_problem_step),
+        }

@@ -1,0 +1,115 @@
+"""Runs whose motion is not physical for their scene are reported, physical ones are not."""
+
+import copy
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from skfem_modal.cli import main
+from skfem_modal.mesh import beam2d
+from skfem_modal.monitor import PUSH_LIMIT, SPREAD_LIMIT, MotionMonitor, MotionWarning
+from skfem_modal.run import run_scene
+from skfem_modal.scene import DEFAULT_SCENE, Scene
+from skfem_modal.sim import ModalMuscle
+
+
+@pytest.fixture(scope="module")
+def beam_sim():
+    return ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01)
+
+
+def state_of(sim, positions):
+    """The reduced state whose positions are ``positions`` (affine maps of the rest shape are in the subspace)."""
+    z = np.linalg.lstsq(sim.B, np.ravel(positions), rcond=None)[0]
+    np.testing.assert_allclose(sim.positions(z), positions, atol=1e-12)
+    return z
+
+
+def test_spread_and_push_of_made_up_states(beam_sim):
+    sim = beam_sim
+    rest = sim.mesh.p.T
+    monitor = MotionMonitor(sim, gravity=[0.0, -9.8])
+    assert monitor.size == pytest.approx(2.0)
+    # a translation is no deformation; a free fall step is no push
+    g_step = 0.01**2 * np.array([0.0, -9.8])
+    monitor.update(1, state_of(sim, rest + g_step))
+    monitor.update(2, state_of(sim, rest + 3 * g_step))
+    assert monitor.spread_ratio == pytest.approx([1.0, 1.0], abs=1e-12)
+    assert monitor.push == pytest.approx(0.0, abs=1e-12)
+    # then the body stops dead: the ground's push is the fall it stopped, 3 g h^2 (in body sizes)
+    monitor.update(3, state_of(sim, rest + 3 * g_step))
+    assert monitor.push == pytest.approx(3 * 9.8e-4 / 2.0, rel=1e-9)
+    assert monitor.finish()["physical"]
+    # swelling 4 times about the centre
+    centre = rest.mean(axis=0)
+    monitor.update(4, state_of(sim, centre + 4 * (rest - centre)))
+    assert monitor.spread_ratio[1] == pytest.approx(4.0, rel=1e-9)
+    with pytest.warns(MotionWarning) as record:
+        report = monitor.finish()
+    assert [str(w.message) for w in record] == [
+        "from step 4 (t = 0.04) the body grew to 4 times its rest size: no force in this scene deforms it so far",
+        "the time step h = 0.01 is too large for this scene; try a smaller time.step",
+    ]
+    assert not report["physical"] and report["first_problem_step"] == {"spread": 4}
+
+
+def test_a_huge_time_step_is_reported_in_the_terminal_and_the_summary(tmp_path, capsys):
+    data = copy.deepcopy(DEFAULT_SCENE)
+    data["time"] = {"step": 1e6, "steps": 20}
+    path = tmp_path / "huge_step.toml"
+    path.write_text(
+        "[time]\nstep = 1e6\nsteps = 20\n[mesh]\nshape = 'caterpillar'\n[material]\nmu = 1e6\n"
+        "[muscles]\ncount = 4\n[muscles.gait]\namplitude = [0.45, 0.35, 0.25, 0.15]\n"
+        "period = [1.2, 0.8, 1.0, 0.6]\n[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.15\n"
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("skfem-modal run: warning: from step 1 (t = 1e+06) the body grew to")
+    assert "forces other than gravity moved the centre of mass up to" in err[1]
+    assert (
+        err[2]
+        == "skfem-modal run: warning: the time step h = 1e+06 is too large for this scene; try a smaller time.step"
+    )
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["status"] == "completed"
+    motion = summary["motion"]
+    assert not motion["physical"] and len(motion["warnings"]) == 3
+    assert motion["spread_ratio"][1] > 1e3 * SPREAD_LIMIT and motion["largest_push_body_sizes"] > 1e6 * PUSH_LIMIT
+    # the library warns too
+    with pytest.warns(MotionWarning):
+        run_scene(Scene.from_dict(data), None)
+
+
+def test_physical_runs_are_quiet(default_crawl_summary):
+    motion = default_crawl_summary["motion"]
+    assert motion["physical"] and motion["warnings"] == []
+    # the crawl bends by tens of percent and the ground pushes it a hundredth of its size a step at most
+    assert 0.75 < motion["spread_ratio"][0] <= 1.0 <= motion["spread_ratio"][1] < 1.25
+    assert 1e-3 < motion["largest_push_body_sizes"] < 0.05
+
+
+def test_floating_bodies_keep_their_momentum():
+    scene = Scene.from_dict(
+        {
+            "mesh": {"shape": "beam2d", "params": {"length": 2.0, "height": 0.5, "nx": 8, "ny": 2}},
+            "subspace": {"weights": 3, "clusters": 4},
+            "muscles": {"count": 2, "gait": {"amplitude": [0.8, 0.8], "period": [0.3, 0.2]}},
+            "gravity": {"acceleration": [0.0, -9.8]},
+            "time": {"step": 0.01, "steps": 100},
+        }
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        motion = run_scene(scene, None)["motion"]
+    # muscles and elasticity are internal forces: the centre of mass falls freely, to round-off
+    assert motion["largest_push_body_sizes"] < 1e-12
+    assert motion["spread_ratio"][1] > 1.01  # the muscles did deform it
+
+
+@pytest.fixture(scope="module")
+def default_crawl_summary():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        return run_scene(Scene.default(), None)
