@@ -87,6 +87,16 @@ class GroundContact(Effect):
         self.solve, self.h = system.solve, float(h)
         self._cache: OrderedDict = OrderedDict()
 
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_cache"] = OrderedDict()
+        state.pop("_dot", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._dot = (lambda A, x: A @ x) if sps.issparse(self.Je) else dot
+
     def positions(self, z) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""
         return (self.Je @ np.asarray(z, float)).reshape(-1, self.dim)

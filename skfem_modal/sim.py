@@ -358,6 +358,16 @@ class ModalMuscle:
         self.n_active_clusters = int(active_labels.max()) + 1 if self.n_muscles else 0
         self.iterations = 0
 
+    def __getstate__(self):
+        # the backends are buffers and views made from the model: rebuilt on arrival
+        state = self.__dict__.copy()
+        state.pop("_backends")
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._rebuild()
+
     # -------------------------------------------------------------- settings
     @property
     def solver(self) -> LocalGlobal:

@@ -49,6 +49,13 @@ class _MeshData:
         """Rest positions, interleaved, shape (N,)."""
         return self.mesh.p.T.ravel()
 
+    def __getstate__(self):
+        # what is read off the mesh is made again where it is needed (J is as large as the mesh)
+        state = self.__dict__.copy()
+        for cached in ("J", "volumes", "rest", "_gradients"):
+            state.pop(cached, None)
+        return state
+
     def dofs(self, vertices) -> np.ndarray:
         """Interleaved DOF indices of vertices."""
         return vector_dofs(vertices, self.dim)

@@ -327,3 +327,23 @@ def test_batched_stopping_test_gives_the_answer_of_testing_each_iteration(tutori
     z_dot[0] = np.inf
     with pytest.raises(SimulationError, match="non-finite"):
         batched.step(z, z_dot, a)
+
+
+def test_a_pickled_simulator_steps_as_the_original():
+    # what a process pool or dask sends to its workers: the precompute travels, the backends are rebuilt
+    import pickle
+
+    mesh = creature(cell=0.3)
+    sim = ModalMuscle.from_mesh(
+        mesh, n_muscles=3, n_weights=4, n_clusters=6, h=0.01, gravity=[0, 0, -9.8], ground=float(mesh.p[2].min()) - 0.02
+    )
+    copy = pickle.loads(pickle.dumps(sim))
+    assert copy.effects == sim.effects and copy.backends[0].name == sim.backends[0].name
+    z, z_dot, _ = sim.rest_state()
+    w, w_dot = z.copy(), z_dot.copy()
+    for i in range(40):
+        a = 0.4 * sim.ceilings * np.sin(0.2 * i + np.arange(3))
+        z, z_dot = sim.step(z, z_dot, a, velocity=True)
+        w, w_dot = copy.step(w, w_dot, a, velocity=True)
+    np.testing.assert_array_equal(w, z)
+    assert np.abs(z - sim.rest_state()[0]).max() > 1e-3  # it moved
