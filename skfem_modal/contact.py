@@ -167,7 +167,7 @@ class GroundContact(Effect):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < L.shape[1]:
+        elif rows.size < L.shape[1] and np.linalg.matrix_rank(L) == rows.size:
             # reference: the least change of force that meets every constraint exactly
             dz = self.solve(L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size)))
         else:

@@ -82,7 +82,10 @@ class Model:
         self.Pz = sum((p[0] for p in parts if p[0] is not None), 0 * H)
         self.Pv = sum((p[1] for p in parts if p[1] is not None), 0 * H)
         self.f = sum((p[2] for p in parts if p[2] is not None), np.zeros(r))
-        self.system = space.factor(H)
+        try:
+            self.system = space.factor(H)
+        except ValueError:
+            raise ValueError(self._singular_why(H)) from None
         if space.dense:
             self.C = self.system.solve(np.hstack([self.Pz, self.Pv, self.f[:, None]]))
             self.W = self.system.solve(self.G.T)
@@ -90,6 +93,19 @@ class Model:
                 self.WA = np.stack([self.system.solve(Ak.T) for Ak in self.A])
         if self.contact is not None:
             self.contact.bind(self.system, h)
+
+    def _singular_why(self, H) -> str:
+        """Why the system matrix could not be factored, in words."""
+        M = self.inertia.mass_matrix
+        mass = float(np.abs(M.diagonal()).max()) / self.h**2
+        stiff = float(np.abs(H.diagonal()).max())
+        if mass < 1e-12 * stiff:
+            return (
+                f"the system matrix is singular to working precision: with h = {self.h:g} the inertia term "
+                f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of the stiffness ({stiff:.3g}), which leaves "
+                "a free body's rigid motions undetermined; use a smaller time step, or pin the body"
+            )
+        return "the reduced system matrix is not positive definite: check that B has full column rank"
 
     def replace(self, effect) -> None:
         """Put an effect in (replacing the one of its name, or adding it) and reassemble."""

@@ -37,12 +37,13 @@ import numpy as np
 from .contact import GroundContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive, scalar_basis
-from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
+from .mesh import _signed_measures, boundary_vertices, check_mesh, connected_parts, sample_boundary, validated
 from .modal import muscle_modes
 from .model import Model
 from .solver import BACKENDS, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
+from .units import up_axis
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -184,7 +185,8 @@ class ModalMuscle:
     ground : float, optional
         Height of the ground plane along ``up``; ``None``: no ground.
     up : int, optional
-        Index of the up axis (default: the last).
+        Index of the up axis; default: the axis gravity pulls down along
+        (:func:`~skfem_modal.units.up_axis`), the last without gravity.
     stickiness : float
         In [0, 1]: 1 removes the tangential velocity of contacting points (the
         reference behaviour), 0 lets them slide freely.
@@ -292,7 +294,11 @@ class ModalMuscle:
         tol = _positive_scalar(tol, "tol", allow_zero=True)
         rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
         backend = _backend_name(backend)
-        up = _axis(dim - 1 if up is None else up, dim)
+        if up is not None:
+            up = _axis(up, dim)
+        if gravity is not None:
+            gravity = _array(gravity, (dim,), "gravity")
+        up = up_axis(gravity, dim, up)
         stickiness, push_out = _fraction(stickiness, "stickiness"), _fraction(push_out, "push_out")
         damping_mass = _positive_scalar(damping_mass, "damping_mass", allow_zero=True)
         damping_stiffness = _positive_scalar(damping_stiffness, "damping_stiffness", allow_zero=True)
@@ -300,8 +306,6 @@ class ModalMuscle:
         pinned = None if pinned is None else _vertices(pinned, n, "pinned")
         if pin_stiffness is not None:
             pin_stiffness = _positive_scalar(pin_stiffness, "pin_stiffness")
-        if gravity is not None:
-            gravity = _array(gravity, (dim,), "gravity")
         if ground is not None:
             ground = float(_array(ground, (), "ground"))
         if contact_vertices is not None:
@@ -370,6 +374,11 @@ class ModalMuscle:
 
     # -------------------------------------------------------------- settings
     @property
+    def model(self) -> Model:
+        """The precomputed operators and effects (:class:`~skfem_modal.model.Model`; read-only)."""
+        return self._model
+
+    @property
     def solver(self) -> LocalGlobal:
         """The local/global driver (its ``batch`` flag and ``predicted`` count; the limits are settings here)."""
         return self._solver
@@ -390,8 +399,14 @@ class ModalMuscle:
 
     @h.setter
     def h(self, value) -> None:
-        self._model.h = _positive_scalar(value, "h")
-        self._model.assemble()
+        value, old = _positive_scalar(value, "h"), self._model.h
+        self._model.h = value
+        try:
+            self._model.assemble()
+        except ValueError:
+            self._model.h = old
+            self._model.assemble()
+            raise
         self._rebuild()
 
     @property
@@ -454,7 +469,9 @@ class ModalMuscle:
         if value is None:
             self._model.remove("gravity")
         else:
-            self._model.replace(Gravity(self._space, self.mass, _array(value, (self.dim,), "gravity")))
+            value = _array(value, (self.dim,), "gravity")
+            up_axis(value, self.dim, self._up)  # pulls down along up, or an error naming both
+            self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
 
     def _contact_effect(self, setting):
@@ -498,7 +515,10 @@ class ModalMuscle:
 
     @up.setter
     def up(self, value) -> None:
-        self._up = _axis(value, self.dim)
+        value = _axis(value, self.dim)
+        if self.gravity is not None:
+            up_axis(self.gravity, self.dim, value)  # gravity must pull down along it
+        self._up = value
         if self._model.contact is not None:
             self._new_contact(up=self._up)
 
@@ -779,7 +799,8 @@ class ModalMuscle:
         multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
         ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
         clusters are spectral clusters of the weights (``seed``); one active
-        cluster (or ``n_active_clusters`` spectral clusters), clustering
+        cluster (or ``n_active_clusters`` spectral clusters; at least one per
+        connected part of the mesh, so separate bodies turn apart), clustering
         on the first ``cluster_weights`` weights (default ``n_weights``); with a
         ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
         (all boundary vertices if ``n_contacts`` is None). With ``pinned``
@@ -843,9 +864,9 @@ class ModalMuscle:
             say("clusters")
             cw = weights[:, : cluster_weights or n_weights]
             labels = spectral_clusters(mesh, cw, n_clusters, seed=seed)
-            active = None
-            if n_active_clusters > 1:
-                active = spectral_clusters(mesh, cw, n_active_clusters, seed=seed)
+            # separate bodies never share a muscle rotation: at least one cluster each
+            n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
+            active = spectral_clusters(mesh, cw, n_active, seed=seed) if n_active > 1 else None
             timings["clusters"] = time.perf_counter() - clock
 
             def muscles():

@@ -206,6 +206,9 @@ class DenseSystem:
                 "the reduced system matrix is not positive definite: check that B has full column rank"
             ) from None
         self.inverse = sla.cho_solve(chol, np.eye(H.shape[0]))
+        # a factor of a numerically singular matrix can pass with round-off pivots
+        if not np.abs(H).max() * np.abs(self.inverse).max() < 1e14:
+            raise ValueError("the reduced system matrix is singular to working precision")
 
     def solve(self, X) -> np.ndarray:
         """``H^-1 X`` for dense ``X`` of shape (r,) or (r, k)."""

@@ -1,0 +1,157 @@
+"""Every setting of a simulator is live (assigning it equals building with it) or read-only (assigning raises)."""
+
+import numpy as np
+import pytest
+
+from skfem_modal import ModalMuscle, caterpillar, creature, linear_modal_analysis, mass_matrix
+from skfem_modal.clusters import spectral_clusters
+from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes
+
+
+def ingredients(mesh, n_muscles=2):
+    dim = mesh.p.shape[0]
+    n_rigid = 3 if dim == 2 else 6
+    _, modes = linear_modal_analysis(mesh, n_rigid + n_muscles)
+    _, W, B = skinning_eigenmodes(mesh, 4)
+    B = mass_orthonormalize(B, mass_matrix(mesh))
+    return dict(mesh=mesh, B=B, D=modes[:, n_rigid:], labels=spectral_clusters(mesh, W, 6, seed=0))
+
+
+@pytest.fixture(scope="module")
+def flat():
+    return ingredients(caterpillar(nx=20, ny=10))
+
+
+@pytest.fixture(scope="module")
+def solid():
+    return ingredients(creature(cell=0.3))
+
+
+def build(parts, **settings):
+    mesh = parts["mesh"]
+    up = mesh.p.shape[0] - 1
+    base = dict(
+        mu=1e4,
+        gamma=2e4,
+        rho=1e3,
+        h=0.01,
+        gravity=[0.0] * up + [-9.8],
+        ground=float(mesh.p[up].min()) - 0.01,
+        pinned=None,
+        backend="numpy",
+        tol=1e-6,
+    )
+    base.update(settings)
+    return ModalMuscle(mesh, parts["B"], parts["D"], parts["labels"], **base)
+
+
+def trajectory(sim, steps=25):
+    z, z_dot, _ = sim.rest_state()
+    zs = []
+    for i in range(steps):
+        a = 0.5 * sim.ceilings * np.sin(2 * np.pi * (0.02 * i / np.array([0.3, 0.5]) + [0.0, 0.3]))
+        z, z_dot = sim.step(z, z_dot, a, velocity=True)
+        zs.append(z)
+    return np.array(zs)
+
+
+LIVE = [
+    ("h", 0.02, {}),
+    ("max_iter", 3, {}),
+    ("tol", 1e-2, {}),
+    ("rtol", 1e-2, {"tol": 0.0}),
+    ("backend", "plain", {}),
+    ("gravity", [0.5, -3.0], {}),
+    ("gravity", None, {}),
+    ("ground", -0.55, {}),
+    ("ground", None, {}),
+    ("stickiness", 0.2, {}),
+    ("push_out", 1.0, {}),
+    ("damping_mass", 2.0, {}),
+    ("damping_stiffness", 1e-3, {"damping_mass": 0.5}),
+    ("damping_mass", 0.0, {"damping_mass": 0.5}),
+    ("pin_stiffness", 5e4, {"pinned": [0, 1, 2]}),
+    ("max_s", 0.5, {}),
+    ("up", 0, {"gravity": [-9.8, -9.8], "up": 1, "ground": -0.55}),
+]
+
+
+@pytest.mark.parametrize("name, value, base", LIVE, ids=[f"{n}={v}" for n, v, _ in LIVE])
+def test_assigning_a_live_setting_equals_building_with_it(flat, name, value, base):
+    sim = build(flat, **base)
+    elasticity = sim.model.elasticity
+    before = trajectory(sim)
+    setattr(sim, name, value)
+    assert getattr(sim, name) == pytest.approx(value) if value is not None else getattr(sim, name) is None
+    fresh = build(flat, **{**base, name: value})
+    after, expected = trajectory(sim), trajectory(fresh)
+    np.testing.assert_allclose(after, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    if name != "backend":  # another backend: the same answer
+        assert np.abs(after - before).max() > 1e-9 * np.abs(before).max(), f"assigning {name} changed nothing"
+    assert sim.effects == fresh.effects
+    assert sim.model.elasticity is elasticity  # the expensive reductions are kept
+    if name == "max_s":
+        np.testing.assert_allclose(sim.ceilings, fresh.ceilings)
+
+
+def test_gravity_and_ground_can_be_switched_on_after_construction(solid):
+    sim = build(solid, gravity=None, ground=None)
+    assert sim.effects == ("elasticity", "inertia", "muscles")
+    sim.gravity = [0.0, 0.0, -9.8]
+    sim.ground = float(solid["mesh"].p[2].min()) - 0.01
+    fresh = build(solid, contact_vertices=sim.contact_vertices)
+    assert sim.effects == fresh.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
+    np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "plain", "numba"])
+def test_live_settings_on_every_3d_backend(solid, backend):
+    from skfem_modal import _accel
+
+    if backend == "numba" and not _accel.AVAILABLE:
+        pytest.skip("numba is not installed (the optional 'fast' extra)")
+    sim = build(solid, backend=backend)
+    sim.h, sim.max_iter, sim.push_out = 0.005, 6, 1.0
+    fresh = build(solid, backend=backend, h=0.005, max_iter=6, push_out=1.0)
+    np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
+
+
+READ_ONLY = ["mesh", "B", "D", "labels", "active_labels", "mu", "gamma", "rho", "pinned", "contact_vertices"]
+
+
+@pytest.mark.parametrize("name", READ_ONLY)
+def test_read_only_settings_refuse_assignment(flat, name):
+    sim = build(flat)
+    value = getattr(sim, name)
+    with pytest.raises(AttributeError, match=f"{name} is fixed when a simulator is built"):
+        setattr(sim, name, value)
+
+
+@pytest.mark.parametrize("name", ["effects", "ceilings", "backends", "model", "solver", "backend_used"])
+def test_derived_values_cannot_be_assigned(flat, name):
+    sim = build(flat)
+    with pytest.raises(AttributeError):
+        setattr(sim, name, getattr(sim, name))
+
+
+def test_settings_are_checked_when_assigned(flat):
+    sim = build(flat, pinned=None)
+    with pytest.raises(ValueError, match="h must be positive"):
+        sim.h = -1.0
+    with pytest.raises(ValueError, match="max_iter must be a positive integer"):
+        sim.max_iter = 0
+    with pytest.raises(ValueError, match="backend must be one of"):
+        sim.backend = "gpu"
+    with pytest.raises(ValueError, match=r"stickiness must be in \[0, 1\]"):
+        sim.stickiness = 3.0
+    with pytest.raises(AttributeError, match="no pinned vertices"):
+        sim.pin_stiffness = 10.0
+    with pytest.raises(ValueError, match="gravity"):
+        sim.gravity = [0.0, 9.8]  # pulls up along the up axis
+    # a failed assignment leaves the simulator as it was
+    before = trajectory(sim)
+    with pytest.raises(ValueError, match="singular to working precision"):
+        sim.gravity, sim.ground = None, None
+        sim.h = 1e9
+    sim.gravity, sim.ground = [0.0, -9.8], float(flat["mesh"].p[1].min()) - 0.01
+    np.testing.assert_array_equal(trajectory(sim), before)
