@@ -287,6 +287,27 @@ def cmd_optimize(args) -> int:
     return EXIT_OK
 
 
+def cmd_play(args) -> int:
+    from .play import PlayError, play
+
+    say = (lambda *a: None) if args.quiet else print
+    try:
+        play(
+            args.scene,
+            gait_on=not args.no_gait,
+            frames=args.frames,
+            screenshot=args.screenshot,
+            off_screen=args.off_screen,
+            window_size=args.size,
+            follow=not args.no_follow,
+            say=say,
+        )
+    except PlayError as err:
+        print(f"skfem-modal play: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skfem-modal",
@@ -376,6 +397,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_optimize)
+
+    p = sub.add_parser("play", help="a live window: sliders (or the gait) drive the muscles")
+    p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
+    p.add_argument("--frames", type=int, help="scripted: draw N frames with the gait on, print the frame rate, close")
+    p.add_argument("--screenshot", metavar="PATH", help="save the last frame as a PNG")
+    p.add_argument("--off-screen", action="store_true", help="render without a window (needs --frames)")
+    p.add_argument("--size", type=int, nargs=2, default=(960, 600), metavar=("W", "H"), help="window size in pixels")
+    p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
+    p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_play)
 
     p = sub.add_parser("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")
