@@ -428,6 +428,8 @@ def play(
     if problem is not None:
         raise PlayError(problem)
     sim, gait, name = _simulator(target, gait)
+    # the first step may compile (numba): before the window opens, not in its first frame
+    sim.step(*sim.rest_state())
     player = Player(sim, gait, gait_on=gait_on or frames is not None)
     from .play_view import PlayView
 

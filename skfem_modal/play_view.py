@@ -25,6 +25,9 @@ _GROUND_LINES = "#a6a6a6"
 #: Fraction of the window width the sliders take, on the left; the body is framed right of it.
 _PANEL = 0.27
 _STATUS_EVERY = 0.25  # seconds between status-line updates
+# seconds between slider moves while the gait drives them: each move redraws four text labels,
+# which costs software rendering a third of the frame when done every frame
+_GAIT_SLIDERS_EVERY = 1 / 15
 
 
 def _surface_triangles(mesh) -> np.ndarray:
@@ -137,7 +140,7 @@ class PlayView:
             smooth_shading=False,
             # a 2D body is flat and faces the camera: shading it would only darken it evenly
             lighting=self.dim == 3,
-            ambient=0.25,
+            ambient=0.25 if self.dim == 3 else 0.0,  # unlit, colour = ambient + diffuse
             reset_camera=False,
         )
         self.extent = float(np.ptp(rest, axis=0).max())
@@ -155,6 +158,7 @@ class PlayView:
         self._frame_camera()
         self._add_controls(pv, window_size)
         self._status_time = -np.inf
+        self._sliders_time = -np.inf
         self._shown = {}
 
     # ------------------------------------------------------------ building
@@ -292,28 +296,33 @@ class PlayView:
                     snap[self.up] = 0.0
                     for actor in self.ground_actors:
                         actor.SetPosition(*snap)
-        self._sync_widgets()
         now = time.perf_counter()
+        self._sync_buttons()
+        if not player.gait_on or now - self._sliders_time >= _GAIT_SLIDERS_EVERY:
+            self._sliders_time = now
+            self._sync_sliders()
         if now - self._status_time >= _STATUS_EVERY:
             self._status_time = now
             self.status.SetInput(self._status_text())
 
-    def _sync_widgets(self) -> None:
-        """Widgets show the player's state (keys and reset change it behind their backs)."""
-        player = self.player
+    def _sync_buttons(self) -> None:
+        """Buttons show the player's state (keys and reset change it behind their backs)."""
         shown = self._shown
         for name, widget in self.buttons.items():
             state = self._button_state(name)
             if shown.get(name) != state:
                 widget.GetRepresentation().SetState(int(state))
                 shown[name] = state
+
+    def _sync_sliders(self) -> None:
+        """Sliders show the activations in effect: the gait's while it drives the muscles."""
+        player = self.player
         values = player.activation() if player.gait_on else player.sliders
         for k, widget in enumerate(self.sliders):
-            # the sliders follow the gait while it drives the muscles
             value = float(values[k])
-            if shown.get(k) != value:
+            if self._shown.get(k) != value:
                 widget.GetRepresentation().SetValue(value)
-                shown[k] = value
+                self._shown[k] = value
 
     def _status_text(self) -> str:
         player = self.player

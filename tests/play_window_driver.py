@@ -118,6 +118,18 @@ def main(target: str) -> dict:
     image = view.screenshot().astype(float)
     body = np.abs(image - [0x3F, 0x8F, 0x63]).max(axis=2) < 60
     white = (image > 250).all(axis=2)
+    # the live loop ends when q is pressed (here in its seventh frame)
+    frame = player.frame
+    count = []
+
+    def frame_then_quit():
+        count.append(1)
+        if len(count) == 7:
+            key("q", "q")
+        return frame()
+
+    player.frame = frame_then_quit
+    keys["quit_frames"] = view.run()["frames"]
     view.close()
     return {
         "drags": drags,

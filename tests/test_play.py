@@ -388,6 +388,7 @@ def test_window_sliders_keys_and_buttons_drive_the_body(display, scene):
     assert keys["r_time"] == 0.0 and keys["r_sliders"] == 0.0 and keys["r_widgets"] == 0.0
     assert keys["clicked_gait"] is False  # the gait button switched the gait off
     assert keys["clicked_reset_time"] == 0.0
+    assert keys["quit_frames"] == 7  # q ends the live loop after the frame it was pressed in
     picture = report["screenshot"]
     assert picture["shape"][:2] == [600, 960]
     assert picture["std"] > 20
@@ -458,3 +459,21 @@ def test_window_on_real_meshes(display, tmp_path, mesh, gravity):
     )
     assert result.returncode == 0, result.stderr[-3000:]
     check_png(shot)
+
+
+def test_docs_play_python_example(display, tmp_path, monkeypatch, capsys):
+    """docs/play.md's example runs as written (the scene path made absolute) and prints what it says."""
+    import re
+
+    (code,) = re.findall(r"```python\n(.*?)```", (HERE.parent / "docs" / "play.md").read_text(), flags=re.S)
+    assert '"examples/creature_crawl.toml"' in code
+    code = code.replace('"examples/creature_crawl.toml"', repr(str(EXAMPLES / "creature_crawl.toml")))
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(compile(code, "play.md", "exec"), namespace)
+    check_png(tmp_path / "creature.png")
+    out = capsys.readouterr().out.splitlines()
+    assert sum("120 frames in" in line for line in out) == 2
+    quoted = [float(v) for v in re.search(r"# \[([-0-9. ]+)\]", code).group(1).split()]
+    shown = namespace["player"].amplitudes() / namespace["sim"].ceilings
+    np.testing.assert_allclose(shown, quoted, atol=2e-3)
