@@ -181,10 +181,12 @@ class Player:
 
     @property
     def fps(self) -> float:
+        """Frames per second over the last 60 frames (0 before two frames)."""
         return len(self._intervals) / sum(self._intervals) if self._intervals else 0.0
 
     @property
     def step_ms(self) -> float:
+        """Median wall-clock milliseconds of a step over the last 60 frames that stepped (0 before any)."""
         return 1e3 * float(np.median(self._step_times)) if self._step_times else 0.0
 
     # --------------------------------------------------------------- state
@@ -424,6 +426,7 @@ def play(
         raise ValueError(f"window size must be at least 200 x 150 pixels, got {width} x {height}")
     if screenshot is not None and not os.fspath(screenshot).lower().endswith(".png"):
         raise ValueError(f"screenshot must be a .png file, got {os.fspath(screenshot)!r}")
+    target = _load(target)
     problem = play_problem(off_screen)
     if problem is not None:
         raise PlayError(problem)
@@ -449,19 +452,28 @@ def play(
     return stats
 
 
-def _simulator(target, gait):
-    """``(sim, gait, name)`` from a scene, a scene file or a simulator."""
+def _load(target):
+    """A scene file or ``None`` loaded (and so checked) as a Scene; a Scene or simulator as given."""
     from .scene import Scene
 
     if target is None or isinstance(target, str | os.PathLike):
-        target = Scene.default() if target is None else Scene.from_toml(target)
-    if isinstance(target, Scene):
-        sim = target.build()
-        if gait is None and sim.n_muscles:
-            ceilings = sim.ceilings
-            scene = target
-            gait = lambda t: scene.activation(t, ceilings)
-        return sim, gait, target.config["name"]
-    if not all(hasattr(target, name) for name in ("step", "rest_state", "positions", "ceilings", "h")):
-        raise TypeError(f"play needs a Scene, a scene file or a simulator, got {type(target).__name__}")
-    return target, gait, "simulator"
+        return Scene.default() if target is None else Scene.from_toml(target)
+    if isinstance(target, Scene) or all(
+        hasattr(target, name) for name in ("step", "rest_state", "positions", "ceilings", "h")
+    ):
+        return target
+    raise TypeError(f"play needs a Scene, a scene file or a simulator, got {type(target).__name__}")
+
+
+def _simulator(target, gait):
+    """``(sim, gait, name)`` from a scene, a scene file or a simulator; a scene's gait unless one is given."""
+    from .scene import Scene
+
+    target = _load(target)
+    if not isinstance(target, Scene):
+        return target, gait, "simulator"
+    sim = target.build()
+    if gait is None and sim.n_muscles:
+        ceilings = sim.ceilings
+        gait = lambda t: target.activation(t, ceilings)
+    return sim, gait, target.config["name"]

@@ -154,7 +154,6 @@ class PlayView:
                 self.plotter.add_mesh(fill, color=_GROUND, lighting=False, reset_camera=False),
                 self.plotter.add_mesh(lines, color=_GROUND_LINES, lighting=False, reset_camera=False),
             ]
-        self._anchor = player.com()
         self._frame_camera()
         self._add_controls(pv, window_size)
         self._status_time = -np.inf
@@ -334,6 +333,7 @@ class PlayView:
         return text + (f"\n{player.message}" if player.message else "")
 
     def render(self) -> None:
+        """Draw the window now (the render window itself: pyvista's ``render`` skips unshown windows)."""
         self.plotter.render_window.Render()
 
     # ---------------------------------------------------------------- loop
@@ -406,4 +406,5 @@ class PlayView:
         return _save_png(self.screenshot(), path)
 
     def close(self) -> None:
+        """Close the window and free its resources."""
         self.plotter.close()

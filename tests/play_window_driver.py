@@ -130,6 +130,7 @@ def main(target: str) -> dict:
 
     player.frame = frame_then_quit
     keys["quit_frames"] = view.run()["frames"]
+    keys["after_quit_std"] = float(view.screenshot().std())  # --screenshot still saves the last frame
     view.close()
     return {
         "drags": drags,

@@ -304,10 +304,16 @@ def test_bad_play_options_fail_before_any_window(kwargs, message):
         play(**kwargs)
 
 
-def test_play_rejects_what_is_not_a_scene_or_simulator(monkeypatch):
-    monkeypatch.setattr("skfem_modal.plot.gl_available", lambda: True)
+def test_play_checks_its_scene_before_anything_else(monkeypatch, tmp_path):
+    monkeypatch.delenv("DISPLAY", raising=False)  # the scene's errors come first, display or not
     with pytest.raises(TypeError, match="play needs a Scene, a scene file or a simulator, got int"):
-        play(3, frames=1, off_screen=True)
+        play(3, frames=1)
+    with pytest.raises(FileNotFoundError, match="scene file not found"):
+        play(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[muscles]\ncount = -1\n")
+    with pytest.raises(ValueError, match="muscles.count"):
+        play(bad)
 
 
 def test_without_pyvista_the_error_says_what_to_install(monkeypatch, capsys):
@@ -389,6 +395,7 @@ def test_window_sliders_keys_and_buttons_drive_the_body(display, scene):
     assert keys["clicked_gait"] is False  # the gait button switched the gait off
     assert keys["clicked_reset_time"] == 0.0
     assert keys["quit_frames"] == 7  # q ends the live loop after the frame it was pressed in
+    assert keys["after_quit_std"] > 20
     picture = report["screenshot"]
     assert picture["shape"][:2] == [600, 960]
     assert picture["std"] > 20
