@@ -102,7 +102,8 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     Returns
     -------
     eigenvalues : ndarray, shape (k,)
-        Ascending; the first is 0 (the constant weight).
+        Ascending; the first is 0 (the constant weight), and one more 0 for
+        each further connected part.
     weights : ndarray, shape (n, k)
         M-orthonormal, deterministic signs (:func:`~skfem_modal.eigen.sign_convention`).
     B : ndarray, shape (n * dim, k * (dim + 1) * dim)
@@ -132,7 +133,13 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     values, W = lowest_eigenpairs(L, M, k - 1, null=constant) if k > 1 else (np.zeros(0), np.zeros((n, 0)))
     values = np.concatenate([[float(constant[:, 0] @ (L @ constant[:, 0]))], values])
     W = np.hstack([constant, W])
-    values, W = canonical_repeated(values.copy(), W.copy(), M, generic_weight(mesh.p.T))
+    if not np.allclose(W.T @ (M @ W), np.eye(k), rtol=0.0, atol=1e-8):
+        # a body of several parts has a null vector per part, which the solver
+        # does not keep M-orthogonal to the constant: Gram-Schmidt, constant first
+        W = mass_orthonormalize(W, M)
+    # the weights are scalar fields: one generic weight per vertex (its first component's)
+    vertex_weight = generic_weight(mesh.p.T)[:: mesh.p.shape[0]]
+    values, W = canonical_repeated(values.copy(), W.copy(), M, vertex_weight)
     W = sign_convention(W)
     return values, W, lbs_basis(mesh.p.T, W)
 

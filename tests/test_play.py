@@ -447,6 +447,34 @@ def test_off_screen_without_a_display(tmp_path):
     check_png(shot)
 
 
+def test_window_on_a_two_part_body(display, tmp_path):
+    """Two separate bodies in one mesh, on a ground: drawn, stepped and framed together."""
+    import meshio
+
+    from skfem_modal import beam2d
+
+    beam = beam2d(2.0, 0.5, 16, 4)
+    points = np.vstack([beam.p.T, beam.p.T + [3.0, 0.0]])
+    cells = np.vstack([beam.t.T, beam.t.T + beam.p.shape[1]])
+    meshio.write(tmp_path / "two.vtu", meshio.Mesh(points, [("triangle", cells)]))
+    scene = tmp_path / "two.toml"
+    scene.write_text(
+        '[mesh]\nfile = "two.vtu"\n[muscles]\ncount = 2\n'
+        "[muscles.gait]\namplitude = [0.4, 0.4]\nperiod = [0.8, 0.5]\n"
+        "[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.05\n"
+    )
+    shot = tmp_path / "two.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "play", str(scene), "--frames", "30", "--screenshot", str(shot)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "30 frames in" in result.stdout
+    check_png(shot)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mesh, gravity", [("seal.mesh", [0.0, -9.8, 0.0]), ("ghost.obj", [0.0, -9.8])])
 def test_window_on_real_meshes(display, tmp_path, mesh, gravity):
