@@ -405,7 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--screenshot", metavar="PATH", help="save the last frame as a PNG")
     p.add_argument("--off-screen", action="store_true", help="render without a window (needs --frames)")
-    p.add_argument("--size", type=int, nargs=2, default=(960, 600), metavar=("W", "H"), help="window size in pixels (default 960 600)")
+    p.add_argument(
+        "--size", type=int, nargs=2, default=(960, 600), metavar=("W", "H"), help="window size (default 960 600)"
+    )
     p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
     p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
