@@ -338,7 +338,7 @@ class PlayView:
 
     # ---------------------------------------------------------------- loop
     def run(self, frames: int | None = None) -> dict:
-        """Frames until the window closes, or ``frames`` of them (then the gait drives).
+        """Frames until the window closes (q), or ``frames`` of them.
 
         Returns
         -------
@@ -369,12 +369,12 @@ class PlayView:
             if player.frame():
                 steps += player.steps
                 phases["step"].append(player.step_seconds / player.steps)
-            t1 = clock()
+            drawing = clock()
             self.draw()
-            t2 = clock()
+            rendering = clock()
             self.render()
-            phases["draw"].append(t2 - t1)
-            phases["render"].append(clock() - t2)
+            phases["draw"].append(rendering - drawing)
+            phases["render"].append(clock() - rendering)
             count += 1
         seconds = clock() - start
         stats = {
