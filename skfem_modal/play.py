@@ -16,6 +16,7 @@ import ctypes
 import ctypes.util
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -319,12 +320,19 @@ def play_problem(off_screen: bool = False) -> str | None:
     return None
 
 
+def _end_with_parent() -> None:
+    """In the child: be sent SIGTERM when the parent ends, even killed before it could stop the child."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+    libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 @contextlib.contextmanager
 def virtual_display(size=(1280, 800)):
     """Run an Xvfb virtual display for the ``with`` block, with ``DISPLAY`` pointing at it.
 
     Xvfb picks a free display number itself (``-displayfd``); the server is
-    stopped and ``DISPLAY`` restored afterwards.
+    stopped and ``DISPLAY`` restored afterwards (on Linux the server also
+    ends with this process if it is killed first).
 
     Yields
     ------
@@ -344,6 +352,7 @@ def virtual_display(size=(1280, 800)):
         pass_fds=(write,),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        preexec_fn=_end_with_parent if sys.platform.startswith("linux") else None,
     )
     os.close(write)
     try:
