@@ -344,6 +344,27 @@ def _picture_size(text: str) -> tuple[int, int]:
     return int(width), int(height)
 
 
+def cmd_play(args) -> int:
+    from .play import PlayError, play
+
+    say = (lambda *a: None) if args.quiet else print
+    try:
+        play(
+            args.scene,
+            gait_on=not args.no_gait,
+            frames=args.frames,
+            screenshot=args.screenshot,
+            off_screen=args.off_screen,
+            window_size=args.size,
+            follow=not args.no_follow,
+            say=say,
+        )
+    except PlayError as err:
+        print(f"skfem-modal play: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -460,6 +481,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_optimize)
+
+    p = command("play", help="a live window: sliders (or the gait) drive the muscles")
+    p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
+    p.add_argument(
+        "--frames",
+        type=_positive_int,
+        metavar="N",
+        help="scripted: draw N frames with the gait on, print the frame rate, close",
+    )
+    p.add_argument("--screenshot", metavar="PATH", help="save the last frame as a PNG")
+    p.add_argument("--off-screen", action="store_true", help="render without a window (needs --frames)")
+    p.add_argument("--size", type=_picture_size, default=(960, 600), metavar="WxH", help="window size in pixels")
+    p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
+    p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_play)
 
     p = command("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")

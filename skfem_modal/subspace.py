@@ -102,7 +102,8 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     Returns
     -------
     eigenvalues : ndarray, shape (k,)
-        Ascending; the first is 0 (the constant weight).
+        Ascending; the first is 0 (the constant weight), and one more 0 for
+        each further connected part.
     weights : ndarray, shape (n, k)
         M-orthonormal, deterministic signs (:func:`~skfem_modal.eigen.sign_convention`).
     B : ndarray, shape (n * dim, k * (dim + 1) * dim)

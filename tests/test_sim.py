@@ -347,3 +347,26 @@ def test_a_pickled_simulator_steps_as_the_original():
         w, w_dot = copy.step(w, w_dot, a, velocity=True)
     np.testing.assert_array_equal(w, z)
     assert np.abs(z - sim.rest_state()[0]).max() > 1e-3  # it moved
+
+
+def test_skinning_eigenmodes_with_repeated_eigenvalues():
+    """scikit-fem's symmetric mesh and a body of two equal parts: repeated eigenvalues, a fixed basis."""
+    import skfem
+
+    from skfem_modal import beam2d, make_mesh, mass_matrix
+    from skfem_modal.eigen import generic_weight
+
+    beam = beam2d(2.0, 0.5, 8, 2)
+    two = make_mesh(np.vstack([beam.p.T, beam.p.T + [3.0, 0.0]]), np.vstack([beam.t.T, beam.t.T + beam.p.shape[1]]))
+    for mesh, zeros in ((skfem.MeshTri.init_symmetric().refined(2), 1), (two, 2)):
+        values, W, B = skinning_eigenmodes(mesh, 6)
+        M = mass_matrix(mesh, lumped=True, vector=False)
+        np.testing.assert_allclose(W.T @ (M @ W), np.eye(6), atol=1e-10)
+        assert np.sum(np.abs(values) < 1e-9) == zeros  # one constant per part
+        repeated = np.flatnonzero(np.isclose(values[1:], values[:-1], rtol=1e-8) & (values[1:] > 1e-9))
+        assert repeated.size  # a repeated pair, resolved by the generic weight: diagonal on it
+        pair = W[:, [repeated[0], repeated[0] + 1]]
+        S = pair.T @ (M @ (generic_weight(mesh.p.T)[::2, None] * pair))
+        assert abs(S[0, 1]) < 1e-10 * abs(S).max()
+        np.testing.assert_array_equal(W, skinning_eigenmodes(mesh, 6)[1])
+        assert B.shape == (2 * mesh.p.shape[1], 6 * 3 * 2)

@@ -1,0 +1,514 @@
+"""Play: the controller without a window (fake clock), the window under Xvfb, and the errors.
+
+The window tests start their own Xvfb and drive the window in a subprocess
+(``tests/play_window_driver.py``), so that a GL failure cannot take pytest
+down with it. They are skipped only where Xvfb is not installed, and never
+in CI (``CI`` set), where a missing Xvfb fails them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skfem_modal.cli import main
+from skfem_modal.play import Player, PlayError, play, play_problem, slider_ranges, virtual_display
+from skfem_modal.scene import DEFAULT_SCENE, Scene
+from skfem_modal.sim import SimulationError
+
+HERE = Path(__file__).parent
+EXAMPLES = HERE.parent / "examples"
+MESHES = HERE.parent.parent / "shared" / "meshes"
+
+
+class FakeClock:
+    """Wall-clock time that moves only when told to (and, optionally, with each step taken)."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture(scope="module")
+def crawl():
+    scene = Scene.default()
+    return scene, scene.build()
+
+
+@pytest.fixture(scope="module")
+def creature():
+    scene = Scene.from_toml(EXAMPLES / "creature_crawl.toml")
+    return scene, scene.build()
+
+
+def scene_gait(scene, sim):
+    return lambda t: scene.activation(t, sim.ceilings)
+
+
+# ------------------------------------------------------------------ the clock
+def test_simulated_time_follows_the_wall_clock(crawl):
+    scene, sim = crawl
+    clock = FakeClock()
+    player = Player(sim, scene_gait(*crawl), clock=clock)
+    assert player.frame() == 0  # the first frame only starts the clock
+    taken = []
+    for _ in range(40):
+        clock.now += 0.035  # frames slower than a step (h = 0.01)
+        taken.append(player.frame())
+    # 3 or 4 steps a frame, the remainder carried: simulated time trails wall time by less than a step
+    assert set(taken) == {3, 4}
+    assert 40 * 0.035 - sim.h < player.t <= 40 * 0.035 + 1e-12
+    assert sum(taken) == 140
+    # frames of exactly one step take exactly one (no round-off skips)
+    for _ in range(25):
+        clock.now += sim.h
+        assert player.frame() == 1
+    # frames faster than a step: a step every third frame
+    steps = []
+    for _ in range(30):
+        clock.now += sim.h / 3
+        steps.append(player.frame())
+    assert sum(steps) == 10 and max(steps) == 1
+
+
+def test_a_stall_is_skipped_not_raced(crawl):
+    clock = FakeClock()
+    player = Player(crawl[1], clock=clock, max_lag=0.25)
+    player.frame()
+    clock.now += 7.0  # the window was dragged for seven seconds
+    assert player.frame() == 25  # max_lag / h, not 700
+    assert not player.behind
+
+
+def test_slow_steps_drop_time_and_keep_the_window_responsive(crawl):
+    scene, sim = crawl
+    clock = FakeClock()
+    cost = [0.02]
+
+    class SlowSim:
+        """The simulator, each step taking ``cost`` seconds of (fake) wall-clock time."""
+
+        def __getattr__(self, name):
+            return getattr(sim, name)
+
+        def step(self, z, z_dot, a):
+            clock.now += cost[0]
+            return sim.step(z, z_dot, a)
+
+    player = Player(SlowSim(), clock=clock, step_budget=0.05, max_lag=0.25)
+    player.frame()
+    clock.now += 0.1  # ten steps owed
+    assert player.frame() == 3  # 0, 20 and 40 ms into the budget; then 60 ms > 50 ms
+    assert player.behind
+    assert player.step_ms == pytest.approx(20.0)
+    cost[0] = 0.0
+    clock.now += 0.01
+    # owed: the 60 ms spent stepping and these 10 ms, not the 70 ms dropped before
+    assert player.frame() == 7
+    assert not player.behind
+
+
+def test_pause_stops_time_and_is_not_owed_afterwards(crawl):
+    clock = FakeClock()
+    player = Player(crawl[1], clock=clock)
+    player.frame()
+    clock.now += 0.05
+    assert player.frame() == 5
+    assert player.toggle_pause()
+    for _ in range(10):
+        clock.now += 0.05
+        assert player.frame() == 0
+    assert player.t == pytest.approx(0.05)
+    assert not player.toggle_pause()
+    player.frame()
+    clock.now += 0.02
+    assert player.frame() == 2
+    assert player.t == pytest.approx(0.07)
+
+
+def test_frame_rate_and_step_time_are_measured(crawl):
+    clock = FakeClock()
+    player = Player(crawl[1], clock=clock)
+    for _ in range(100):
+        player.frame()
+        clock.now += 1 / 50
+    assert player.fps == pytest.approx(50.0)
+    assert player.step_ms == 0.0  # the fake clock does not move while stepping
+
+
+# ----------------------------------------------------------- gait and sliders
+def test_the_gait_steps_as_a_scene_run_does(crawl):
+    """With the gait on, frame after frame, the state is the scene's own loop bit for bit."""
+    scene, sim = crawl
+    clock = FakeClock()
+    player = Player(sim, scene_gait(scene, sim), clock=clock)
+    player.frame()
+    for _ in range(30):
+        clock.now += 2 * sim.h
+        player.frame()
+    z, z_dot, _ = sim.rest_state()
+    for i in range(60):
+        z_next = sim.step(z, z_dot, scene.activation(i * sim.h, sim.ceilings))
+        z_dot, z = (z_next - z) / sim.h, z_next
+    np.testing.assert_array_equal(player.z, z)
+    np.testing.assert_array_equal(player.z_dot, z_dot)
+    np.testing.assert_array_equal(player.activation(), scene.activation(60 * sim.h, sim.ceilings))
+
+
+def slider_response(sim, k, fraction, seconds=1.0):
+    """Realised amplitudes, frame by frame (40 frames a second), with slider k at fraction of its range."""
+    clock = FakeClock()
+    player = Player(sim, clock=clock)
+    target = fraction * player.ranges[k]
+    player.set_slider(k, target)
+    player.frame()
+    amplitudes = []
+    for _ in range(int(seconds * 40)):
+        clock.now += 1 / 40
+        player.frame()
+        amplitudes.append(player.amplitudes())
+    return target, np.array(amplitudes)
+
+
+@pytest.mark.parametrize("name", ["crawl", "creature"])
+def test_a_slider_moves_the_body_into_its_mode(name, request):
+    """Each muscle's slider, either sign: the realised amplitude takes the slider's sign, grows toward it, dominates."""
+    _, sim = request.getfixturevalue(name)
+    for k in range(sim.n_muscles):
+        for fraction in (0.5, -0.5):
+            target, amplitudes = slider_response(sim, k, fraction)
+            relative = amplitudes[:, k] / target
+            assert abs(amplitudes[0, k]) < abs(amplitudes[-1, k])  # grows from rest
+            assert 0.3 < relative[-1] < 1.1  # toward the slider; contact and elasticity hold it back
+            assert np.all(relative[4:] > 0.25)  # and stays there, with the slider's sign
+            others = np.delete(amplitudes[-1], k)
+            assert abs(amplitudes[-1, k]) > 2 * np.abs(others).max()  # the body takes this mode, not another
+
+
+def test_sliders_clip_to_their_ceiling_and_take_over_from_the_gait(crawl):
+    scene, sim = crawl
+    player = Player(sim, scene_gait(scene, sim), clock=FakeClock())
+    assert player.gait_on
+    np.testing.assert_allclose(player.ranges, sim.ceilings)
+    player.set_slider(2, 1e9)
+    assert player.sliders[2] == sim.ceilings[2]
+    assert not player.gait_on
+    np.testing.assert_array_equal(player.activation(), [0.0, 0.0, sim.ceilings[2], 0.0])
+    assert player.toggle_gait()
+    np.testing.assert_array_equal(player.activation(), scene.activation(0.0, sim.ceilings))
+
+
+def test_reset_puts_the_body_at_rest(creature):
+    scene, sim = creature
+    clock = FakeClock()
+    player = Player(sim, scene_gait(scene, sim), clock=clock)
+    player.frame()
+    player.set_slider(0, -1.0)
+    clock.now += 0.2
+    player.frame()
+    assert player.t == pytest.approx(0.2) and np.abs(player.z - sim.rest_state()[0]).max() > 1e-3
+    player.reset()
+    np.testing.assert_array_equal(player.z, sim.rest_state()[0])
+    np.testing.assert_array_equal(player.z_dot, 0.0)
+    assert player.t == 0.0 and not player.sliders.any()
+    np.testing.assert_allclose(player.positions(), sim.mesh.p.T, atol=1e-9)
+
+
+def test_slider_ranges_without_a_ceiling():
+    np.testing.assert_array_equal(slider_ranges([0.5, np.inf, 0.0]), [0.5, 1.0, 1.0])
+
+
+def test_a_failed_step_resets_and_says_so(crawl):
+    _, sim = crawl
+
+    class Failing:
+        def __getattr__(self, name):
+            return getattr(sim, name)
+
+        def step(self, z, z_dot, a):
+            raise SimulationError("the state became non-finite")
+
+    clock = FakeClock()
+    player = Player(Failing(), clock=clock)
+    player.set_slider(1, 0.3)
+    player.frame()
+    clock.now += 0.05
+    assert player.frame() == 0
+    assert "failed at t = 0.000" in player.message and "non-finite" in player.message
+    assert player.t == 0.0 and not player.sliders.any()
+
+
+@pytest.mark.parametrize("h", [1e-4, 0.1])
+def test_tiny_and_large_steps_keep_real_time(h):
+    data = {**DEFAULT_SCENE, "time": {"step": h, "steps": 10}}
+    sim = Scene.from_dict(data).build()
+    clock = FakeClock()
+    player = Player(sim, clock=clock, step_budget=10.0)
+    player.frame()
+    taken = 0
+    for _ in range(60):
+        clock.now += 1 / 60
+        taken += player.frame()
+    assert taken == int(round(1.0 / h))
+    assert player.t == pytest.approx(1.0, abs=h)
+    assert np.isfinite(player.positions()).all()
+
+
+def test_a_simulator_without_muscles_or_gait(cat_mesh):
+    from skfem_modal.sim import ModalMuscle
+
+    sim = ModalMuscle.from_mesh(cat_mesh, n_muscles=0, n_weights=2, n_clusters=3, mu=1e5, rho=1e3, h=0.01)
+    clock = FakeClock()
+    player = Player(sim, clock=clock)
+    assert not player.gait_on and not player.toggle_gait()
+    assert player.message == "no gait to switch on"
+    assert player.activation().shape == (0,)
+    player.frame()
+    clock.now += 0.1
+    assert player.frame() == 10
+
+
+# ---------------------------------------------------------------- bad input
+def test_bad_controls_are_named(crawl):
+    _, sim = crawl
+    player = Player(sim)
+    with pytest.raises(ValueError, match=r"slider index must be an integer in \[0, 4\), got 4"):
+        player.set_slider(4, 0.1)
+    with pytest.raises(ValueError, match="slider 1 value must be finite, got nan"):
+        player.set_slider(1, float("nan"))
+    with pytest.raises(TypeError, match="gait must be a callable"):
+        Player(sim, gait=[0.1, 0.2])
+    with pytest.raises(ValueError, match="max_lag and step_budget must be positive"):
+        Player(sim, max_lag=0.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"frames": 0}, "frames must be a positive integer, got 0"),
+        ({"off_screen": True}, "off-screen play needs a number of frames"),
+        ({"frames": 2, "screenshot": "shot.jpg"}, "screenshot must be a .png file"),
+        ({"frames": 2, "window_size": (100, 80)}, "window size must be at least 200 x 150"),
+    ],
+)
+def test_bad_play_options_fail_before_any_window(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        play(**kwargs)
+
+
+def test_play_checks_its_scene_before_anything_else(monkeypatch, tmp_path):
+    monkeypatch.delenv("DISPLAY", raising=False)  # the scene's errors come first, display or not
+    with pytest.raises(TypeError, match="play needs a Scene, a scene file or a simulator, got int"):
+        play(3, frames=1)
+    with pytest.raises(FileNotFoundError, match="scene file not found"):
+        play(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[muscles]\ncount = -1\n")
+    with pytest.raises(ValueError, match="muscles.count"):
+        play(bad)
+
+
+def test_without_pyvista_the_error_says_what_to_install(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "pyvista", None)
+    assert "pip install 'skfem_modal[plot]'" in play_problem()
+    with pytest.raises(PlayError, match=r"needs pyvista: pip install"):
+        play(frames=1)
+    assert main(["play", "--frames", "1"]) == 2
+    assert "skfem-modal play: the live window needs pyvista" in capsys.readouterr().err
+
+
+def test_without_a_display_the_error_says_what_to_set(monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
+    problem = play_problem()
+    assert "DISPLAY is not set" in problem and "apt-get install xvfb" in problem and "--off-screen" in problem
+    monkeypatch.setattr("skfem_modal.plot.gl_available", lambda: True)
+    assert play_problem(off_screen=True) is None
+    monkeypatch.setattr("skfem_modal.plot.gl_available", lambda: False)
+    assert "off-screen rendering does not work here: install Mesa's EGL" in play_problem(off_screen=True)
+    monkeypatch.setenv("DISPLAY", ":4321")
+    assert "cannot open the X display DISPLAY=':4321'" in play_problem()
+    assert main(["play", "--frames", "3"]) == 2
+    assert "cannot open the X display" in capsys.readouterr().err
+
+
+# ------------------------------------------------------- the window (Xvfb)
+@pytest.fixture(scope="module")
+def display():
+    # other tests' off-screen renders ask VTK for EGL windows (plot._headless_vtk): not these
+    window_class = os.environ.pop("VTK_DEFAULT_OPENGL_WINDOW", None)
+    try:
+        with virtual_display() as name:
+            yield name
+    except PlayError as err:
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must run the window tests: {err}")
+        pytest.skip(f"no virtual display: {err}")
+    finally:
+        if window_class is not None:
+            os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = window_class
+
+
+def test_a_display_with_an_off_screen_window_class_is_refused(display, monkeypatch):
+    assert play_problem() is None
+    monkeypatch.setenv("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    assert "VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow renders off-screen only: unset it" in play_problem()
+
+
+def run_driver(*args, env=None):
+    result = subprocess.run(
+        [sys.executable, str(HERE / "play_window_driver.py"), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("scene", ["default", str(EXAMPLES / "creature_crawl.toml")])
+def test_window_sliders_keys_and_buttons_drive_the_body(display, scene):
+    """A drag on a slider, keys and a button click go through the widgets into the simulation."""
+    report = run_driver(scene)
+    for drag in report["drags"]:
+        # the drag set the slider where the mouse went, and the muscle's amplitude followed it
+        assert np.sign(drag["slider"]) == np.sign(drag["fraction"])
+        # the knob's travel ends short of the tube's ends: a drag moves the value a little further
+        assert abs(drag["slider"] / drag["range"] - drag["fraction"]) < 0.2
+        assert drag["widget"] == pytest.approx(drag["slider"])
+        assert not drag["gait_on"]
+        relative = np.array(drag["amplitudes"]) / drag["slider"]
+        assert relative[0] < relative[-1] and relative[-1] > 0.3
+    keys = report["keys"]
+    assert keys["g"] is True  # back to the gait after the drags
+    assert keys["space"] is True and keys["paused_time_moved"] is False
+    assert keys["r_time"] == 0.0 and keys["r_sliders"] == 0.0 and keys["r_widgets"] == 0.0
+    assert keys["clicked_gait"] is False  # the gait button switched the gait off
+    assert keys["clicked_reset_time"] == 0.0
+    assert keys["quit_frames"] == 7  # q ends the live loop after the frame it was pressed in
+    assert keys["after_quit_std"] > 20
+    picture = report["screenshot"]
+    assert picture["shape"][:2] == [600, 960]
+    assert picture["std"] > 20
+    assert picture["body_fraction"] > 0.01  # the body's colour is on screen
+    assert picture["background_fraction"] > 0.05  # the sky (a 3D ground fills most of the rest)
+
+
+def check_png(path, width=960, height=600):
+    from PIL import Image
+
+    image = np.asarray(Image.open(path).convert("RGB")).astype(float)
+    assert image.shape == (height, width, 3)
+    assert image.std() > 20  # not blank
+    body = np.abs(image - [0x3F, 0x8F, 0x63]).max(axis=2) < 60
+    assert 0.01 < body.mean() < 0.6  # shaded, the body's colour is still recognisably green
+    return image
+
+
+def test_scripted_mode_prints_the_frame_rate_and_saves_the_last_frame(display, tmp_path):
+    shot = tmp_path / "shots" / "play.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "play", "--frames", "40", "--screenshot", str(shot)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "40 frames in" in result.stdout and "frames per second" in result.stdout
+    fps = float(result.stdout.split("mean ")[1].split(" frames per second")[0])
+    assert fps > 1.0
+    check_png(shot)
+
+
+def test_off_screen_without_a_display(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    shot = tmp_path / "off.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "play", str(EXAMPLES / "creature_crawl.toml")]
+        + ["--off-screen", "--frames", "20", "--screenshot", str(shot)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    if "off-screen rendering does not work here" in result.stderr and not os.environ.get("CI"):
+        pytest.skip(result.stderr.strip())  # no EGL or OSMesa on this machine: the error says what to install
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "20 frames in" in result.stdout
+    check_png(shot)
+
+
+def test_window_on_a_two_part_body(display, tmp_path):
+    """Two separate bodies in one mesh, on a ground: drawn, stepped and framed together."""
+    import meshio
+
+    from skfem_modal import beam2d
+
+    beam = beam2d(2.0, 0.5, 16, 4)
+    points = np.vstack([beam.p.T, beam.p.T + [3.0, 0.0]])
+    cells = np.vstack([beam.t.T, beam.t.T + beam.p.shape[1]])
+    meshio.write(tmp_path / "two.vtu", meshio.Mesh(points, [("triangle", cells)]))
+    scene = tmp_path / "two.toml"
+    scene.write_text(
+        '[mesh]\nfile = "two.vtu"\n[muscles]\ncount = 2\n'
+        "[muscles.gait]\namplitude = [0.4, 0.4]\nperiod = [0.8, 0.5]\n"
+        "[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.05\n"
+    )
+    shot = tmp_path / "two.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "play", str(scene), "--frames", "30", "--screenshot", str(shot)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "30 frames in" in result.stdout
+    check_png(shot)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mesh, gravity", [("seal.mesh", [0.0, -9.8, 0.0]), ("ghost.obj", [0.0, -9.8])])
+def test_window_on_real_meshes(display, tmp_path, mesh, gravity):
+    """Users' meshes: pixel units (ghost, 2D) and a y-up 3D body (seal) on their ground."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        f'[mesh]\nfile = "{MESHES / mesh}"\nnormalize = true\n[muscles]\ncount = 3\n'
+        "[muscles.gait]\namplitude = [0.3, 0.3, 0.3]\nperiod = [1.0, 0.7, 0.5]\n"
+        f"[gravity]\nacceleration = {gravity}\n[ground]\noffset = 0.02\nup = 1\n"
+    )
+    shot = tmp_path / "shot.png"
+    result = subprocess.run(
+        [sys.executable, "-m", "skfem_modal.cli", "play", str(scene), "--frames", "30", "--screenshot", str(shot)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    check_png(shot)
+
+
+def test_docs_play_python_example(display, tmp_path, monkeypatch, capsys):
+    """docs/play.md's example runs as written (the scene path made absolute) and prints what it says."""
+    import re
+
+    (code,) = re.findall(r"```python\n(.*?)```", (HERE.parent / "docs" / "play.md").read_text(), flags=re.S)
+    assert '"examples/creature_crawl.toml"' in code
+    code = code.replace('"examples/creature_crawl.toml"', repr(str(EXAMPLES / "creature_crawl.toml")))
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(compile(code, "play.md", "exec"), namespace)
+    check_png(tmp_path / "creature.png")
+    out = capsys.readouterr().out.splitlines()
+    assert sum("120 frames in" in line for line in out) == 2
+    quoted = [float(v) for v in re.search(r"# \[([-0-9. ]+)\]", code).group(1).split()]
+    shown = namespace["player"].amplitudes() / namespace["sim"].ceilings
+    np.testing.assert_allclose(shown, quoted, atol=2e-3)
