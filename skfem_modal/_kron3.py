@@ -259,7 +259,7 @@ class KroneckerBackend:
                     self.R[i, : 4 * n].reshape(n, 16),
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
                     self.outputs[i + 1],
-                    self.Z[i + 1, K + 1 :, up],
+                    self.Z[i + 1, K + 1 :, up] if p else None,
                 )
                 for i in range(max_iter)
             ]
@@ -305,7 +305,7 @@ class KroneckerBackend:
         scale = np.where(scale > 0.0, scale, 1.0)
         n_active = 0 if model.A is None else model.A.shape[1] // 9
         U, up = None, 0
-        if model.contact is not None:
+        if getattr(model.contact, "watch", None) is not None:
             up = model.contact.up
             U = separable_watch(model.contact.watch, up)
             if U is None:

@@ -60,7 +60,9 @@ class Step2Backend:
         self.max_batch, self.r, self.n = max_iter, r, two_n // 2
         self.normalize = normalize
         # the contact's watched values ride along: one product gives z and them
-        watch = model.contact.watch if model.contact is not None else np.zeros((0, r))
+        watch = getattr(model.contact, "watch", None)
+        self.fused = watch is not None
+        watch = np.zeros((0, r)) if watch is None else watch
         extend = lambda X: np.vstack([X, watch @ X])  # noqa: E731
         self.W_c = np.empty((r + watch.shape[0], two_n + 1))
         self.W_c[:, :two_n] = extend(from_rotations(W_all))
@@ -84,7 +86,7 @@ class Step2Backend:
         # views made once: indexing costs as much as a small product
         self.rows = list(self.Y)
         self.z_rows = list(self.Z)
-        self.watched_rows = list(self.Y[:, r:])
+        self.watched_rows = list(self.Y[:, r:]) if self.fused else [None] * (max_iter + 1)
         self.k = 0
 
     def start(self, z, z_dot, a) -> None:

@@ -1,6 +1,18 @@
-"""Ground contact: a projection of each global solution, the reference implementation's model.
+"""Ground contact: effects that project each global solution onto a ground plane.
 
-A plane ``x[up] = ground`` and a set of contact vertices. In every global step
+Two models, both for a plane ``x[up] = ground``:
+
+* :class:`CoulombContact` (``model = "coulomb"``, the default): every
+  boundary vertex is a candidate; no vertex ends a step below the ground
+  (positions, not velocities, are constrained), and Coulomb friction holds
+  the touching vertices (sticking while the tangential force needed stays
+  within ``friction`` times the normal force, sliding against the motion
+  otherwise, in every tangent direction).
+* :class:`ReferenceContact` (``model = "reference"``): the reference
+  implementation's rule, described next, kept so its numbers can be
+  reproduced: it lets vertices end inside the ground.
+
+The reference rule: a set of contact vertices. In every global step
 the tentative solution ``z_t = H^{-1} f`` is checked: each contact point that
 is below the plane (at the current iterate) and moving into it (comparing
 ``z_t`` with the start of the step) is *active*. For the active points the
@@ -21,6 +33,9 @@ active set is re-checked after each correction.
 The correction for a given set of active points is a fixed matrix, so it is
 computed once per set and cached: contact sets repeat from one iteration and
 one step to the next.
+
+Both models report the deepest of all boundary vertices below the ground
+(:meth:`penetration`), whatever vertices they constrain.
 """
 
 from __future__ import annotations
@@ -32,13 +47,36 @@ import scipy.sparse as sps
 
 from ._fast import dot
 from .effects import Effect
+from .mesh import boundary_vertices
 
-__all__ = ["GroundContact"]
+__all__ = ["CoulombContact", "ReferenceContact", "MODELS"]
+
+#: Contact models by name (a scene's ``ground.model``).
+MODELS = ("coulomb", "reference")
 
 _CACHE_SIZE = 512
+# passes of the active set in one projection, at most (half changing whole sets, half one vertex)
+_PASSES = 24
 
 
-class GroundContact(Effect):
+class _Ground(Effect):
+    """What every ground contact has: the plane, and the deepest boundary vertex below it."""
+
+    name = "contact"
+
+    def _plane(self, space, ground, up):
+        self.dim, self.up, self.ground = space.dim, up, float(ground)
+        self.boundary = space.heights(boundary_vertices(space.mesh), up)
+
+    def penetration(self, z) -> float:
+        """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``."""
+        return max(0.0, self.ground - float(self.boundary(np.asarray(z, float)).min()))
+
+    def finish_step(self, z) -> None:
+        """The end of a step's iterations, ``z`` (r,) the result: nothing to do (see the Coulomb model)."""
+
+
+class ReferenceContact(_Ground):
     """Ground contact at a set of vertices, projecting each global solution.
 
     Parameters
@@ -62,12 +100,11 @@ class GroundContact(Effect):
         Contact points active in the last projection.
     """
 
-    name = "contact"
+    model = "reference"
 
     def __init__(self, space, vertices, ground, up, stickiness=1.0, push_out=0.0):
         self.vertices = vertices
-        self.dim, self.up = space.dim, up
-        self.ground = float(ground)
+        self._plane(space, ground, up)
         self.stickiness = float(stickiness)
         self.push_out = float(push_out)
         Je = space.rows(space.dofs(vertices))
@@ -210,3 +247,277 @@ class GroundContact(Effect):
                 break
             mask = mask | violated
         return True
+
+
+class CoulombContact(_Ground):
+    """Every boundary vertex kept above the ground, with Coulomb friction.
+
+    Each global solution ``z_t`` is projected, in the energy norm of the
+    global step, onto the states the ground allows: ``z = z_t + H^-1 F^T m``,
+    the smallest change that leaves no candidate vertex below the ground
+    (``m >= 0`` the normal forces, zero where a vertex is not pushed). With
+    ``friction = mu > 0`` a pushed vertex *sticks*, keeping its place along
+    the ground over the step (its tangent rows become equalities too), while
+    the tangential force that takes is at most ``mu`` times its normal force;
+    otherwise it *slides*, and its force ``F`` leans back by ``mu`` against
+    the way it slides, so that the friction is exactly ``mu`` times the
+    normal force found in the same solve. Who sticks and who slides (and
+    which way) is updated after each projection: the local/global iterations
+    settle it with the rotations.
+
+    The vertices pushed are found by a primal-dual active set, warm-started
+    from the last projection; a pass is one small solve over the pushed rows.
+    A compliance a millionth of a row's own stiffness keeps that solve well
+    posed when rows depend on each other (many vertices on a flat face, more
+    than a subspace can tell apart): their pushes spread over them as the
+    smallest forces do, and the ground gives way by about a millionth of a
+    step's correction.
+
+    A step looks only at the vertices that can reach the ground in it (those
+    within half a percent of the body's size of it, or moving towards it
+    fast enough); at the end of the step every candidate is checked, and one
+    that ended below is held up too, so no vertex ends a step in the ground.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    vertices : ndarray of int
+        The candidates (every boundary vertex, unless chosen).
+    ground : float
+        Height of the plane along ``up``.
+    up : int
+    friction : float
+        The Coulomb coefficient ``mu >= 0`` (0: frictionless).
+
+    Attributes
+    ----------
+    active_count : int
+        Vertices the ground pushed in the last projection.
+    """
+
+    model = "coulomb"
+    watch = None  # the candidates change from step to step: nothing a backend could compute ahead
+
+    def __init__(self, space, vertices, ground, up, friction=0.5):
+        self._plane(space, ground, up)
+        self.space, self.vertices = space, np.asarray(vertices)
+        self.friction = float(friction)
+        self.heights_of = space.heights(self.vertices, up)
+        self.size = float(np.ptp(space.mesh.p, axis=1).max())
+        self.tol = 1e-9 * self.size
+        self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
+        p = self.vertices.size
+        # per vertex, kept from step to step: pushed, sliding, normal force, the way friction pushes
+        self.touching = np.zeros(p, bool)
+        self.sliding = np.zeros(p, bool)
+        self.normal_force = np.zeros(p)
+        self.direction = np.zeros((p, self.dim))
+        self.picked = np.zeros(0, np.int64)
+        self._first = False
+        self.active_count = 0
+
+    def bind(self, system, h) -> None:
+        """Take the factored system of time step ``h``."""
+        self.system, self.h = system, float(h)
+        self.picked = np.zeros(0, np.int64)
+        # the compliance: a millionth of the mean stiffness of a vertex's height row, 1 / (e H^-1 e)
+        sample = self.vertices[:: max(1, self.vertices.size // 64)]
+        rows = self.space.rows(self.space.dofs(sample)[self.up :: self.dim])
+        rows = rows.toarray() if sps.issparse(rows) else rows
+        reach = np.einsum("ij,ji->i", rows, np.asarray(system.solve(np.ascontiguousarray(rows.T))))
+        self.compliance = 1e-6 * float(reach.mean())
+
+    def positions(self, z) -> np.ndarray:
+        """Positions of the candidate vertices, shape (p, dim)."""
+        return self.space.positions(np.asarray(z, float))[self.vertices]
+
+    # ------------------------------------------------------------ a step
+    def start_step(self, z_start, z_dot=None) -> None:
+        """Pick the vertices that can reach the ground in this step, and make their operators."""
+        reach = self.heights_of(z_start) - 0.005 * self.size
+        if z_dot is not None:
+            reach += 2.0 * self.h * np.minimum(self.heights_of(z_dot), 0.0)
+        self.z_start = z_start
+        self._first = True
+        self._pick(np.flatnonzero((reach < self.ground) | self.touching), z_start)
+
+    def _pick(self, picked, z_start, start=None) -> None:
+        """Make ``picked`` (indices into the candidates) the vertices the projections look at.
+
+        ``start`` gives the first ones' start-of-step positions when they are known (the others
+        start where ``z_start`` has them).
+        """
+        self.picked = picked
+        if not picked.size:
+            return
+        dim = self.dim
+        rows = self.space.rows(self.space.dofs(self.vertices[picked]))
+        self.J = rows.tocsr() if sps.issparse(rows) else rows
+        self.start = np.asarray(self.J @ z_start).reshape(-1, dim)
+        if start is not None:
+            self.start[: start.shape[0]] = start
+        self.target = self.start.ravel().copy()
+        self.target[self.up :: dim] = self.ground
+        JT = self.J.T.toarray() if sps.issparse(self.J) else self.J.T
+        self.HJ = np.asarray(self.system.solve(np.ascontiguousarray(JT)))  # (r, c dim): each row's push on z
+        self.M = np.asarray(self.J @ self.HJ)  # (c dim, c dim): each push's effect on every row
+
+    def project(self, z, watched=None) -> bool:
+        """Project a global solution ``z`` (r,) in place; True if it changed."""
+        if self._first:
+            # the step's first global solution says where the body is going (gravity, muscles,
+            # momentum): the vertices it brings near the ground join the picked ones
+            self._first = False
+            near = np.flatnonzero(self.heights_of(z) < self.ground + 0.005 * self.size)
+            joining = np.setdiff1d(near, self.picked, assume_unique=True)
+            if joining.size:
+                self._pick(np.concatenate([self.picked, joining]), self.z_start)
+        if not self.picked.size:
+            self.active_count = 0
+            return False
+        return self._constrain(z)
+
+    def finish_step(self, z) -> None:
+        """Hold up any candidate the step left below the ground (``z`` the result, in place)."""
+        below = np.flatnonzero(self.heights_of(z) < self.ground - self.tol)
+        if not below.size:
+            return
+        missed = np.setdiff1d(below, self.picked, assume_unique=True)
+        if missed.size:
+            # seen only now: constrained from here on, with the others (their start: where they are)
+            start = self.start if self.picked.size else np.zeros((0, self.dim))
+            self._pick(np.concatenate([self.picked, missed]), z, start)
+        self._constrain(z)
+
+    # ---------------------------------------------------------- the solve
+    def _constrain(self, z) -> bool:
+        """Rounds of (the sliding vertices' friction as known forces, the active set) to a fixed point."""
+        picked, dim, up, mu = self.picked, self.dim, self.up, self.friction
+        x_base = np.asarray(self.J @ z)
+        # hysteresis against going round in circles on flat faces: a vertex joins when it ends a
+        # hundred-thousandth of the body's size below the ground, leaves when the ground would pull
+        # it by more than a thousandth of the largest push
+        joining = self.ground - 1e-5 * self.size
+        active = self.touching[picked] | (x_base[up::dim] < joining)
+        if not np.count_nonzero(active):
+            self._release()
+            return False
+        z_base = z.copy()
+        sliding = active & self.sliding[picked] if mu else np.zeros(picked.size, bool)
+        estimate = self.normal_force[picked].copy()  # the sliding vertices' normal forces
+        direction = self.direction[picked].copy()
+        for _ in range(8):
+            z_t, x_t = self._push(sliding, estimate, direction, z_base, x_base)
+            stick = active & ~sliding if mu else np.zeros(picked.size, bool)
+            active, normal, tangential, x = self._active_set(active, stick, z_t, x_t, z, joining)
+            if not np.count_nonzero(active):
+                np.copyto(z, z_base)
+                self._release()
+                return False
+            stick &= active
+            needed = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
+            # sticking takes more than friction gives: slide, friction leaning the way the ground held it
+            slips = stick & (needed > mu * normal * (1.0 + 1e-9))
+            # a sliding vertex that its friction drove back (it overshot) sticks again
+            moved = (x.reshape(-1, dim) - self.start) * (np.arange(dim) != up)
+            stops = sliding & active & (np.einsum("ij,ij->i", moved, direction) > 0.0)
+            leaves = sliding & ~active
+            # the sliding ones' normal forces from this round lead the next projection's friction
+            if not (np.count_nonzero(slips) or np.count_nonzero(stops) or np.count_nonzero(leaves)):
+                break
+            direction[slips] = tangential[slips] / needed[slips, None]
+            sliding = (sliding | slips) & ~stops & active
+            estimate = normal
+        self._update_state(active, sliding, normal, direction, x)
+        return True
+
+    def _push(self, which, force, direction, z_t, x_t):
+        """``z_t`` and the positions after the friction of some vertices: ``mu`` times their force, that way."""
+        if not np.count_nonzero(which):
+            return z_t, x_t
+        push = np.zeros((self.picked.size, self.dim))
+        push[which] = (self.friction * force[which])[:, None] * direction[which]
+        return z_t + self.HJ @ push.ravel(), x_t + self.M @ push.ravel()
+
+    def _active_set(self, active, stick, z_t, x_t, z, joining):
+        """Vertices pushed onto the ground (and sticking ones held) by a primal-dual active set; z in place.
+
+        Returns the active set, the normal forces (c,), the tangential forces (c, dim) and the positions.
+        A vertex joins when it ends below ``joining`` and leaves when the ground would pull it.
+        """
+        up, dim = self.up, self.dim
+        seen = set()
+        for attempt in range(_PASSES):
+            normal, tangential, x = self._solve(active, stick & active, z_t, x_t, z)
+            release = active & (normal < -1e-3 * max(normal.max(initial=0.0), 1e-300))
+            below = ~active & (x[up::dim] < joining)
+            if not (np.count_nonzero(release) or np.count_nonzero(below)):
+                return active, np.maximum(normal, 0.0), tangential, x
+            if attempt == _PASSES - 1:
+                break
+            key = active.tobytes()
+            if attempt < _PASSES // 2 and key not in seen:
+                seen.add(key)
+                active = (active & ~release) | below  # the primal-dual active-set update
+            elif np.count_nonzero(below):
+                # going round in circles: one change at a time, the deepest vertex first
+                active = active | (below & (x[up::dim] <= x[up::dim][below].min()))
+            else:
+                active = active.copy()
+                active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
+            if not np.count_nonzero(active):
+                # nothing pushed after all: unless the unpushed state leaves a vertex below
+                active = x_t[up::dim] < joining
+                if not np.count_nonzero(active):
+                    np.copyto(z, z_t)
+                    return active, np.zeros(active.size), np.zeros((active.size, dim)), x_t
+        # unsettled: hold every vertex that ends below too, and accept (the ground may pull a little)
+        active = active | below
+        normal, tangential, x = self._solve(active, stick & active, z_t, x_t, z)
+        return active, np.maximum(normal, 0.0), tangential, x
+
+    def _solve(self, active, stick, z_t, x_t, z):
+        """One pass: the active vertices onto the ground, the sticking ones held; z in place.
+
+        ``(A H^-1 A^T + c I) lam = targets - A z_t``, ``z = z_t + H^-1 A^T lam`` over the rows of
+        the active vertices' heights and the sticking ones' tangents, from the step's dual matrix.
+        Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
+        """
+        picked, dim, up = self.picked, self.dim, self.up
+        normal_rows = np.flatnonzero(active) * dim + up
+        tangent_rows = (np.flatnonzero(stick)[:, None] * dim + self.tangents).ravel()
+        rows = np.concatenate([normal_rows, tangent_rows])
+        K = self.M[np.ix_(rows, rows)]
+        K.flat[:: rows.size + 1] += self.compliance
+        lam = np.linalg.solve(K, self.target[rows] - x_t[rows])
+        np.add(z_t, self.HJ[:, rows] @ lam, out=z)
+        x = x_t + self.M[:, rows] @ lam
+        normal = np.zeros(picked.size)
+        normal[active] = lam[: normal_rows.size]
+        tangential = np.zeros((picked.size, dim))
+        tangential[np.ix_(stick, self.tangents)] = lam[normal_rows.size :].reshape(-1, dim - 1)
+        return normal, tangential, x
+
+    def _update_state(self, active, sliding, normal, direction, x) -> None:
+        """What the next projection starts from: who touches, who slides and which way, the normal forces."""
+        picked, dim, up = self.picked, self.dim, self.up
+        self.touching[picked] = active
+        self.normal_force[picked] = np.where(active, np.maximum(normal, 0.0), 0.0)
+        self.sliding[picked] = sliding & active
+        self.active_count = int(np.count_nonzero(active))
+        if np.count_nonzero(sliding):
+            # keep pushing against the way each sliding vertex goes
+            moved = (x.reshape(-1, dim) - self.start)[sliding]
+            moved[:, up] = 0.0
+            length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+            moving = length > self.tol
+            where = np.flatnonzero(sliding)[moving]
+            direction[where] = -moved[moving] / length[moving, None]
+        self.direction[picked] = direction
+
+    def _release(self) -> None:
+        picked = self.picked
+        self.touching[picked] = False
+        self.sliding[picked] = False
+        self.normal_force[picked] = 0.0
+        self.active_count = 0

@@ -15,7 +15,7 @@ answers for its share:
 * :meth:`Effect.energy` its energy and gradient, for checks and studies,
 * ``rows``: the rotation effects (elasticity, muscles) their cluster rows ``S(u)``.
 
-Ground contact (:class:`skfem_modal.contact.GroundContact`) is an effect too:
+Ground contact (:mod:`skfem_modal.contact`) is an effect too:
 it adds no energy term but projects each global solution.
 
 The reduced simulator and the full-space reference build the same effects,

@@ -251,34 +251,51 @@ SCHEMA: dict[str, Any] = {
             "Index of the up axis (default: the axis gravity pulls down along; without gravity the last, "
             "y in 2D, z in 3D). Gravity must have a component along -up.",
         ),
-        "stickiness": Key(
+        "model": Key(
+            "str",
+            "coulomb",
+            '"coulomb" (the default): no vertex ever ends a step below the ground, and Coulomb friction '
+            'holds the touching ones. "reference": the reference implementation\'s rule, velocities only at '
+            "sampled contact points (vertices can end inside the ground), kept to reproduce its numbers.",
+            check=lambda v: None if v in ("coulomb", "reference") else 'one of "coulomb", "reference"',
+        ),
+        "friction": Key(
             "float",
-            1.0,
-            "1 removes the tangential velocity of contacting points (the "
-            "reference behaviour), 0 lets them slide freely.",
+            None,
+            'Coulomb coefficient (model "coulomb"; default 0.5): a touching vertex sticks while the tangential '
+            "force it takes is at most this times its normal force, and slides against its motion otherwise.",
             "",
-            _unit_interval,
+            _non_negative,
         ),
         "contacts": Key(
             "int|all",
-            30,
-            'Contact points: that many boundary vertices by farthest-point sampling, or "all" boundary vertices.',
+            None,
+            "Contact vertices: that many boundary vertices by farthest-point sampling, or all of them "
+            '(default "all" with model "coulomb", 30 with "reference", as its tutorial).',
             check=_contacts,
-        ),
-        "push_out": Key(
-            "float",
-            0.0,
-            "0: the reference contact (velocity only; points can end inside the ground). > 0: contact "
-            "points may not end a step below the ground, and one inside climbs out by this fraction of "
-            "its depth per step (1: in one step).",
-            "",
-            _unit_interval,
         ),
         "contacts_where": Key(
             "strs",
             None,
-            "Sample the contact points only among the boundary vertices where one of these conditions "
+            "Take the contact vertices only among the boundary vertices where one of these conditions "
             'holds, e.g. ["z <= 0.1"] for the feet.',
+        ),
+        "stickiness": Key(
+            "float",
+            None,
+            'Model "reference" only (default 1): 1 removes the tangential velocity of contacting points, '
+            "0 lets them slide freely.",
+            "",
+            _unit_interval,
+        ),
+        "push_out": Key(
+            "float",
+            None,
+            'Model "reference" only (default 0: velocity only, points can end inside the ground). > 0: '
+            "contact points may not end a step below the ground, and one inside climbs out by this fraction "
+            "of its depth per step (1: in one step).",
+            "",
+            _unit_interval,
         ),
     },
     "pinned": {
@@ -329,7 +346,7 @@ DEFAULT_SCENE: dict[str, Any] = {
     },
     "time": {"step": 0.01, "steps": 450},
     "gravity": {"acceleration": [0.0, -9.8]},
-    "ground": {"offset": 0.15, "stickiness": 1.0, "contacts": 30},
+    "ground": {"offset": 0.15, "model": "reference", "stickiness": 1.0, "contacts": 30},
     "output": {"every": 5},
 }
 
@@ -642,8 +659,10 @@ class Scene:
             gravity=None if c["gravity"] is None else c["gravity"]["acceleration"],
             ground=self.ground_height(),
             up=self.up,
-            stickiness=1.0 if ground is None else ground["stickiness"],
-            push_out=0.0 if ground is None else ground["push_out"],
+            contact_model="coulomb" if ground is None else ground["model"],
+            friction=None if ground is None else ground["friction"],
+            stickiness=None if ground is None else ground["stickiness"],
+            push_out=None if ground is None else ground["push_out"],
             pinned=self.pinned_vertices(),
             pin_stiffness=None if c["pinned"] is None else c["pinned"]["stiffness"],
             damping_mass=damping["mass"],
@@ -652,9 +671,13 @@ class Scene:
         )
 
     def contact_count(self) -> int | None:
-        """Contact points to sample (None: every boundary vertex); None without a ground too."""
+        """Contact vertices to sample (None: every boundary vertex); None without a ground too."""
         ground = self.config["ground"]
-        return None if ground is None or ground["contacts"] == "all" else ground["contacts"]
+        if ground is None or ground["contacts"] == "all":
+            return None
+        if ground["contacts"] is None:
+            return 30 if ground["model"] == "reference" else None
+        return ground["contacts"]
 
     def build(self, progress=None, backend: str = "auto"):
         """The simulator holding exactly the effects this scene names.
@@ -841,6 +864,15 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
     ground = config["ground"]
     if ground is not None and ground["height"] is not None and ground["offset"] is not None:
         errors.append("ground: give height or offset, not both")
+    if ground is not None and valid("ground.model"):
+        # each contact model takes only its own settings: none is silently ignored
+        others = {"coulomb": ("stickiness", "push_out"), "reference": ("friction",)}[ground["model"]]
+        for key in others:
+            if ground[key] is not None:
+                errors.append(
+                    f"ground.{key}: a setting of the other contact model, not of model = {ground['model']!r} "
+                    f"(set ground.model = {'reference' if ground['model'] == 'coulomb' else 'coulomb'!r} to use it)"
+                )
     damping = config["damping"]
     if (
         damping is not None

@@ -21,7 +21,7 @@ projecting each global solution. The pieces:
 
 :class:`ModalMuscle` holds them and its settings: assigning ``h``,
 ``max_iter``, ``tol``, ``rtol``, ``backend``, ``gravity``, ``ground``,
-``up``, ``stickiness``, ``push_out``, ``pin_stiffness``, ``damping_mass``,
+``up``, ``contact_model``, ``friction``, ``stickiness``, ``push_out``, ``pin_stiffness``, ``damping_mass``,
 ``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
 only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
 ``active_labels``, ``mu``, ``gamma``, ``rho``, ``pinned`` and
@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from .contact import GroundContact
+from .contact import MODELS, CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive, scalar_basis
 from .mesh import _signed_measures, boundary_vertices, check_mesh, connected_parts, sample_boundary, validated
@@ -123,6 +123,30 @@ def _backend_name(value):
     return value
 
 
+def _contact_settings(model, friction, stickiness, push_out) -> dict:
+    """A contact model's settings, checked: each model takes only its own."""
+    if model not in MODELS:
+        raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
+    if model == "coulomb":
+        foreign = [name for name, value in (("stickiness", stickiness), ("push_out", push_out)) if value is not None]
+        if foreign:
+            raise ValueError(
+                f"{' and '.join(foreign)}: settings of contact_model='reference', not of 'coulomb' "
+                "(which keeps every vertex above the ground and has friction)"
+            )
+        friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
+        return {"model": model, "friction": friction}
+    if friction is not None:
+        raise ValueError(
+            "friction: a setting of contact_model='coulomb', not of 'reference' (which has stickiness instead)"
+        )
+    return {
+        "model": model,
+        "stickiness": 1.0 if stickiness is None else _fraction(stickiness, "stickiness"),
+        "push_out": 0.0 if push_out is None else _fraction(push_out, "push_out"),
+    }
+
+
 def _muscle_modes(D, N: int) -> np.ndarray:
     """Muscle modes as a checked (N, m) array."""
     if D is None:
@@ -181,18 +205,26 @@ class ModalMuscle:
     gravity : array_like, shape (dim,), optional
         Gravitational acceleration; ``None``: no gravity.
     contact_vertices : array_like of int, optional
-        Vertices that touch the ground (default with a ground: all boundary vertices).
+        Vertices that can touch the ground (default with a ground: all boundary vertices).
     ground : float, optional
         Height of the ground plane along ``up``; ``None``: no ground.
     up : int, optional
         Index of the up axis; default: the axis gravity pulls down along
         (:func:`~skfem_modal.units.up_axis`), the last without gravity.
-    stickiness : float
-        In [0, 1]: 1 removes the tangential velocity of contacting points (the
-        reference behaviour), 0 lets them slide freely.
-    push_out : float
-        In [0, 1]: fraction of a contact point's penetration undone per step (0:
-        none, the reference behaviour).
+    contact_model : {"coulomb", "reference"}
+        ``coulomb`` (the default): no vertex ends a step below the ground, and
+        Coulomb friction holds the touching ones
+        (:class:`~skfem_modal.contact.CoulombContact`). ``reference``: the
+        reference implementation's velocity rule at the contact vertices,
+        which lets vertices end inside the ground (for its numbers).
+    friction : float, optional
+        ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
+    stickiness : float, optional
+        ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
+        velocity of contacting points, 0 lets them slide freely.
+    push_out : float, optional
+        ``reference`` only, in [0, 1]: fraction of a contact point's
+        penetration undone per step (default 0, the reference behaviour).
     pinned : array_like of int, optional
         Vertices held at their rest positions by stiff springs
         ``pin_stiffness / 2 |x_i - X_i|^2`` (in the subspace a pin is as exact
@@ -261,8 +293,10 @@ class ModalMuscle:
         contact_vertices=None,
         ground=None,
         up=None,
-        stickiness=1.0,
-        push_out=0.0,
+        contact_model="coulomb",
+        friction=None,
+        stickiness=None,
+        push_out=None,
         pinned=None,
         pin_stiffness=None,
         damping_mass=0.0,
@@ -299,7 +333,7 @@ class ModalMuscle:
         if gravity is not None:
             gravity = _array(gravity, (dim,), "gravity")
         up = up_axis(gravity, dim, up)
-        stickiness, push_out = _fraction(stickiness, "stickiness"), _fraction(push_out, "push_out")
+        contact_settings = _contact_settings(contact_model, friction, stickiness, push_out)
         damping_mass = _positive_scalar(damping_mass, "damping_mass", allow_zero=True)
         damping_stiffness = _positive_scalar(damping_stiffness, "damping_stiffness", allow_zero=True)
         max_s = _positive_scalar(max_s, "max_s")
@@ -345,13 +379,12 @@ class ModalMuscle:
             effects.append(timed("pinned", lambda: Pins(space, pinned, pin_stiffness, scale)))
         if damping_mass or damping_stiffness:
             effects.append(Damping(inertia, elasticity, damping_mass, damping_stiffness))
+        self._space, self._up, self._contact = space, up, contact_settings
         self._contact_vertices = np.zeros(0, np.int64)
         if ground is not None:
             cv = boundary_vertices(mesh) if contact_vertices is None else contact_vertices
             self._contact_vertices = cv
-            effects.append(timed("contact", lambda: GroundContact(space, cv, ground, up, stickiness, push_out)))
-        self._space = space
-        self._up = up
+            effects.append(timed("contact", lambda: self._make_contact(cv, ground)))
         self._model = timed("system", lambda: Model(space, effects, h))
         self._solver = LocalGlobal(max_iter, tol, rtol)
         self._backend = backend
@@ -480,12 +513,58 @@ class ModalMuscle:
             raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
         return contact
 
-    def _new_contact(self, **changes) -> None:
-        old = self._contact_effect(next(iter(changes)))
-        kw = dict(ground=old.ground, up=old.up, stickiness=old.stickiness, push_out=old.push_out)
-        kw.update(changes)
-        self._model.replace(GroundContact(self._space, old.vertices, **kw))
+    def _make_contact(self, vertices, ground):
+        """The contact effect of the current settings."""
+        settings = dict(self._contact)
+        if settings.pop("model") == "coulomb":
+            return CoulombContact(self._space, vertices, ground, self._up, **settings)
+        return ReferenceContact(self._space, vertices, ground, self._up, **settings)
+
+    def _new_contact(self, setting, **changes) -> None:
+        contact = self._contact_effect(setting)
+        self._contact.update(changes)
+        self._model.replace(self._make_contact(contact.vertices, contact.ground))
         self._rebuild()
+
+    def _contact_setting(self, name):
+        """A setting of the contact model in use (None when it is another model's)."""
+        return self._contact.get(name)
+
+    def _set_model_setting(self, name, value, model) -> None:
+        if self._contact["model"] != model:
+            raise AttributeError(
+                f"{name} is a setting of contact_model='{model}'; this simulator uses "
+                f"contact_model='{self._contact['model']}'"
+            )
+        self._new_contact(name, **{name: value})
+
+    @property
+    def contact_model(self) -> str:
+        """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's)."""
+        return self._contact["model"]
+
+    @contact_model.setter
+    def contact_model(self, value) -> None:
+        settings = _contact_settings(value, None, None, None)
+        if self._model.contact is None:
+            self._contact = settings
+            return
+        self._contact = settings
+        self._new_contact("contact_model")
+
+    @property
+    def friction(self):
+        """Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise)."""
+        return self._contact_setting("friction")
+
+    @friction.setter
+    def friction(self, value) -> None:
+        self._set_model_setting("friction", _positive_scalar(value, "friction", allow_zero=True), "coulomb")
+
+    def penetration(self, z) -> float:
+        """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground)."""
+        contact = self._model.contact
+        return 0.0 if contact is None else contact.penetration(z)
 
     @property
     def ground(self):
@@ -503,7 +582,7 @@ class ModalMuscle:
         value = float(_array(value, (), "ground"))
         if self._model.contact is None:
             self._contact_vertices = boundary_vertices(self._mesh)
-            self._model.replace(GroundContact(self._space, self._contact_vertices, value, self._up))
+            self._model.replace(self._make_contact(self._contact_vertices, value))
             self._rebuild()
         else:
             self._model.contact.ground = value
@@ -520,25 +599,25 @@ class ModalMuscle:
             up_axis(self.gravity, self.dim, value)  # gravity must pull down along it
         self._up = value
         if self._model.contact is not None:
-            self._new_contact(up=self._up)
+            self._new_contact("up")
 
     @property
-    def stickiness(self) -> float:
-        """Fraction of a contact point's tangential velocity removed (reference contact)."""
-        return self._contact_effect("stickiness").stickiness if self._model.contact else 1.0
+    def stickiness(self):
+        """Fraction of a contact point's tangential velocity removed (``contact_model='reference'``; None otherwise)."""
+        return self._contact_setting("stickiness")
 
     @stickiness.setter
     def stickiness(self, value) -> None:
-        self._new_contact(stickiness=_fraction(value, "stickiness"))
+        self._set_model_setting("stickiness", _fraction(value, "stickiness"), "reference")
 
     @property
-    def push_out(self) -> float:
-        """Fraction of a contact point's penetration undone per step (0: the reference)."""
-        return self._model.contact.push_out if self._model.contact else 0.0
+    def push_out(self):
+        """Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise)."""
+        return self._contact_setting("push_out")
 
     @push_out.setter
     def push_out(self, value) -> None:
-        self._new_contact(push_out=_fraction(value, "push_out"))
+        self._set_model_setting("push_out", _fraction(value, "push_out"), "reference")
 
     @property
     def pin_stiffness(self):
@@ -771,11 +850,13 @@ class ModalMuscle:
         h=0.02,
         gravity=None,
         ground=None,
-        n_contacts: int | None = 30,
+        n_contacts: int | None = None,
         contact_candidates=None,
         up=None,
-        stickiness=1.0,
-        push_out=0.0,
+        contact_model="coulomb",
+        friction=None,
+        stickiness=None,
+        push_out=None,
         pinned=None,
         pin_stiffness=None,
         damping_mass=0.0,
@@ -803,7 +884,9 @@ class ModalMuscle:
         connected part of the mesh, so separate bodies turn apart), clustering
         on the first ``cluster_weights`` weights (default ``n_weights``); with a
         ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
-        (all boundary vertices if ``n_contacts`` is None). With ``pinned``
+        (default: every boundary vertex with the ``coulomb`` contact, 30 with
+        the ``reference`` one, as its tutorial), among ``contact_candidates``
+        if given. With ``pinned``
         vertices the muscles are the modes of the body clamped there.
         ``progress(stage)``, if given, is called before each stage. With
         ``parallel`` the modal analysis runs in a second thread beside the
@@ -825,6 +908,7 @@ class ModalMuscle:
 
         # arguments used late are checked before any work
         _backend_name(backend)
+        _contact_settings(contact_model, friction, stickiness, push_out)
         signs = None
         if muscle_signs is not None and n_muscles:
             signs = np.asarray(muscle_signs, dtype=np.float64)
@@ -836,6 +920,8 @@ class ModalMuscle:
             # scikit-fem caches mesh data on first use; build it here, before
             # the two threads read it
             scalar_basis(mesh)
+            if n_contacts is None and contact_model == "reference":
+                n_contacts = 30
             contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
 
             def modes():
@@ -889,6 +975,8 @@ class ModalMuscle:
                 contact_vertices=contacts,
                 ground=ground,
                 up=up,
+                contact_model=contact_model,
+                friction=friction,
                 stickiness=stickiness,
                 push_out=push_out,
                 pinned=pinned,

@@ -217,6 +217,8 @@ class LocalGlobal:
             backend.start(z, z_dot, a)
             found = self._run(backend, contact)
             if found is not None:
+                if contact is not None:
+                    contact.finish_step(found[0])
                 return found
             self.redone += 1
         raise AssertionError("the last backend must accept every step")

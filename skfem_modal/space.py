@@ -52,7 +52,7 @@ class _MeshData:
     def __getstate__(self):
         # what is read off the mesh is made again where it is needed (J is as large as the mesh)
         state = self.__dict__.copy()
-        for cached in ("J", "volumes", "rest", "_gradients"):
+        for cached in ("J", "volumes", "rest", "_gradients", "scalar_fields"):
             state.pop(cached, None)
         return state
 
@@ -137,6 +137,29 @@ class Subspace(_MeshData):
         """The rows of ``B`` of some DOFs, shape (len(dofs), r)."""
         return np.ascontiguousarray(self.B[dofs])
 
+    @cached_property
+    def scalar_fields(self):
+        """``U`` (n, K) when ``B`` moves every coordinate alike (``B = U kron I``, as skinning bases do), else None."""
+        dim, K = self.dim, self.r // self.dim
+        if self.r % dim:
+            return None
+        B4 = self.B.reshape(self.n, dim, K, dim)
+        U = B4[:, 0, :, 0]
+        scale = np.abs(self.B).max(initial=0.0)
+        for a in range(dim):
+            for b in range(dim):
+                expected = U if a == b else 0.0
+                if np.abs(B4[:, a, :, b] - expected).max(initial=0.0) > 1e-12 * scale:
+                    return None
+        return np.ascontiguousarray(U)
+
+    def heights(self, vertices, up) -> Heights:
+        """A reader of some vertices' coordinate ``up`` from ``z`` (a few flops a vertex for skinning bases)."""
+        U = self.scalar_fields
+        if U is not None:
+            return Heights(U[vertices], slice(up, None, self.dim))
+        return Heights(self.rows(self.dofs(vertices)[up :: self.dim]), slice(None))
+
     def coordinates(self, x, mass) -> np.ndarray:
         """Mass-weighted least-squares coordinates of a full field ``x`` (N,) in the span of ``B``, shape (r,)."""
         MB = self.B * mass[:, None]
@@ -176,6 +199,9 @@ class FullSpace(_MeshData):
         dofs = np.asarray(dofs)
         return sps.csr_matrix((np.ones(dofs.size), (np.arange(dofs.size), dofs)), shape=(dofs.size, self.N))
 
+    def heights(self, vertices, up) -> Heights:
+        return Heights(None, np.asarray(vertices) * self.dim + up)
+
     def coordinates(self, x, mass) -> np.ndarray:
         return np.array(x, dtype=float).ravel()
 
@@ -184,6 +210,28 @@ class FullSpace(_MeshData):
 
     def factor(self, H) -> SparseSystem:
         return SparseSystem(H)
+
+
+class Heights:
+    """Reads one coordinate of some vertices from the unknowns: ``rows @ z[pick]``, or ``z[pick]`` itself.
+
+    Parameters
+    ----------
+    rows : ndarray of shape (p, q), or None
+    pick : slice or ndarray of int
+        Which entries of ``z`` the rows act on (all of them, every ``dim``-th one, or the vertices' own DOFs).
+    """
+
+    def __init__(self, rows, pick):
+        self.rows, self.pick = rows, pick
+
+    def __call__(self, z) -> np.ndarray:
+        """The vertices' coordinates, shape (p,)."""
+        picked = z[self.pick]
+        return picked if self.rows is None else self.rows @ picked
+
+    def __len__(self) -> int:
+        return len(self.pick) if self.rows is None else self.rows.shape[0]
 
 
 class DenseSystem:
@@ -199,6 +247,7 @@ class DenseSystem:
 
     def __init__(self, H):
         H = (H + H.T) / 2
+        self.matrix = H
         try:
             chol = sla.cho_factor(H)
         except np.linalg.LinAlgError:
@@ -221,6 +270,7 @@ class SparseSystem:
     dense = False
 
     def __init__(self, H):
+        self.matrix = sps.csc_matrix(H)
         self._lu = spla.splu(
             sps.csc_matrix(H), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
         )

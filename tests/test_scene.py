@@ -6,7 +6,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from skfem_modal.contact import GroundContact
+from skfem_modal.contact import CoulombContact, ReferenceContact
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, SCHEMA, Scene, SceneError, schema_markdown
 
@@ -104,8 +104,9 @@ def test_floating_scene_holds_no_contact_or_gravity(monkeypatch):
     def forbidden(*args, **kwargs):
         raise AssertionError("contact code called in a floating scene")
 
-    monkeypatch.setattr(GroundContact, "project", forbidden)
-    monkeypatch.setattr(GroundContact, "start_step", forbidden)
+    for model in (CoulombContact, ReferenceContact):
+        monkeypatch.setattr(model, "project", forbidden)
+        monkeypatch.setattr(model, "start_step", forbidden)
     summary = run_scene(scene, None, sim=sim)
     assert summary["status"] == "completed" and summary["ground"] is None
     assert np.abs(summary["com"]["travel"]).max() < 1e-8
