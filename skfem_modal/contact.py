@@ -44,6 +44,7 @@ from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sps
+from scipy.optimize import nnls
 
 from ._fast import dot
 from .effects import Effect
@@ -55,8 +56,10 @@ __all__ = ["CoulombContact", "ReferenceContact", "MODELS"]
 MODELS = ("coulomb", "reference")
 
 _CACHE_SIZE = 512
-# passes of the active set in one projection, at most (half changing whole sets, half one vertex)
-_PASSES = 24
+# passes of the active set in one projection before the exact solve (half changing whole sets, half one vertex)
+_PASSES = 16
+# vertices below the ground joining the active set per pass, at most
+_JOIN = 4
 
 
 class _Ground(Effect):
@@ -317,15 +320,40 @@ class CoulombContact(_Ground):
         self.active_count = 0
 
     def bind(self, system, h) -> None:
-        """Take the factored system of time step ``h``."""
+        """Take the factored system of time step ``h`` (a new one clears the pushes made so far)."""
         self.system, self.h = system, float(h)
         self.picked = np.zeros(0, np.int64)
+        # each candidate row's push on z, H^-1 B_row^T, made when first needed: memory
+        # O(candidates x subspace) at most, and only for the vertices that ever touch
+        self._pushes = np.zeros((self.vertices.size * self.dim, self.space.r))
+        self._made = np.zeros(self.vertices.size * self.dim, bool)
         # the compliance: a millionth of the mean stiffness of a vertex's height row, 1 / (e H^-1 e)
-        sample = self.vertices[:: max(1, self.vertices.size // 64)]
-        rows = self.space.rows(self.space.dofs(sample)[self.up :: self.dim])
-        rows = rows.toarray() if sps.issparse(rows) else rows
-        reach = np.einsum("ij,ji->i", rows, np.asarray(system.solve(np.ascontiguousarray(rows.T))))
-        self.compliance = 1e-6 * float(reach.mean())
+        sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
+        reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
+        self.compliance = 1e-3 * float(reach.mean())
+
+    def _rows_of(self, candidate_rows) -> np.ndarray:
+        """Rows of ``B`` for candidate rows (vertex ``k``'s coordinate ``a`` is row ``k dim + a``), dense."""
+        dofs = self.vertices[candidate_rows // self.dim] * self.dim + candidate_rows % self.dim
+        rows = self.space.rows(dofs)
+        return rows.toarray() if sps.issparse(rows) else rows
+
+    def _push_of(self, candidate_rows) -> np.ndarray:
+        """``H^-1 B_row^T`` of candidate rows, shape (k, r), each made once."""
+        missing = candidate_rows[~self._made[candidate_rows]]
+        if missing.size:
+            missing = np.unique(missing)
+            made = self.system.solve(np.ascontiguousarray(self._rows_of(missing).T))
+            self._pushes[missing] = np.asarray(made).T
+            self._made[missing] = True
+        return self._pushes[candidate_rows]
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        if "_pushes" in state:  # made again where needed
+            state["_pushes"] = np.zeros_like(self._pushes)
+            state["_made"] = np.zeros_like(self._made)
+        return state
 
     def positions(self, z) -> np.ndarray:
         """Positions of the candidate vertices, shape (p, dim)."""
@@ -358,9 +386,7 @@ class CoulombContact(_Ground):
             self.start[: start.shape[0]] = start
         self.target = self.start.ravel().copy()
         self.target[self.up :: dim] = self.ground
-        JT = self.J.T.toarray() if sps.issparse(self.J) else self.J.T
-        self.HJ = np.asarray(self.system.solve(np.ascontiguousarray(JT)))  # (r, c dim): each row's push on z
-        self.M = np.asarray(self.J @ self.HJ)  # (c dim, c dim): each push's effect on every row
+        self.rows_of_picked = (picked[:, None] * dim + np.arange(dim)).ravel()  # candidate rows, picked order
 
     def project(self, z, watched=None) -> bool:
         """Project a global solution ``z`` (r,) in place; True if it changed."""
@@ -397,8 +423,11 @@ class CoulombContact(_Ground):
         # hysteresis against going round in circles on flat faces: a vertex joins when it ends a
         # hundred-thousandth of the body's size below the ground, leaves when the ground would pull
         # it by more than a thousandth of the largest push
-        joining = self.ground - 1e-5 * self.size
-        active = self.touching[picked] | (x_base[up::dim] < joining)
+        joining = self.ground - 1e-4 * self.size
+        # the first guess: the vertices pushed last time, and the deepest few below the ground
+        below = x_base[up::dim] < joining
+        active = self.touching[picked].copy()
+        active[np.argsort(np.where(below, x_base[up::dim], np.inf))[: min(_JOIN, np.count_nonzero(below))]] = True
         if not np.count_nonzero(active):
             self._release()
             return False
@@ -435,9 +464,10 @@ class CoulombContact(_Ground):
         """``z_t`` and the positions after the friction of some vertices: ``mu`` times their force, that way."""
         if not np.count_nonzero(which):
             return z_t, x_t
-        push = np.zeros((self.picked.size, self.dim))
-        push[which] = (self.friction * force[which])[:, None] * direction[which]
-        return z_t + self.HJ @ push.ravel(), x_t + self.M @ push.ravel()
+        rows = self.rows_of_picked.reshape(-1, self.dim)[which][:, self.tangents].ravel()
+        push = (self.friction * force[which])[:, None] * direction[which][:, self.tangents]
+        z_t = z_t + self._push_of(rows).T @ push.ravel()
+        return z_t, np.asarray(self.J @ z_t)
 
     def _active_set(self, active, stick, z_t, x_t, z, joining):
         """Vertices pushed onto the ground (and sticking ones held) by a primal-dual active set; z in place.
@@ -458,7 +488,11 @@ class CoulombContact(_Ground):
             key = active.tobytes()
             if attempt < _PASSES // 2 and key not in seen:
                 seen.add(key)
-                active = (active & ~release) | below  # the primal-dual active-set update
+                # release every vertex the ground pulls, hold the deepest few below: the rows of
+                # neighbouring vertices nearly repeat each other, so a few stand for a whole patch
+                heights = np.where(below, x[up::dim], np.inf)
+                active = active & ~release
+                active[np.argsort(heights)[: min(_JOIN, np.count_nonzero(below))]] = True
             elif np.count_nonzero(below):
                 # going round in circles: one change at a time, the deepest vertex first
                 active = active | (below & (x[up::dim] <= x[up::dim][below].min()))
@@ -471,27 +505,58 @@ class CoulombContact(_Ground):
                 if not np.count_nonzero(active):
                     np.copyto(z, z_t)
                     return active, np.zeros(active.size), np.zeros((active.size, dim)), x_t
-        # unsettled: hold every vertex that ends below too, and accept (the ground may pull a little)
-        active = active | below
-        normal, tangential, x = self._solve(active, stick & active, z_t, x_t, z)
-        return active, np.maximum(normal, 0.0), tangential, x
+        # going round in circles: the whole problem over the rows concerned, exactly
+        return self._least_distance(active | below, stick, z_t, x_t, z)
+
+    def _least_distance(self, near, stick, z_t, x_t, z):
+        """The projection as a least-distance problem over some rows, solved by NNLS (Lawson and Hanson).
+
+        The dual, ``min 1/2 m^T K m - d^T m`` with the height pushes ``m >= 0`` and the sticking
+        tangents' forces free (each split into two non-negative parts), is ``|G^T m|^2 / 2 - d^T m``
+        with ``G G^T = K`` (a Cholesky factor: the compliance keeps ``K`` positive definite).
+        """
+        picked, dim, up = self.picked, self.dim, self.up
+        normal_rows = np.flatnonzero(near) * dim + up
+        tangent_rows = (np.flatnonzero(stick & near)[:, None] * dim + self.tangents).ravel()
+        rows = np.concatenate([normal_rows, tangent_rows, tangent_rows])
+        signs = np.concatenate([np.ones(normal_rows.size + tangent_rows.size), -np.ones(tangent_rows.size)])
+        HA = self._push_of(self.rows_of_picked[rows])  # (k, r): each row's push on z
+        K = (self._rows_of(self.rows_of_picked[rows]) @ HA.T) * np.outer(signs, signs)
+        G = np.linalg.cholesky((K + K.T) / 2 + self.compliance * np.eye(rows.size))
+        gap = signs * (self.target[rows] - x_t[rows])
+        E = np.vstack([G.T, gap])
+        f = np.zeros(E.shape[0])
+        f[-1] = 1.0
+        u, _ = nnls(E, f, maxiter=50 * E.shape[1])
+        scale = 1.0 - float(gap @ u)
+        lam = u / scale if scale > 0.0 else np.zeros_like(u)
+        np.add(z_t, HA.T @ (signs * lam), out=z)
+        x = np.asarray(self.J @ z)
+        normal = np.zeros(picked.size)
+        normal[near] = lam[: normal_rows.size]
+        k = tangent_rows.size
+        tangential = np.zeros((picked.size, dim))
+        both = lam[normal_rows.size : normal_rows.size + k] - lam[normal_rows.size + k :]
+        tangential[np.ix_(stick & near, self.tangents)] = both.reshape(-1, dim - 1)
+        return normal > 0.0, normal, tangential, x
 
     def _solve(self, active, stick, z_t, x_t, z):
         """One pass: the active vertices onto the ground, the sticking ones held; z in place.
 
         ``(A H^-1 A^T + c I) lam = targets - A z_t``, ``z = z_t + H^-1 A^T lam`` over the rows of
-        the active vertices' heights and the sticking ones' tangents, from the step's dual matrix.
+        the active vertices' heights and the sticking ones' tangents.
         Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
         """
         picked, dim, up = self.picked, self.dim, self.up
         normal_rows = np.flatnonzero(active) * dim + up
         tangent_rows = (np.flatnonzero(stick)[:, None] * dim + self.tangents).ravel()
         rows = np.concatenate([normal_rows, tangent_rows])
-        K = self.M[np.ix_(rows, rows)]
+        HA = self._push_of(self.rows_of_picked[rows])  # (k, r): each row's push on z
+        K = self._rows_of(self.rows_of_picked[rows]) @ HA.T
         K.flat[:: rows.size + 1] += self.compliance
         lam = np.linalg.solve(K, self.target[rows] - x_t[rows])
-        np.add(z_t, self.HJ[:, rows] @ lam, out=z)
-        x = x_t + self.M[:, rows] @ lam
+        np.add(z_t, HA.T @ lam, out=z)
+        x = np.asarray(self.J @ z)
         normal = np.zeros(picked.size)
         normal[active] = lam[: normal_rows.size]
         tangential = np.zeros((picked.size, dim))
