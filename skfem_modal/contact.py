@@ -48,7 +48,7 @@ from scipy.optimize import nnls
 
 from ._fast import dot
 from .effects import Effect
-from .mesh import boundary_vertices
+from .mesh import boundary_vertices, farthest_point_sampling
 
 __all__ = ["CoulombContact", "ReferenceContact", "MODELS"]
 
@@ -60,6 +60,8 @@ _CACHE_SIZE = 512
 _PASSES = 16
 # vertices below the ground joining the active set per pass, at most
 _JOIN = 4
+# vertices a step's projections look at, at most (the end of the step checks them all)
+_MOST = 32
 
 
 class _Ground(Effect):
@@ -74,6 +76,10 @@ class _Ground(Effect):
     def penetration(self, z) -> float:
         """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``."""
         return max(0.0, self.ground - float(self.boundary(np.asarray(z, float)).min()))
+
+    def missed(self, z) -> bool:
+        """Whether the step's iterations should run again, seeing more vertices (see the Coulomb model)."""
+        return False
 
     def finish_step(self, z) -> None:
         """The end of a step's iterations, ``z`` (r,) the result: nothing to do (see the Coulomb model)."""
@@ -308,6 +314,8 @@ class CoulombContact(_Ground):
         self.heights_of = space.heights(self.vertices, up)
         self.size = float(np.ptp(space.mesh.p, axis=1).max())
         self.tol = 1e-9 * self.size
+        # how far below the ground a vertex may end a step: the compliance's give, a ten-thousandth of the size
+        self.allowance = 1e-4 * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
         p = self.vertices.size
         # per vertex, kept from step to step: pushed, sliding, normal force, the way friction pushes
@@ -316,6 +324,7 @@ class CoulombContact(_Ground):
         self.normal_force = np.zeros(p)
         self.direction = np.zeros((p, self.dim))
         self.picked = np.zeros(0, np.int64)
+        self._missed = np.zeros(0, np.int64)  # seen below at the end of a step's first run
         self._first = False
         self.active_count = 0
 
@@ -367,7 +376,26 @@ class CoulombContact(_Ground):
             reach += 2.0 * self.h * np.minimum(self.heights_of(z_dot), 0.0)
         self.z_start = z_start
         self._first = True
-        self._pick(np.flatnonzero((reach < self.ground) | self.touching), z_start)
+        picked = self._spread(np.flatnonzero((reach < self.ground) | self.touching), z_start)
+        self._pick(np.union1d(picked, self._missed), z_start)
+
+    def _spread(self, near, z_start) -> np.ndarray:
+        """At most a few dozen of the near vertices, well spread along the ground, the touching ones first.
+
+        The heights of neighbouring vertices nearly repeat each other (a subspace moves them
+        alike): a spread few hold a whole patch up, with far fewer, better separated rows to
+        solve for. The step's end checks every candidate, so none is left below.
+        """
+        if near.size <= _MOST:
+            return near
+        kept = near[self.touching[near]][:_MOST]
+        rest = np.setdiff1d(near, kept, assume_unique=True)
+        room = _MOST - kept.size
+        if room > 0 and rest.size:
+            where = self.space.positions(z_start)[self.vertices[rest]]
+            where[:, self.up] = 0.0  # spread along the ground
+            kept = np.concatenate([kept, rest[farthest_point_sampling(where, min(room, rest.size))]])
+        return kept
 
     def _pick(self, picked, z_start, start=None) -> None:
         """Make ``picked`` (indices into the candidates) the vertices the projections look at.
@@ -396,16 +424,27 @@ class CoulombContact(_Ground):
             self._first = False
             near = np.flatnonzero(self.heights_of(z) < self.ground + 0.005 * self.size)
             joining = np.setdiff1d(near, self.picked, assume_unique=True)
-            if joining.size:
-                self._pick(np.concatenate([self.picked, joining]), self.z_start)
+            if joining.size and self.picked.size < _MOST:
+                extra = self._spread(np.concatenate([self.picked, joining]), self.z_start)
+                self._pick(np.concatenate([self.picked, np.setdiff1d(extra, self.picked)]), self.z_start)
         if not self.picked.size:
             self.active_count = 0
             return False
         return self._constrain(z)
 
+    def missed(self, z) -> bool:
+        """Did the step leave vertices below the ground that its projections did not look at?
+
+        Then the driver runs the step's iterations again, with them (``z`` the result).
+        """
+        below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
+        self._missed = np.setdiff1d(below, self.picked, assume_unique=True)
+        return bool(self._missed.size)
+
     def finish_step(self, z) -> None:
         """Hold up any candidate the step left below the ground (``z`` the result, in place)."""
-        below = np.flatnonzero(self.heights_of(z) < self.ground - self.tol)
+        self._missed = np.zeros(0, np.int64)
+        below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
         if not below.size:
             return
         missed = np.setdiff1d(below, self.picked, assume_unique=True)
@@ -423,7 +462,7 @@ class CoulombContact(_Ground):
         # hysteresis against going round in circles on flat faces: a vertex joins when it ends a
         # hundred-thousandth of the body's size below the ground, leaves when the ground would pull
         # it by more than a thousandth of the largest push
-        joining = self.ground - 1e-4 * self.size
+        joining = self.ground - self.allowance
         # the first guess: the vertices pushed last time, and the deepest few below the ground
         below = x_base[up::dim] < joining
         active = self.touching[picked].copy()
@@ -435,7 +474,7 @@ class CoulombContact(_Ground):
         sliding = active & self.sliding[picked] if mu else np.zeros(picked.size, bool)
         estimate = self.normal_force[picked].copy()  # the sliding vertices' normal forces
         direction = self.direction[picked].copy()
-        for _ in range(8):
+        for _ in range(3):
             z_t, x_t = self._push(sliding, estimate, direction, z_base, x_base)
             stick = active & ~sliding if mu else np.zeros(picked.size, bool)
             active, normal, tangential, x = self._active_set(active, stick, z_t, x_t, z, joining)
@@ -479,7 +518,7 @@ class CoulombContact(_Ground):
         seen = set()
         for attempt in range(_PASSES):
             normal, tangential, x = self._solve(active, stick & active, z_t, x_t, z)
-            release = active & (normal < -1e-3 * max(normal.max(initial=0.0), 1e-300))
+            release = active & (normal < -1e-2 * max(normal.max(initial=0.0), 1e-300))
             below = ~active & (x[up::dim] < joining)
             if not (np.count_nonzero(release) or np.count_nonzero(below)):
                 return active, np.maximum(normal, 0.0), tangential, x

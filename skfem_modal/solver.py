@@ -211,14 +211,22 @@ class LocalGlobal:
         SimulationError
             If the state becomes non-finite.
         """
+        found = self._attempt(backends, z, z_dot, a, contact)
+        if contact is not None:
+            if contact.missed(found[0]):
+                # the contact saw too few vertices (some ended below the ground): once more, with them
+                found = self._attempt(backends, z, z_dot, a, contact)
+            contact.finish_step(found[0])
+        return found
+
+    def _attempt(self, backends, z, z_dot, a, contact):
+        """The step's iterations, by each backend in turn until one accepts them."""
         for backend in backends:
             if contact is not None:
                 contact.start_step(z, z_dot)
             backend.start(z, z_dot, a)
             found = self._run(backend, contact)
             if found is not None:
-                if contact is not None:
-                    contact.finish_step(found[0])
                 return found
             self.redone += 1
         raise AssertionError("the last backend must accept every step")
