@@ -172,6 +172,7 @@ class Trial:
         frames[0] = self.rotation_rows @ z
         start = sim.com(z)
         with self._lock:  # a dask worker may run several tasks at once on its one copy
+            sim.reset()  # each rollout as a new simulator's: the same on any worker, and in a replay
             try:
                 for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases)):
                     frames[record.step] = self.rotation_rows @ record.z

@@ -341,3 +341,14 @@ def test_ctrl_c_leaves_a_checkpoint_and_says_how_to_resume(tmp_path):
         for folder, flag in ((out, "1"), (tmp_path / "fresh", "0"))
     ]
     assert runs[0] == runs[1] and len(eval(runs[0])) == done + 1
+
+
+def test_a_rollout_does_not_depend_on_the_rollouts_before(creature_sim):
+    """Each rollout starts as a new simulator (warm starts forgotten): bit for bit the same on any worker."""
+    trial = Trial(creature_sim, 40, [1.0, 0.0, 0.0])
+    gaits = [{"amplitude": [a, 0.5, 0.3], "period": [0.5, 0.7, 0.9], "phase": [0.0, 0.3, 0.6]} for a in (0.6, 0.2)]
+    first = trial.run(gaits[0])
+    trial.run(gaits[1])
+    assert trial.run(gaits[0]) == first
+    fresh = Trial(Scene.from_dict(CREATURE).build(), 40, [1.0, 0.0, 0.0])
+    assert fresh.run(gaits[0]) == first
