@@ -350,6 +350,27 @@ def cmd_optimize(args) -> int:
     return EXIT_OK
 
 
+def cmd_transfer(args) -> int:
+    from .transfer import transfer_search
+
+    def say(label):
+        if not args.quiet:
+            print(f"  replaying: {label}", file=sys.stderr, flush=True)
+
+    result = transfer_search(args.search, full_space_limit=args.full_space_limit, progress=say)
+    if not args.quiet:
+        print("| setting | elements | coordinates | clusters | iterations (mean) | travel | survives | alignment | s |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in result["rows"]:
+            print(
+                f"| {r['setting']} | {r['elements']} | {r['coordinates']} | {r['clusters']} | "
+                f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {r['survives']:.2f} | "
+                f"{r['alignment']:.3f} | {r['seconds']:.1f} |"
+            )
+        print(f"wrote {result['csv']}")
+    return EXIT_OK
+
+
 class _HelpWithDefaults(argparse.HelpFormatter):
     """Help that ends each option with its default, where it has one worth saying."""
 
@@ -512,6 +533,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blas-threads", type=_positive_int, default=1, help="BLAS threads per worker")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and how to resume")
     p.set_defaults(func=cmd_optimize)
+
+    p = command("transfer", help="replay a search's best gait with more accurate settings: how much travel survives")
+    p.add_argument("search", nargs="?", default="search", help="the folder of a finished search")
+    p.add_argument(
+        "--full-space-limit",
+        type=_positive_int,
+        default=10_000,
+        help="largest mesh (elements) also replayed in the full space",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_transfer)
 
     p = command("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")

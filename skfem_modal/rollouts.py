@@ -161,8 +161,8 @@ class Trial:
         -------
         score : dict
             ``fitness``, ``travel``, ``alignment``, ``max_tilt`` (radians),
-            ``penalty`` and ``finite`` (False: the run went non-finite, the
-            measures are NaN).
+            ``penalty``, ``finite`` (False: the run went non-finite, the
+            measures are NaN) and ``mean_iterations`` (local/global, a step).
         """
         sim = self.sim
         amplitudes = np.asarray(gait["amplitude"], float) * sim.ceilings
@@ -171,11 +171,13 @@ class Trial:
         frames = np.empty((self.steps + 1, self.rotation_rows.shape[0]))
         frames[0] = self.rotation_rows @ z
         start = sim.com(z)
+        iterations = 0
         with self._lock:  # a dask worker may run several tasks at once on its one copy
             sim.reset()  # each rollout as a new simulator's: the same on any worker, and in a replay
             try:
                 for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases)):
                     frames[record.step] = self.rotation_rows @ record.z
+                    iterations += record.iterations
                     z = record.z
             except SimulationError:
                 nan = float("nan")
@@ -187,8 +189,9 @@ class Trial:
                     "max_tilt": nan,
                     "penalty": nan,
                     "finite": False,
+                    "mean_iterations": nan,
                 }
-        return self.score(sim.com(z) - start, frames)
+        return {**self.score(sim.com(z) - start, frames), "mean_iterations": iterations / self.steps}
 
     def score(self, displacement, frames) -> dict:
         """Score a run from its centre of mass's displacement and its body frames.

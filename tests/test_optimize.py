@@ -352,3 +352,35 @@ def test_a_rollout_does_not_depend_on_the_rollouts_before(creature_sim):
     assert trial.run(gaits[0]) == first
     fresh = Trial(Scene.from_dict(CREATURE).build(), 40, [1.0, 0.0, 0.0])
     assert fresh.run(gaits[0]) == first
+
+
+# ---------------------------------------------------------------- transfer
+
+
+def test_gait_transfer_replays_up_the_ladder(tmp_path, capsys):
+    from skfem_modal.transfer import LADDER, transfer_search
+
+    found = run_search(CREATURE, tmp_path, generations=1, popsize=3, seed=2, objective="aligned")
+    result = transfer_search(tmp_path)
+    rows = {r["setting"]: r for r in result["rows"]}
+    assert list(rows)[: len(LADDER)] == [label for label, _ in LADDER]
+    searched = rows["as searched"]
+    assert searched["travel"] == found["best"]["travel"] and searched["survives"] == 1.0  # bit for bit
+    assert (searched["elements"], searched["clusters"], searched["iterations"]) == (408, 6, 10)
+    assert rows["clusters x4, iterations x5"]["clusters"] == 24 and rows["iterations x5"]["iterations"] == 50
+    assert rows["weights x2, clusters x4, iterations x5"]["coordinates"] == 2 * searched["coordinates"]
+    full = rows["full space"]
+    assert (full["elements"], full["coordinates"], full["clusters"]) == (408, 182 * 3, 408)
+    half = rows["half resolution, full space"]
+    assert half["elements"] < 408 and half["space"] == "full"
+    for row in rows.values():
+        assert np.isfinite(row["travel"]) and row["survives"] == pytest.approx(row["travel"] / searched["travel"])
+    # the full-space replay is the reference simulator's own run of the gait
+    scene = Scene.from_dict(tomllib.loads(open(found["best_scene"]).read()))
+    direct = Trial(scene.build_reference(rtol=1e-8, max_iter=2000), 40, [1.0, 0.0, 0.0], objective="aligned")
+    assert direct.run(found["best"]["gait"])["travel"] == full["travel"]
+    written = list(csv.DictReader(open(result["csv"])))
+    assert [r["setting"] for r in written] == list(rows) and float(written[-1]["travel"]) == half["travel"]
+    assert main(["transfer", str(tmp_path), "--full-space-limit", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "| as searched | 408 |" in out and "| full space |" not in out  # over the limit: skipped
