@@ -528,7 +528,9 @@ def _write_plot(path: str, history: list, objective: str) -> None:
     ax.plot(g, [h["mean_fitness"] for h in history], "--", lw=1, label="mean of the generation")
     ax.plot(g, np.maximum.accumulate(best), "k-", lw=1.5, label="best so far")
     ax.set_xlabel("generation")
-    ax.set_ylabel("fitness (travel" + (" x alignment" if objective == "aligned" else "") + " - tipping penalty)")
+    ax.set_ylabel("fitness")
+    said = "travel x alignment" if objective == "aligned" else "travel"
+    ax.set_title(f"fitness = {said} - tipping penalty", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
