@@ -47,8 +47,9 @@ from .run import Progress
 
 __all__ = ["GaitSpace", "SearchInterrupted", "run_search", "scene_to_toml", "SEARCH_FILES"]
 
-#: The files a search writes in its output folder (a new search replaces only these).
-SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png")
+#: The files a search writes in its output folder, and ``skfem-modal transfer`` beside them (a new search
+#: replaces only these).
+SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", "transfer.csv")
 
 
 class SearchInterrupted(KeyboardInterrupt):
@@ -303,6 +304,11 @@ def run_search(
         raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    if isinstance(steps, bool) or not (steps is None or isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    for name, value in (("sigma0", sigma0), ("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
+        if not (np.isfinite(value) and value >= 0) or (name == "sigma0" and value == 0):
+            raise ValueError(f"{name} must be {'positive' if name == 'sigma0' else 'non-negative'}, got {value!r}")
     if resume and overwrite:
         raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
     direction = _unit_direction(direction, scene.dim)
@@ -354,9 +360,9 @@ def run_search(
         state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
         state["numpy_random"] = np.random.get_state()
         os.makedirs(out_dir, exist_ok=True)
-        for path in paths.values():
-            if os.path.exists(path):
-                os.remove(path)
+        for file in SEARCH_FILES:
+            if os.path.exists(os.path.join(out_dir, file)):
+                os.remove(os.path.join(out_dir, file))
     if state["history"]:
         _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
 

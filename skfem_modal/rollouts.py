@@ -44,6 +44,7 @@ import os
 import pickle
 import signal
 import threading
+import time
 import uuid
 
 import numpy as np
@@ -295,8 +296,6 @@ class Rollouts:
     """
 
     def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
-        import time
-
         from .study import make_executor
 
         clock = time.perf_counter()

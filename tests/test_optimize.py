@@ -120,6 +120,11 @@ def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
         search(tmp_path, resume=True, overwrite=True)
     with pytest.raises(FileNotFoundError, match="no search to resume"):
         search(tmp_path / "empty", resume=True)
+    with pytest.raises(ValueError, match="steps must be a positive integer"):
+        run_search(TINY, tmp_path / "bad", generations=1, popsize=2, steps=-3)
+    with pytest.raises(ValueError, match="tip_weight must be non-negative"):
+        search(tmp_path / "bad", tip_weight=-1.0)
+    assert not (tmp_path / "bad").exists()  # refused before anything was written
     # --overwrite starts again: the same as a search in an empty folder
     again = search(tmp_path, workers=1, overwrite=True)
     assert again["generations"] == 2 and again["rollouts"] == 8
