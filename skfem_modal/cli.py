@@ -267,54 +267,107 @@ def cmd_study(args) -> int:
     return EXIT_OK
 
 
+def _direction(text: str, dim: int) -> np.ndarray:
+    """A travel direction from ``x``, ``-z``, ... or a comma-separated vector (``1,0,-1``)."""
+    axes = {"x": 0, "y": 1, "z": 2}
+    name = text.strip().lower()
+    if name.lstrip("+-") in axes:
+        axis = axes[name.lstrip("+-")]
+        if axis >= dim:
+            raise ValueError(f"--direction {text} is not an axis of this {dim}D scene")
+        direction = np.zeros(dim)
+        direction[axis] = -1.0 if name.startswith("-") else 1.0
+        return direction
+    try:
+        direction = np.array([float(v) for v in name.split(",")])
+    except ValueError:
+        direction = np.zeros(0)
+    if direction.shape != (dim,) or not np.all(np.isfinite(direction)) or not np.any(direction):
+        raise ValueError(
+            f"--direction must be x, y or z with an optional sign, or {dim} comma-separated numbers "
+            f"not all zero, got {text!r}"
+        )
+    return direction
+
+
+def _resume_command(argv) -> str:
+    """The command line that resumes an interrupted search (the same options, --resume instead of --overwrite)."""
+    import shlex
+
+    words = [w for w in argv if w != "--overwrite"]
+    return shlex.join(["skfem-modal", *words] + ([] if "--resume" in words else ["--resume"]))
+
+
 def cmd_optimize(args) -> int:
-    from .optimize import GaitSpace, run_search
-    from .scene import DEFAULT_SCENE
+    from .optimize import GaitSpace, SearchInterrupted, run_search
+    from .scene import DEFAULT_SCENE, Scene
 
     data, base_dir = _scene_data(args.scene, DEFAULT_SCENE)
-    axes = {"x": 0, "y": 1, "z": 2}
-    sign = -1.0 if args.direction.startswith("-") else 1.0
-    axis = axes.get(args.direction.lstrip("+-"))
-    if axis is None:
-        raise ValueError(f"--direction must be x, y or z with an optional sign, got {args.direction!r}")
-    from .scene import Scene as _Scene
-
-    scene = _Scene.from_dict(data, base_dir=base_dir)
-    if axis >= scene.dim:
-        raise ValueError(f"--direction {args.direction} is not an axis of this {scene.dim}D scene")
-    direction = np.zeros(scene.dim)
-    direction[axis] = sign
+    scene = Scene.from_dict(data, base_dir=base_dir)
+    direction = _direction(args.direction, scene.dim)
     space = GaitSpace(scene.config["muscles"]["count"], args.amplitude_max, *args.period_range)
     say = (lambda *a: None) if args.quiet else print
     say(
-        f"CMA-ES over {3 * space.m} gait parameters: {args.generations} generations of {args.popsize}, "
-        f"seed {args.seed}, writing to {args.out}"
+        f"CMA-ES over {3 * space.m} gait parameters ({args.objective} along {direction.tolist()}): "
+        f"{args.generations} generations of {args.popsize}, seed {args.seed}, writing to {args.out}"
     )
-    result = run_search(
-        data,
-        args.out,
-        generations=args.generations,
-        popsize=args.popsize,
-        seed=args.seed,
-        steps=args.steps,
-        base_dir=base_dir,
-        direction=direction,
-        space=space,
-        samples=args.samples,
-        jitter=args.jitter,
-        resume=args.resume,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        progress=not args.quiet,
-    )
+    try:
+        result = run_search(
+            data,
+            args.out,
+            generations=args.generations,
+            popsize=args.popsize,
+            seed=args.seed,
+            steps=args.steps,
+            base_dir=base_dir,
+            direction=direction,
+            objective=args.objective,
+            space=space,
+            tip_limit_degrees=args.tip_limit,
+            tip_weight=args.tip_weight,
+            samples=args.samples,
+            jitter=args.jitter,
+            resume=args.resume,
+            overwrite=args.overwrite,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            blas_threads=args.blas_threads,
+            progress=not args.quiet,
+        )
+    except SearchInterrupted as stop:
+        # said even with --quiet: the one thing an interrupted user needs
+        print(f"skfem-modal optimize: {stop}", file=sys.stderr)
+        print(f"resume it with: {_resume_command(args.argv)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     best = result["best"]
     say(
-        f"best: travel {best['travel']:.4g} (fitness {best['fitness']:.4g}"
+        f"best: travel {best['travel']:.4g}, alignment {best['alignment']:.3g} (fitness {best['fitness']:.4g}"
         + (f", travel spread {best['travel_spread']:.3g} over {args.samples} samples" if args.samples > 1 else "")
         + f") in generation {best['generation']}; "
         f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
     )
     say(f"wrote {result['best_scene']} (play it: skfem-modal run {result['best_scene']}), {result['history_csv']}")
+    return EXIT_OK
+
+
+def cmd_transfer(args) -> int:
+    from .transfer import transfer_search
+
+    def say(label):
+        if not args.quiet:
+            print(f"  replaying: {label}", file=sys.stderr, flush=True)
+
+    result = transfer_search(args.search, full_space_limit=args.full_space_limit, progress=say)
+    if not args.quiet:
+        print("| setting | elements | coordinates | clusters | iterations (mean) | travel | survives | alignment | s |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in result["rows"]:
+            print(
+                f"| {r['setting']} | {r['elements']} | {r['coordinates']} | {r['clusters']} | "
+                f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {r['survives']:.2f} | "
+                f"{r['alignment']:.3f} | {r['seconds']:.1f} |"
+            )
+        print(f"wrote {result['csv']}")
     return EXIT_OK
 
 
@@ -456,7 +509,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--popsize", type=_positive_int, default=12, help="candidates per generation")
     p.add_argument("--seed", type=int, default=0, help="the same seed gives the same search")
     p.add_argument("--steps", type=_positive_int, help="rollout length in steps (default: the scene's)")
-    p.add_argument("--direction", default="x", help="travel direction: x, -x, y, -y, z or -z")
+    p.add_argument(
+        "--direction",
+        default="x",
+        help="travel direction: x, -x, y, -y, z, -z or a vector such as 1,0,-1 (any direction, in 3D too)",
+    )
+    p.add_argument(
+        "--objective",
+        choices=["travel", "aligned"],
+        default="travel",
+        help="travel: the centre of mass's travel; aligned: travel x alignment of the body with the direction "
+        "(the paper's)",
+    )
     p.add_argument(
         "--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the muscle's ceiling"
     )
@@ -469,6 +533,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="shortest and longest gait period",
     )
     p.add_argument(
+        "--tip-limit", type=float, default=60.0, help="tilt in degrees beyond which the tipping penalty starts"
+    )
+    p.add_argument(
+        "--tip-weight", type=float, default=10.0, help="body sizes lost per half turn of tilt past the limit"
+    )
+    p.add_argument(
         "--samples",
         type=_positive_int,
         default=1,
@@ -476,10 +546,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--jitter", type=float, default=0.01, help="relative size of the copies' changes")
     p.add_argument("--out", default="search", help="output directory")
-    p.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
+    resume = p.add_mutually_exclusive_group()
+    resume.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
+    resume.add_argument("--overwrite", action="store_true", help="start again, replacing the search in --out")
     p.add_argument("--workers", type=_positive_int, default=2, help="processes of the local pool")
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.add_argument("--blas-threads", type=_positive_int, default=1, help="BLAS threads per worker")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and how to resume")
     p.set_defaults(func=cmd_optimize)
 
     p = command("play", help="a live window: sliders (or the gait) drive the muscles")
@@ -498,6 +571,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=cmd_play)
 
+    p = command("transfer", help="replay a search's best gait with more accurate settings: how much travel survives")
+    p.add_argument("search", nargs="?", default="search", help="the folder of a finished search")
+    p.add_argument(
+        "--full-space-limit",
+        type=_positive_int,
+        default=10_000,
+        help="largest mesh (elements) also replayed in the full space",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_transfer)
+
     p = command("render", help="pictures and an animation of a finished run")
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")
     render_options(p)
@@ -510,6 +594,7 @@ def main(argv=None) -> int:
     """Entry point of the ``skfem-modal`` console script."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush

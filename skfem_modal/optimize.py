@@ -3,18 +3,13 @@
 The search space is, per muscle, the gait's amplitude (a fraction of the
 muscle's ceiling, in [0, amplitude_max]), period (in [period_min,
 period_max]) and phase (in [0, 1], as a fraction of the period), each
-rescaled to [0, 1] for CMA-ES (the ``cma`` package). A rollout runs the scene
-without output for the search's number of steps; the fitness to maximise is
-
-    fitness = travel - tip_penalty,
-    travel = (final centre of mass - initial) . direction,
-    tip_penalty = tip_weight * body size * max(0, max_t tilt(t) - tip_limit) / pi,
-
-where ``tilt(t)`` is the angle between the body's up axis, rotated by the
-body's overall rotation (the closest rotation to ``sum_i m_i x_i (X_i - C)^T``),
-and the world's up axis. With the defaults (limit 60 degrees, weight 10) a
-creature that ends upside down loses several body lengths of travel, so
-tipping over never pays.
+rescaled to [0, 1] for CMA-ES (the ``cma`` package). A rollout runs the
+scene without output for the search's number of steps and scores the gait
+(:mod:`skfem_modal.rollouts`): the objective ``travel`` maximises the centre
+of mass's travel along a direction, ``aligned`` (the modal-muscle paper's)
+that travel times the worst alignment of the body's forward axis with the
+direction; both lose a tipping penalty once the body's up axis tilts past a
+limit (60 degrees by default).
 
 Travel over ground contact is chaotic: a gait 1 % away from a good one can
 travel a fraction as far. With ``samples = K > 1`` a candidate's fitness is
@@ -24,11 +19,16 @@ shifted by ``jitter * N(0, 1)`` (the draws fixed by the seed, the generation
 and the candidate), so the search prefers gaits that keep working near
 where they were found.
 
-Each rollout is a task; every worker process builds the scene's simulator
-once (precompute once per worker, then reused by all its rollouts). Each
-generation is checkpointed (the CMA-ES state, numpy's random state, the
-history) so ``resume=True`` continues an interrupted search exactly where an
-uninterrupted one would be. The same seed gives the same result.
+The scene's simulator is built once, here, and sent once to each worker
+(:class:`~skfem_modal.rollouts.Rollouts`). Every generation writes the
+checkpoint (the CMA-ES state, numpy's random state, the history), then
+``history.csv`` and the best gait so far as a playable scene
+(``best_gait.toml``), each file replaced whole. ``resume=True`` continues an
+interrupted search exactly where an uninterrupted one would be; an existing
+checkpoint is never replaced unless asked (``overwrite=True``). Ctrl-C stops
+the workers, keeps the last generation's checkpoint and raises
+:class:`SearchInterrupted`. The same seed gives the same result on any
+number of workers, on the local pool or on dask.
 """
 
 from __future__ import annotations
@@ -42,13 +42,31 @@ import time
 
 import numpy as np
 
+from .rollouts import OBJECTIVES, Rollouts, Trial
 from .run import Progress
 
-__all__ = ["GaitSpace", "rollout", "run_search", "scene_to_toml"]
+__all__ = ["GaitSpace", "SearchInterrupted", "run_search", "scene_to_toml", "SEARCH_FILES"]
 
-# rollouts of one worker process reuse its simulators: {scene key: (scene, sim, tilt operator)}
-_WORKER_SIMS: dict = {}
-_WORKER_BUILDS = 0
+#: The files a search writes in its output folder, and ``skfem-modal transfer`` beside them (a new search
+#: replaces only these).
+SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", "transfer.csv")
+
+
+class SearchInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a search; its checkpoint holds every finished generation.
+
+    Attributes
+    ----------
+    generations : int
+        Generations finished (and checkpointed).
+    total : int
+        Generations asked for.
+    out_dir : str
+    """
+
+    def __init__(self, generations: int, total: int, out_dir: str):
+        super().__init__(f"interrupted after generation {generations} of {total}; the checkpoint in {out_dir} holds it")
+        self.generations, self.total, self.out_dir = generations, total, out_dir
 
 
 class GaitSpace:
@@ -90,88 +108,6 @@ class GaitSpace:
         per = (np.asarray(gait["period"], float) - self.period_min) / (self.period_max - self.period_min)
         phase = np.asarray(gait.get("phase") or np.zeros(self.m), float) % 1.0
         return np.clip(np.concatenate([amp, per, phase]), 0.0, 1.0)
-
-
-def _scene_key(data: dict, base_dir) -> str:
-    return hashlib.sha256(json.dumps([data, base_dir], sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _worker_sim(data: dict, base_dir):
-    """This process's simulator for a scene, built on first use."""
-    global _WORKER_BUILDS
-    key = _scene_key(data, base_dir)
-    if key not in _WORKER_SIMS:
-        from .scene import Scene
-
-        scene = Scene.from_dict(data, base_dir=base_dir)
-        sim = scene.build()
-        # the body's overall rotation is polar(sum_i m_i x_i (X_i - C)^T): linear in z
-        dim, n = sim.mesh.p.shape
-        m = sim.mass[::dim]
-        X = sim.mesh.p.T
-        C = (m[:, None] * X).sum(axis=0) / m.sum()
-        W = m[:, None] * (X - C)  # (n, dim)
-        Bv = sim.B.reshape(n, dim, -1)
-        tilt = np.einsum("nk,nir->ikr", W, Bv).reshape(dim * dim, -1)
-        _WORKER_SIMS[key] = (scene, sim, tilt)
-        _WORKER_BUILDS += 1
-    return _WORKER_SIMS[key]
-
-
-def rollout(task: dict) -> dict:
-    """Run one gait without output (a task for an executor: plain data in and out).
-
-    ``task``: ``scene`` (dict), ``base_dir``, ``steps``, ``gait`` (amplitude,
-    period, phase lists), ``direction`` (unit vector), ``tip_limit`` (radians),
-    ``tip_weight``.
-
-    Returns
-    -------
-    result : dict
-        ``fitness``, ``travel``, ``penalty``, ``max_tilt`` (radians),
-        ``finite``, the worker ``pid`` and how many simulators it has built.
-    """
-    from .muscles import sine_gait
-    from .rotations import polar_rotations
-    from .sim import SimulationError, simulate
-
-    scene, sim, tilt_op = _worker_sim(task["scene"], task["base_dir"])
-    dim, up = sim.dim, sim.up
-    gait = task["gait"]
-    amps = np.asarray(gait["amplitude"]) * sim.ceilings
-    z = sim.rest_state()[0]
-    start = sim.com(z)
-    max_tilt, finite = 0.0, True
-    try:
-        for record in simulate(sim, task["steps"], lambda t: sine_gait(t, amps, gait["period"], gait["phase"])):
-            z = record.z
-            if record.step % 5 == 0:
-                R = polar_rotations((tilt_op @ z).reshape(1, dim, dim))[0]
-                max_tilt = max(max_tilt, float(np.arccos(np.clip(R[up, up], -1.0, 1.0))))
-    except SimulationError:
-        finite = False
-    size = float(np.ptp(sim.mesh.p, axis=1).max())
-    if not finite:
-        return {
-            "fitness": -1e3 * size,
-            "travel": float("nan"),
-            "penalty": float("nan"),
-            "max_tilt": float("nan"),
-            "finite": False,
-            "pid": os.getpid(),
-            "builds": _WORKER_BUILDS,
-        }
-    travel = float((sim.com(z) - start) @ np.asarray(task["direction"], float))
-    penalty = float(task["tip_weight"] * size * max(0.0, max_tilt - task["tip_limit"]) / np.pi)
-    return {
-        "fitness": travel - penalty,
-        "travel": travel,
-        "penalty": penalty,
-        "max_tilt": max_tilt,
-        "finite": True,
-        "pid": os.getpid(),
-        "builds": _WORKER_BUILDS,
-    }
 
 
 def _toml_value(value) -> str:
@@ -232,11 +168,33 @@ def scene_to_toml(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _write_atomic(path: str, writer) -> None:
+def _write_atomic(path: str, writer, mode: str = "wb") -> None:
+    """Write a file whole or not at all (a reader or an interruption never sees half of it)."""
     tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
+    with open(tmp, mode, **({} if "b" in mode else {"newline": ""})) as f:
         writer(f)
     os.replace(tmp, path)
+
+
+def _unit_direction(direction, dim: int) -> np.ndarray:
+    direction = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
+    if direction.shape != (dim,) or not np.all(np.isfinite(direction)) or not np.linalg.norm(direction) > 0:
+        raise ValueError(f"direction must be a non-zero vector of {dim} values, got {np.ravel(direction).tolist()}")
+    return direction / np.linalg.norm(direction)
+
+
+def _load_checkpoint(path: str, settings: dict) -> dict:
+    """A checkpoint's state, after checking it was made with these settings."""
+    with open(path, "rb") as f:
+        state = pickle.load(f)
+    made = state.get("settings") if isinstance(state, dict) else None
+    if made is None:
+        raise ValueError(f"{path} was written by an older version; start again with --overwrite")
+    changed = [key for key in settings if made.get(key) != settings[key]]
+    if changed:
+        said = "; ".join(f"{key}: {made.get(key)!r} then, {settings[key]!r} now" for key in changed)
+        raise ValueError(f"the checkpoint in {os.path.dirname(path)} was made with other settings ({said})")
+    return state
 
 
 def run_search(
@@ -249,6 +207,7 @@ def run_search(
     steps: int | None = None,
     base_dir: str | None = None,
     direction=None,
+    objective: str = "travel",
     space: GaitSpace | None = None,
     sigma0: float = 0.2,
     tip_limit_degrees: float = 60.0,
@@ -256,9 +215,11 @@ def run_search(
     samples: int = 1,
     jitter: float = 0.01,
     resume: bool = False,
+    overwrite: bool = False,
     executor=None,
     workers: int = 1,
     scheduler: str | None = None,
+    blas_threads: int | None = 1,
     progress: bool = False,
     stop_after: int | None = None,
 ) -> dict:
@@ -271,6 +232,7 @@ def run_search(
     out_dir : str or path-like
         Checkpoint, history, best gait scene and plot go here.
     generations, popsize : int
+        Generations (in all: a resumed search runs the rest) and candidates per generation.
     seed : int
         The same seed gives the same search.
     steps : int, optional
@@ -278,38 +240,56 @@ def run_search(
     base_dir : str, optional
         Where the scene's relative paths start.
     direction : array_like, shape (dim,), optional
-        Travel direction (default +x).
+        Travel direction, any non-zero vector (default +x).
+    objective : {"travel", "aligned"}
+        ``travel``, or the paper's travel times alignment (:mod:`skfem_modal.rollouts`).
     space : GaitSpace, optional
         Bounds of the search (default: amplitudes up to 1, periods 0.3 to 2).
     sigma0 : float
         CMA-ES initial step in the unit cube.
     tip_limit_degrees, tip_weight : float
-        The tipping penalty (see the module docs).
+        The tipping penalty (:mod:`skfem_modal.rollouts`).
     samples : int
         Rollouts per candidate; more than one averages over jittered copies
         of its gait (see the module docs).
     jitter : float
         Relative size of those copies' changes.
     resume : bool
-        Continue from the checkpoint in ``out_dir``.
+        Continue the search checkpointed in ``out_dir`` (made with the same
+        settings; ``generations`` may differ).
+    overwrite : bool
+        Start a new search even if ``out_dir`` holds one (its files are replaced).
     executor : concurrent.futures.Executor, optional
-        Default: :func:`skfem_modal.study.make_executor` with ``workers`` / ``scheduler``.
+        Default: a local process pool of ``workers`` or, with ``scheduler``,
+        a dask cluster (:class:`~skfem_modal.rollouts.Rollouts`).
+    blas_threads : int or None
+        BLAS threads per worker.
+    progress : bool
+        Show a progress bar of the generations (a resumed search continues its count).
     stop_after : int, optional
         Stop after this many generations of this call (to test resuming).
 
     Returns
     -------
     result : dict
-        ``best`` (gait, fitness, travel: the gait's own rollout, and
-        ``travel_spread``, the standard deviation over its samples),
-        ``history`` (rows), ``generations``
-        done, ``rollouts``, ``seconds``, and the paths ``history_csv``,
+        ``best`` (``gait``, ``fitness``, ``travel``, ``alignment``,
+        ``max_tilt_degrees``: the gait's own rollout; ``travel_spread``, the
+        standard deviation over its samples; ``generation``), ``history``
+        (rows), ``generations`` done, ``rollouts`` and ``seconds`` (over the
+        whole search, resumed parts included), ``precompute_seconds`` (this
+        call's), and the paths ``checkpoint``, ``history_csv``,
         ``best_scene`` (``best_gait.toml``) and ``plot`` (``fitness.png``).
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` holds a search and neither ``resume`` nor ``overwrite`` was given.
+    SearchInterrupted
+        On Ctrl-C, once the workers are stopped (the checkpoint holds every finished generation).
     """
     import cma
 
     from .scene import Scene
-    from .study import make_executor
 
     scene = Scene.from_dict(data, base_dir=base_dir)  # every scene error first
     m = scene.config["muscles"]["count"]
@@ -322,117 +302,161 @@ def run_search(
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not 0.0 <= jitter < 0.5:
         raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
-    dim = scene.dim
-    direction = np.eye(dim)[0] if direction is None else np.asarray(direction, float)
-    if direction.shape != (dim,) or not np.linalg.norm(direction) > 0:
-        raise ValueError(f"direction must be a non-zero vector of {dim} values")
-    direction = direction / np.linalg.norm(direction)
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    if isinstance(steps, bool) or not (steps is None or isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    for name, value in (("sigma0", sigma0), ("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
+        if not (np.isfinite(value) and value >= 0) or (name == "sigma0" and value == 0):
+            raise ValueError(f"{name} must be {'positive' if name == 'sigma0' else 'non-negative'}, got {value!r}")
+    if resume and overwrite:
+        raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
+    direction = _unit_direction(direction, scene.dim)
     steps = steps or scene.n_steps
     out_dir = os.fspath(out_dir)
-    os.makedirs(out_dir, exist_ok=True)
-    checkpoint = os.path.join(out_dir, "checkpoint.pkl")
+    paths = {
+        name: os.path.join(out_dir, file)
+        for name, file in zip(("checkpoint", "history_csv", "best_scene", "plot"), SEARCH_FILES)
+    }
+    checkpoint = paths["checkpoint"]
     # relative paths in the scene are resolved for the workers and the best-gait file
     data = json.loads(json.dumps(data))
     if data.get("mesh", {}).get("file") and base_dir:
         data["mesh"]["file"] = os.path.join(base_dir, data["mesh"]["file"])
-
-    if resume and os.path.isfile(checkpoint):
-        with open(checkpoint, "rb") as f:
-            state = pickle.load(f)
-        made = (state["seed"], state["popsize"], state["steps"], state.get("samples", 1), state.get("jitter", jitter))
-        if made != (seed, popsize, steps, samples, jitter):
-            raise ValueError("the checkpoint was made with another seed, popsize, rollout length, samples or jitter")
-        es, history, done = state["es"], state["history"], state["generation"]
+    trial_settings = {
+        "steps": int(steps),
+        "direction": direction.tolist(),
+        "objective": objective,
+        "tip_limit": float(np.radians(tip_limit_degrees)),
+        "tip_weight": float(tip_weight),
+    }
+    settings = {
+        "scene": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16],
+        "seed": seed,
+        "popsize": popsize,
+        "samples": samples,
+        "jitter": jitter,
+        "sigma0": sigma0,
+        "space": [space.amplitude_max, space.period_min, space.period_max],
+        **trial_settings,
+    }
+    if resume:
+        if not os.path.isfile(checkpoint):
+            raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
+        state = _load_checkpoint(checkpoint, settings)
         np.random.set_state(state["numpy_random"])
     else:
+        if os.path.exists(checkpoint) and not overwrite:
+            raise FileExistsError(
+                f"{out_dir} holds a search ({checkpoint}): continue it with --resume (resume=True) "
+                "or start again with --overwrite (overwrite=True)"
+            )
         gait = scene.config["muscles"]["gait"]
         x0 = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
         # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
         es = cma.CMAEvolutionStrategy(
             x0.tolist(), sigma0, {"popsize": popsize, "seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9}
         )
-        history, done = [], 0
+        state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
+        state["numpy_random"] = np.random.get_state()
+        os.makedirs(out_dir, exist_ok=True)
+        for file in SEARCH_FILES:
+            if os.path.exists(os.path.join(out_dir, file)):
+                os.remove(os.path.join(out_dir, file))
+    if state["history"]:
+        _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
 
-    own = executor is None
-    close = None
-    if own:
-        executor, close = make_executor(workers, scheduler)
-    bar = Progress(generations, "generations", enabled=progress)
-    bar.update(done)
-    started = time.perf_counter()
-    rollouts = 0
+    clock = time.perf_counter()
+    trial = Trial.from_scene(data, **trial_settings)
+    precompute = time.perf_counter() - clock
+    recipe = {"data": data, "base_dir": None, **trial_settings}
+    bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
+    this_call = 0
     try:
-        this_call = 0
-        while done < generations and (stop_after is None or this_call < stop_after):
-            points = es.ask()
-            gaits = [space.gait(u) for u in points]
-            tasks = [
-                {
-                    "scene": data,
-                    "base_dir": base_dir,
-                    "steps": steps,
-                    "gait": gait if k == 0 else _jittered(gait, jitter, (seed, done, i, k)),
-                    "direction": direction.tolist(),
-                    "tip_limit": float(np.radians(tip_limit_degrees)),
-                    "tip_weight": tip_weight,
-                }
-                for i, gait in enumerate(gaits)
-                for k in range(samples)
-            ]
-            flat = list(executor.map(rollout, tasks))
-            rollouts += len(flat)
-            results = [flat[i * samples : (i + 1) * samples] for i in range(len(points))]
-            fitness = [float(np.mean([r["fitness"] for r in group])) for group in results]
-            es.tell(points, [-f for f in fitness])  # CMA-ES minimises
-            done += 1
-            this_call += 1
-            best = int(np.argmax(fitness))
-            history.append(
-                {
-                    "generation": done,
-                    "best_fitness": fitness[best],
-                    "best_travel": results[best][0]["travel"],
-                    "best_travel_spread": float(np.std([r["travel"] for r in results[best]])),
-                    "mean_fitness": float(np.mean(fitness)),
-                    "sigma": float(es.sigma),
-                    "gait": gaits[best],
-                    "workers": sorted({r["pid"] for r in flat}),
-                    "builds": max(r["builds"] for r in flat),
-                }
-            )
-            state = {
-                "es": es,
-                "history": history,
-                "generation": done,
-                "seed": seed,
-                "popsize": popsize,
-                "steps": steps,
-                "samples": samples,
-                "jitter": jitter,
-                "numpy_random": np.random.get_state(),
-            }
-            _write_atomic(checkpoint, lambda f, s=state: pickle.dump(s, f))
-            bar.update()
-    finally:
+        with Rollouts(
+            trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
+        ) as rollouts:
+            while state["generation"] < generations and (stop_after is None or this_call < stop_after):
+                state = _generation(state, rollouts, space, samples, jitter, seed)
+                _write_atomic(checkpoint, lambda f, s=state: pickle.dump(s, f))
+                _write_outputs(paths, data, state)
+                this_call += 1
+                bar.update()
+    except KeyboardInterrupt:
         bar.close()
-        if own and close is not None:
-            close()
-    overall = max(history, key=lambda h: h["best_fitness"])
-    result = {
+        if os.path.isfile(checkpoint):  # the files follow the checkpoint, whatever the moment of the interruption
+            with open(checkpoint, "rb") as f:
+                state = pickle.load(f)
+            _write_outputs(paths, data, state)
+            _write_plot(paths["plot"], state["history"], objective)
+        raise SearchInterrupted(
+            state["generation"] if os.path.isfile(checkpoint) else 0, generations, out_dir
+        ) from None
+    bar.close()
+    history = state["history"]
+    _write_plot(paths["plot"], history, objective)
+    overall = _overall_best(history)
+    return {
         "best": {
             "gait": overall["gait"],
             "fitness": overall["best_fitness"],
             "travel": overall["best_travel"],
-            "travel_spread": overall.get("best_travel_spread", 0.0),
+            "alignment": overall["best_alignment"],
+            "max_tilt_degrees": overall["best_max_tilt_degrees"],
+            "travel_spread": overall["best_travel_spread"],
             "generation": overall["generation"],
         },
         "history": history,
-        "generations": done,
-        "rollouts": rollouts,
-        "seconds": time.perf_counter() - started,
+        "generations": state["generation"],
+        "rollouts": state["rollouts"],
+        "seconds": state["seconds"],
+        "precompute_seconds": precompute,
+        **{k: v for k, v in paths.items() if k != "plot" or os.path.exists(v)},
     }
-    result.update(_write_search(out_dir, data, steps, history, overall))
-    return result
+
+
+def _generation(state: dict, rollouts, space: GaitSpace, samples: int, jitter: float, seed: int) -> dict:
+    """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was)."""
+    clock = time.perf_counter()
+    es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
+    done = state["generation"]
+    points = es.ask()
+    gaits = [space.gait(u) for u in points]
+    tried = [
+        gait if k == 0 else _jittered(gait, jitter, (seed, done, i, k))
+        for i, gait in enumerate(gaits)
+        for k in range(samples)
+    ]
+    flat = rollouts.map(tried)
+    results = [flat[i * samples : (i + 1) * samples] for i in range(len(points))]
+    fitness = [float(np.mean([r["fitness"] for r in group])) for group in results]
+    es.tell(points, [-f for f in fitness])  # CMA-ES minimises
+    best = int(np.argmax(fitness))
+    own = results[best][0]
+    row = {
+        "generation": done + 1,
+        "best_fitness": fitness[best],
+        "best_travel": own["travel"],
+        "best_alignment": own["alignment"],
+        "best_max_tilt_degrees": float(np.degrees(own["max_tilt"])),
+        "best_travel_spread": float(np.std([r["travel"] for r in results[best]])),
+        "mean_fitness": float(np.mean(fitness)),
+        "sigma": float(es.sigma),
+        "seconds": time.perf_counter() - clock,
+        "gait": gaits[best],
+        "workers": sorted({r["pid"] for r in flat}),
+        "received": max(r["received"] for r in flat),
+        "built": max(r["built"] for r in flat),
+    }
+    return {
+        **state,
+        "es": es,
+        "history": state["history"] + [row],
+        "generation": done + 1,
+        "rollouts": state["rollouts"] + len(flat),
+        "seconds": state["seconds"] + row["seconds"],
+        "numpy_random": np.random.get_state(),
+    }
 
 
 def _jittered(gait: dict, jitter: float, key) -> dict:
@@ -447,53 +471,75 @@ def _jittered(gait: dict, jitter: float, key) -> dict:
     }
 
 
-def _write_search(out_dir, data, steps, history, overall) -> dict:
-    paths = {"history_csv": os.path.join(out_dir, "history.csv")}
-    with open(paths["history_csv"], "w", newline="") as f:
+def _overall_best(history: list) -> dict:
+    return max(history, key=lambda h: h["best_fitness"])
+
+
+#: history.csv's columns (the last, the gait, as JSON)
+HISTORY_COLUMNS = (
+    "generation",
+    "best_fitness",
+    "best_travel",
+    "best_alignment",
+    "best_max_tilt_degrees",
+    "best_travel_spread",
+    "mean_fitness",
+    "sigma",
+    "seconds",
+    "best_gait",
+)
+
+
+def _write_outputs(paths: dict, data: dict, state: dict) -> None:
+    """history.csv and best_gait.toml (the best gait so far) of a search state, each replaced whole."""
+    history = state["history"]
+
+    def table(f):
         writer = csv.writer(f)
-        writer.writerow(
-            ["generation", "best_fitness", "best_travel", "best_travel_spread", "mean_fitness", "sigma", "best_gait"]
-        )
+        writer.writerow(HISTORY_COLUMNS)
         for h in history:
             writer.writerow(
-                [
-                    h["generation"],
-                    repr(float(h["best_fitness"])),
-                    repr(float(h["best_travel"])),
-                    repr(float(h.get("best_travel_spread", 0.0))),
-                    repr(float(h["mean_fitness"])),
-                    repr(float(h["sigma"])),
-                    json.dumps(h["gait"]),
-                ]
+                [h["generation"]] + [repr(float(h[c])) for c in HISTORY_COLUMNS[1:-1]] + [json.dumps(h["gait"])]
             )
+
+    _write_atomic(paths["history_csv"], table, "w")
+    overall = _overall_best(history)
     best = json.loads(json.dumps(data))
-    best["name"] = f"{data.get('name', 'scene')} (best gait found, travel {overall['best_travel']:.4g})"
+    best["name"] = (
+        f"{data.get('name', 'scene')} (best gait of {state['generation']} generations: "
+        f"generation {overall['generation']}, travel {overall['best_travel']:.4g})"
+    )
     best.setdefault("muscles", {})["gait"] = overall["gait"]
     best["muscles"].pop("table", None)
     best.setdefault("time", {}).pop("duration", None)
-    best["time"]["steps"] = steps
-    paths["best_scene"] = os.path.join(out_dir, "best_gait.toml")
-    with open(paths["best_scene"], "w") as f:
-        f.write(scene_to_toml(best))
+    best["time"]["steps"] = state["settings"]["steps"]
+    _write_atomic(paths["best_scene"], lambda f: f.write(scene_to_toml(best)), "w")
+
+
+def _write_plot(path: str, history: list, objective: str) -> None:
+    """fitness.png: the best and mean fitness of each generation, and the best so far (needs matplotlib)."""
+    if not history:
+        return
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        g = [h["generation"] for h in history]
-        ax.plot(g, [h["best_fitness"] for h in history], "o-", label="best of the generation")
-        ax.plot(g, [h["mean_fitness"] for h in history], "s--", label="mean of the generation")
-        ax.plot(g, np.maximum.accumulate([h["best_fitness"] for h in history]), "k-", lw=1, label="best so far")
-        ax.set_xlabel("generation")
-        ax.set_ylabel("fitness (travel - tipping penalty)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        paths["plot"] = os.path.join(out_dir, "fitness.png")
-        fig.savefig(paths["plot"], dpi=110)
-        plt.close(fig)
     except ImportError:
-        pass
-    return paths
+        return
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    g = [h["generation"] for h in history]
+    best = [h["best_fitness"] for h in history]
+    ax.plot(g, best, ".-", label="best of the generation")
+    ax.plot(g, [h["mean_fitness"] for h in history], "--", lw=1, label="mean of the generation")
+    ax.plot(g, np.maximum.accumulate(best), "k-", lw=1.5, label="best so far")
+    ax.set_xlabel("generation")
+    ax.set_ylabel("fitness")
+    said = "travel x alignment" if objective == "aligned" else "travel"
+    ax.set_title(f"fitness = {said} - tipping penalty", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path + ".tmp.png", dpi=110)
+    plt.close(fig)
+    os.replace(path + ".tmp.png", path)

@@ -43,13 +43,17 @@ class Progress:
     total : int
     desc : str
     enabled : bool
+    initial : int
+        Already done (a resumed job continues its count).
+    unit : str
+        What is counted, for tqdm's rate.
     """
 
-    def __init__(self, total: int, desc: str, enabled: bool = True):
+    def __init__(self, total: int, desc: str, enabled: bool = True, initial: int = 0, unit: str = "step"):
         self.enabled = enabled
         self.total = total
         self.desc = desc
-        self.count = 0
+        self.count = initial
         self._bar = None
         self._next = 0
         self._tty = sys.stderr.isatty()
@@ -59,7 +63,7 @@ class Progress:
         try:
             from tqdm import tqdm
 
-            self._bar = tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
+            self._bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=sys.stderr, leave=False)
         except ImportError:
             self._bar = None
 

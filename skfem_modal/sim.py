@@ -420,6 +420,17 @@ class ModalMuscle:
         """New backends after the model or the driver's limits changed."""
         self._backends = make_backends(self._model, self._backend, self._solver.max_iter)
 
+    def reset(self) -> None:
+        """Forget what earlier steps leave for the next (the iteration count to batch, the rotations' warm starts).
+
+        Results do not depend on it beyond round-off; but contact-rich runs
+        are chaotic, so a run that must repeat bit for bit (a gait search's
+        rollout, replayed from its scene file) starts from here, as a new
+        simulator does.
+        """
+        self._solver.predicted = self._solver.max_iter
+        self._rebuild()
+
     @property
     def effects(self) -> tuple:
         """The effects this simulator holds and steps, in order (read-only)."""

@@ -408,7 +408,7 @@ def recommend(rows, thresholds=(0.01, 0.05, 0.10, 0.20)) -> list[str]:
     return lines
 
 
-def make_executor(workers: int = 1, scheduler: str | None = None):
+def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer=None, initargs=()):
     """The executor a study (or a gait search) runs on.
 
     Parameters
@@ -418,12 +418,16 @@ def make_executor(workers: int = 1, scheduler: str | None = None):
     scheduler : str, optional
         Address of a dask.distributed scheduler (``tcp://host:8786``): then
         its executor (needs the ``distributed`` extra).
+    initializer : callable, optional
+        Called with ``initargs`` in each local pool process as it starts
+        (``initargs`` are pickled once per process).
 
     Returns
     -------
     executor : concurrent.futures.Executor
     close : callable
-        Shuts down what was started.
+        ``close(cancel=False)`` shuts down what was started (``cancel``:
+        tasks not yet running are dropped).
     """
     if scheduler:
         try:
@@ -431,7 +435,7 @@ def make_executor(workers: int = 1, scheduler: str | None = None):
         except ImportError:
             raise ValueError("--scheduler needs dask.distributed: pip install 'skfem_modal[distributed]'") from None
         client = Client(scheduler)
-        return client.get_executor(), client.close
+        return client.get_executor(), lambda cancel=False: client.close()
     import multiprocessing
 
     # Each worker process gets one BLAS thread, as dask's workers do: the
@@ -440,11 +444,16 @@ def make_executor(workers: int = 1, scheduler: str | None = None):
     # so the setting holds until the pool is closed.
     saved = {name: os.environ.get(name) for name in _ONE_THREAD}
     os.environ.update({name: "1" for name in _ONE_THREAD})
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=initializer,
+        initargs=initargs,
+    )
 
-    def close():
+    def close(cancel=False):
         try:
-            pool.shutdown()
+            pool.shutdown(cancel_futures=cancel)
         finally:
             for name, value in saved.items():
                 if value is None:

@@ -3,13 +3,21 @@
 import copy
 import csv
 import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
 import tomllib
 
 import numpy as np
 import pytest
 
-from skfem_modal.cli import main
+from skfem_modal.cli import _direction, _resume_command, main
 from skfem_modal.optimize import GaitSpace, run_search, scene_to_toml
+from skfem_modal.rollouts import Trial, body_rotation_rows
+from skfem_modal.rotations import polar_rotations
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
 
@@ -18,6 +26,17 @@ pytest.importorskip("cma", reason="cma is in the optimize extra")
 TINY = copy.deepcopy(DEFAULT_SCENE)
 TINY["mesh"] = {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}}
 TINY["subspace"] = {"weights": 6, "clusters": 10}
+
+# the examples' 3D creature, coarse: 408 tetrahedra, z up
+CREATURE = {
+    "name": "coarse creature",
+    "mesh": {"shape": "creature", "params": {"cell": 0.2}},
+    "subspace": {"weights": 4, "clusters": 6},
+    "muscles": {"count": 3, "gait": {"amplitude": [0.4, 0.4, 0.4], "period": [1.0, 0.8, 0.6]}},
+    "time": {"step": 0.01, "steps": 40},
+    "gravity": {"acceleration": [0.0, 0.0, -9.8]},
+    "ground": {"offset": 0.05, "contacts": 20, "push_out": 1.0, "stickiness": 0.7},
+}
 
 
 def search(out, **kw):
@@ -54,11 +73,15 @@ def test_search_writes_a_playable_best_gait(local, tmp_path):
     assert len(rows) == 2
     for row, h in zip(rows, local["history"]):  # plain numbers, read back exactly
         assert float(row["best_fitness"]) == h["best_fitness"] and float(row["sigma"]) == h["sigma"]
+        assert float(row["best_alignment"]) == h["best_alignment"] and 0.0 <= h["best_alignment"] <= 1.0
+        assert json.loads(row["best_gait"]) == h["gait"]
+    assert os.path.isfile(local["plot"])
 
 
-def test_precompute_once_per_worker(local):
+def test_precompute_built_once_and_sent_to_each_worker(local):
     for h in local["history"]:
-        assert h["builds"] == 1  # each worker built its simulator once
+        assert h["built"] == 0  # no worker built a simulator: the search's own was sent
+        assert h["received"] == 1  # and each worker unpickled it once
         assert 1 <= len(h["workers"]) <= 2
 
 
@@ -68,23 +91,70 @@ def test_same_seed_same_result(local, tmp_path):
     assert [h["best_fitness"] for h in again["history"]] == [h["best_fitness"] for h in local["history"]]
 
 
-def test_killed_and_resumed_ends_where_an_uninterrupted_search_ends(local, tmp_path):
+def test_killed_and_resumed_ends_where_an_uninterrupted_search_ends(local, tmp_path, capsys):
     first = search(tmp_path, workers=1, stop_after=1)
-    assert first["generations"] == 1
-    resumed = search(tmp_path, workers=1, resume=True)
+    assert first["generations"] == 1 and first["rollouts"] == 4
+    assert len(list(csv.DictReader(open(first["history_csv"])))) == 1  # written after each generation
+    resumed = search(tmp_path, workers=1, resume=True, progress=True)
     assert resumed["generations"] == 2
+    assert resumed["rollouts"] == 8  # counted over the whole search
     assert [h["best_fitness"] for h in resumed["history"]] == [h["best_fitness"] for h in local["history"]]
     assert resumed["best"] == local["best"]
+    # the progress count went on from the checkpoint's generation
+    err = capsys.readouterr().err
+    assert "1/2" in err and "0/2" not in err
+
+
+def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
+    search(tmp_path, workers=1, stop_after=1)
+    before = open(tmp_path / "checkpoint.pkl", "rb").read()
+    with pytest.raises(FileExistsError, match="--resume .* --overwrite"):
+        search(tmp_path, workers=1)
+    assert open(tmp_path / "checkpoint.pkl", "rb").read() == before
+    # settings that would change the search are refused by name
+    with pytest.raises(ValueError, match="popsize: 4 then, 5 now"):
+        run_search(TINY, tmp_path, generations=2, popsize=5, seed=3, steps=60, resume=True)
+    with pytest.raises(ValueError, match="objective"):
+        search(tmp_path, resume=True, objective="aligned")
+    with pytest.raises(ValueError, match="exclude each other"):
+        search(tmp_path, resume=True, overwrite=True)
+    with pytest.raises(FileNotFoundError, match="no search to resume"):
+        search(tmp_path / "empty", resume=True)
+    with pytest.raises(ValueError, match="steps must be a positive integer"):
+        run_search(TINY, tmp_path / "bad", generations=1, popsize=2, steps=-3)
+    with pytest.raises(ValueError, match="tip_weight must be non-negative"):
+        search(tmp_path / "bad", tip_weight=-1.0)
+    assert not (tmp_path / "bad").exists()  # refused before anything was written
+    # --overwrite starts again: the same as a search in an empty folder
+    again = search(tmp_path, workers=1, overwrite=True)
+    assert again["generations"] == 2 and again["rollouts"] == 8
+    assert again["best"] == local["best"]
 
 
 @pytest.mark.slow
 def test_dask_local_cluster_gives_the_local_pool_result(local, tmp_path):
     distributed = pytest.importorskip("dask.distributed", reason="dask is in the distributed extra")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True) as cluster:
-        remote = search(tmp_path, scheduler=cluster.scheduler_address)
-    assert remote["best"] == local["best"]
-    assert [h["best_fitness"] for h in remote["history"]] == [h["best_fitness"] for h in local["history"]]
-    assert all(h["builds"] == 1 for h in remote["history"])
+        remote = search(tmp_path / "a", scheduler=cluster.scheduler_address)
+        with distributed.Client(cluster) as client:  # an executor of the caller's: the trial is scattered too
+            again = search(tmp_path / "b", executor=client.get_executor())
+    for count, result in enumerate((remote, again), start=1):
+        assert result["best"] == local["best"]
+        assert [h["best_fitness"] for h in result["history"]] == [h["best_fitness"] for h in local["history"]]
+        # each worker received each search's simulator once, and built none
+        assert [(h["built"], h["received"]) for h in result["history"]] == [(0, count)] * 2, result["history"]
+
+
+def test_any_executor_builds_the_simulator_once_per_worker(local, tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from skfem_modal import rollouts
+
+    before = rollouts._COUNTS["built"]
+    with ThreadPoolExecutor(1) as pool:  # not dask's: its worker (here, this process) builds from the scene, once
+        result = search(tmp_path, executor=pool)
+    assert result["best"] == local["best"]
+    assert [h["built"] - before for h in result["history"]] == [2, 2]  # the search's own build, and the worker's
 
 
 def test_scene_toml_round_trip():
@@ -95,32 +165,36 @@ def test_scene_toml_round_trip():
 def test_cli_optimize(tmp_path, capsys):
     scene = tmp_path / "tiny.toml"
     scene.write_text(scene_to_toml(TINY))
-    code = main(
-        [
-            "optimize",
-            str(scene),
-            "--generations",
-            "1",
-            "--popsize",
-            "3",
-            "--steps",
-            "30",
-            "--out",
-            str(tmp_path / "out"),
-            "--workers",
-            "1",
-            "--quiet",
-        ]
-    )
-    assert code == 0
+    args = ["optimize", str(scene), "--generations", "1", "--popsize", "3", "--steps", "30"]
+    args += ["--out", str(tmp_path / "out"), "--workers", "1", "--quiet"]
+    assert main(args) == 0
     assert (tmp_path / "out" / "best_gait.toml").exists()
+    # a second run into the same folder is refused, --overwrite starts again
+    assert main(args) == 2
+    assert "holds a search" in capsys.readouterr().err
+    assert main(args + ["--overwrite"]) == 0
+    with pytest.raises(SystemExit) as usage:  # argparse: not both
+        main(args + ["--overwrite", "--resume"])
+    assert usage.value.code == 2 and "not allowed with argument --overwrite" in capsys.readouterr().err
     assert main(["optimize", str(scene), "--direction", "w", "--out", str(tmp_path / "o2")]) == 2
     assert "--direction must be x, y or z" in capsys.readouterr().err
+    assert main(["optimize", str(scene), "--direction", "0,0,1", "--out", str(tmp_path / "o2")]) == 2
+    assert "2 comma-separated numbers" in capsys.readouterr().err
+
+
+def test_directions_any_axis_or_vector():
+    assert _direction("-z", 3).tolist() == [0.0, 0.0, -1.0]
+    assert _direction("1, 0, -1", 3).tolist() == [1.0, 0.0, -1.0]
+    with pytest.raises(ValueError, match="not an axis of this 2D scene"):
+        _direction("z", 2)
+    with pytest.raises(ValueError, match="not all zero"):
+        _direction("0,0", 2)
+    assert _resume_command(["optimize", "a b.toml", "--overwrite", "--out", "s"]) == (
+        "skfem-modal optimize 'a b.toml' --out s --resume"
+    )
 
 
 def test_local_pool_workers_use_one_blas_thread(monkeypatch):
-    import os
-
     from skfem_modal.study import make_executor
 
     monkeypatch.setenv("OMP_NUM_THREADS", "4")
@@ -146,7 +220,172 @@ def test_samples_average_jittered_copies(tmp_path):
     assert best["fitness"] != pytest.approx(best["travel"], rel=1e-12)
     again = search(tmp_path / "b", workers=1, samples=3, jitter=0.02)
     assert again["best"] == best
-    with pytest.raises(ValueError, match="samples or jitter"):
+    with pytest.raises(ValueError, match="samples: 3 then, 2 now"):
         search(tmp_path / "a", workers=1, samples=2, jitter=0.02, resume=True)
     with pytest.raises(ValueError, match="samples must be a positive integer"):
         search(tmp_path / "c", samples=0)
+
+
+# ---------------------------------------------------------------- scoring
+
+
+def _rotation(axis, angle):
+    """The rotation by ``angle`` about a unit ``axis`` (Rodrigues)."""
+    k = np.asarray(axis, float)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+@pytest.fixture(scope="module")
+def creature_sim():
+    return Scene.from_dict(CREATURE).build()
+
+
+def test_body_rotation_is_read_off_the_state_exactly(creature_sim):
+    sim = creature_sim
+    R = _rotation([0.36, 0.48, 0.8], 0.7)
+    X = sim.mesh.p.T
+    z = sim.coordinates((X - X.mean(0)) @ R.T + [0.3, -0.2, 0.5])  # the basis holds every affine map
+    for rows, state in ((body_rotation_rows(sim), z), (body_rotation_rows(_full_space(sim)), sim.positions(z))):
+        found = polar_rotations((rows @ np.ravel(state)).reshape(3, 3))
+        np.testing.assert_allclose(found, R, atol=1e-10)
+
+
+def _full_space(sim):
+    from skfem_modal.reference import FullSpaceSimulator
+
+    return FullSpaceSimulator(sim.mesh, sim.D, mu=1e5, gamma=1e5, rho=1e3, h=0.01)
+
+
+def test_scores_of_a_turn_and_a_roll(creature_sim):
+    """Alignment is the worst cosine of the forward axis's turn; the tilt penalty grows past the limit."""
+    sim = creature_sim
+    rest = body_rotation_rows(sim) @ sim.rest_state()[0]
+    trial = Trial(sim, 10, [1.0, 0.0, 0.0], objective="aligned")
+    frames = lambda R: np.array([rest, (R @ rest.reshape(3, 3)).ravel(), rest])  # noqa: E731
+    yaw = trial.score(np.array([0.8, 0.1, 0.0]), frames(_rotation([0, 0, 1], np.radians(30))))
+    assert yaw["alignment"] == pytest.approx(np.cos(np.radians(30)), rel=1e-12)
+    assert yaw["max_tilt"] == pytest.approx(0.0, abs=1e-7) and yaw["penalty"] == 0.0
+    assert yaw["fitness"] == pytest.approx(0.8 * np.cos(np.radians(30)), rel=1e-12)
+    roll = trial.score(np.array([0.8, 0.0, 0.0]), frames(_rotation([1, 0, 0], np.radians(70))))
+    assert roll["alignment"] == pytest.approx(1.0, rel=1e-12)  # rolling about the forward axis keeps it aligned
+    assert roll["max_tilt"] == pytest.approx(np.radians(70), rel=1e-9)
+    size = 2.0  # the creature's length
+    assert roll["penalty"] == pytest.approx(10.0 * size * 10.0 / 180.0, rel=1e-9)
+    assert roll["fitness"] == pytest.approx(0.8 - roll["penalty"], rel=1e-12)
+    back = trial.score(np.array([-0.5, 0.0, 0.0]), frames(_rotation([0, 0, 1], np.radians(120))))
+    assert back["alignment"] == 0.0 and back["fitness"] == pytest.approx(-0.5)  # backward travel is not scaled
+    travel = Trial(sim, 10, [1.0, 0.0, 0.0]).score(np.array([0.8, 0.1, 0.0]), frames(np.eye(3)))
+    assert travel["fitness"] == pytest.approx(0.8)
+
+
+def test_a_3d_search_along_any_direction_replays(tmp_path):
+    """The paper's objective on a 3D creature, towards -y: the best gait's scene replays its travel."""
+    result = run_search(
+        CREATURE, tmp_path, generations=2, popsize=3, seed=1, direction=[0.0, -1.0, 0.0], objective="aligned"
+    )
+    best = result["best"]
+    assert 0.0 < best["alignment"] <= 1.0
+    summary = run_scene(Scene.from_dict(tomllib.loads(open(result["best_scene"]).read())), None)
+    assert -summary["com"]["travel"][1] == pytest.approx(best["travel"], rel=1e-9, abs=1e-12)
+    gain = best["travel"] * best["alignment"] if best["travel"] > 0 else best["travel"]
+    assert best["fitness"] <= gain + 1e-15
+    if best["max_tilt_degrees"] <= 60.0:  # no tipping penalty
+        assert best["fitness"] == pytest.approx(gain, rel=1e-12)
+
+
+@pytest.mark.slow
+def test_ctrl_c_leaves_a_checkpoint_and_says_how_to_resume(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) on the default install's code path."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(scene_to_toml(TINY))
+    out = tmp_path / "out"
+    args = ["optimize", str(scene), "--generations", "200", "--popsize", "4", "--steps", "60", "--seed", "3"]
+    args += ["--out", str(out), "--workers", "2"]
+    env = {**os.environ, "SKFEM_MODAL_NUMBA": "0", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "skfem_modal.cli", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "history.csv").exists():
+        time.sleep(0.2)
+    time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err  # the workers ignore SIGINT; the search stops them
+    assert f"resume it with: skfem-modal {' '.join(args)} --resume" in err
+    with open(out / "checkpoint.pkl", "rb") as f:
+        state = pickle.load(f)
+    done = state["generation"]
+    rows = list(csv.DictReader(open(out / "history.csv")))
+    assert 1 <= done < 200 and len(rows) == done  # the files agree with the checkpoint
+    best_name = tomllib.loads(open(out / "best_gait.toml").read())["name"]
+    assert f"best gait of {done} generations" in best_name
+    # resuming ends where an uninterrupted search ends (the same environment: no numba)
+    check = (
+        "import sys; from skfem_modal.optimize import run_search; import tomllib;"
+        "d = tomllib.load(open(sys.argv[1], 'rb'));"
+        "r = run_search(d, sys.argv[2], generations=int(sys.argv[3]), popsize=4, seed=3, steps=60,"
+        " direction=[1.0, 0.0], resume=sys.argv[4] == '1', base_dir=sys.argv[5]);"
+        "print(repr([h['best_fitness'] for h in r['history']]))"
+    )
+    runs = [
+        subprocess.run(
+            [sys.executable, "-c", check, str(scene), str(folder), str(done + 1), flag, str(tmp_path)],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        for folder, flag in ((out, "1"), (tmp_path / "fresh", "0"))
+    ]
+    assert runs[0] == runs[1] and len(eval(runs[0])) == done + 1
+
+
+def test_a_rollout_does_not_depend_on_the_rollouts_before(creature_sim):
+    """Each rollout starts as a new simulator (warm starts forgotten): bit for bit the same on any worker."""
+    trial = Trial(creature_sim, 40, [1.0, 0.0, 0.0])
+    gaits = [{"amplitude": [a, 0.5, 0.3], "period": [0.5, 0.7, 0.9], "phase": [0.0, 0.3, 0.6]} for a in (0.6, 0.2)]
+    first = trial.run(gaits[0])
+    trial.run(gaits[1])
+    assert trial.run(gaits[0]) == first
+    fresh = Trial(Scene.from_dict(CREATURE).build(), 40, [1.0, 0.0, 0.0])
+    assert fresh.run(gaits[0]) == first
+
+
+# ---------------------------------------------------------------- transfer
+
+
+def test_gait_transfer_replays_up_the_ladder(tmp_path, capsys):
+    from skfem_modal.transfer import LADDER, transfer_search
+
+    found = run_search(CREATURE, tmp_path, generations=1, popsize=3, seed=2, objective="aligned")
+    result = transfer_search(tmp_path)
+    rows = {r["setting"]: r for r in result["rows"]}
+    assert list(rows)[: len(LADDER)] == [label for label, _ in LADDER]
+    searched = rows["as searched"]
+    assert searched["travel"] == found["best"]["travel"] and searched["survives"] == 1.0  # bit for bit
+    assert (searched["elements"], searched["clusters"], searched["iterations"]) == (408, 6, 10)
+    assert rows["clusters x4, iterations x5"]["clusters"] == 24 and rows["iterations x5"]["iterations"] == 50
+    assert rows["weights x2, clusters x4, iterations x5"]["coordinates"] == 2 * searched["coordinates"]
+    full = rows["full space"]
+    assert (full["elements"], full["coordinates"], full["clusters"]) == (408, 182 * 3, 408)
+    half = rows["half resolution, full space"]
+    assert half["elements"] < 408 and half["space"] == "full"
+    for row in rows.values():
+        assert np.isfinite(row["travel"]) and row["survives"] == pytest.approx(row["travel"] / searched["travel"])
+    # the full-space replay is the reference simulator's own run of the gait
+    scene = Scene.from_dict(tomllib.loads(open(found["best_scene"]).read()))
+    direct = Trial(scene.build_reference(rtol=1e-8, max_iter=2000), 40, [1.0, 0.0, 0.0], objective="aligned")
+    assert direct.run(found["best"]["gait"])["travel"] == full["travel"]
+    written = list(csv.DictReader(open(result["csv"])))
+    assert [r["setting"] for r in written] == list(rows) and float(written[-1]["travel"]) == half["travel"]
+    assert main(["transfer", str(tmp_path), "--full-space-limit", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "| as searched | 408 |" in out and "| full space |" not in out  # over the limit: skipped

@@ -1,0 +1,351 @@
+"""Gait rollouts: one gait run and scored, and workers that run many on one shared precompute.
+
+A :class:`Trial` is a built simulator with a rollout length and a scoring
+rule. Its score of a gait (amplitude, period and phase per muscle) is
+measured on the whole run:
+
+    travel      = (c(T) - c(0)) . d
+    alignment   = max(0, min_t  d . R(t) d)
+    tilt(t)     = angle between R(t) e_up and e_up
+    tip_penalty = tip_weight * size * max(0, max_t tilt(t) - tip_limit) / pi
+
+with ``c`` the centre of mass, ``d`` the unit travel direction (any vector;
+in 3D usually a horizontal one), ``size`` the body's largest extent and
+``R(t)`` the body's overall rotation: the closest rotation to
+``sum_i m_i x_i(t) (X_i - C)^T`` (the identity at rest), read off the state at
+every step (it is linear in the unknowns). Two objectives:
+
+``travel``
+    ``fitness = travel - tip_penalty``.
+``aligned`` (the modal-muscle paper's: forward displacement times forward alignment)
+    ``fitness = travel * alignment - tip_penalty`` when ``travel > 0``, else
+    ``travel - tip_penalty``. The body's own axis ``d`` must keep pointing
+    along ``d`` all the way: a gait that turns, rolls over its nose or
+    tumbles scores in proportion to its worst moment (turned by 90 degrees
+    or more, nothing). Backward travel is not scaled, so a gait cannot make
+    a backward run look better by also turning.
+
+A rollout that goes non-finite scores ``-1000 size``.
+
+Workers. :class:`Rollouts` runs the gaits of one trial on an executor and
+sends the trial's precompute (the pickled simulator: the backends are
+rebuilt on arrival) once to each worker: the local process pool gets it
+through its initializer, a dask cluster as one scattered object (every
+worker holds one copy, its tasks use it). Any other executor gets the scene
+instead and each of its worker processes builds the simulator once. Workers
+use ``blas_threads`` BLAS threads each (default one: the processes share the
+cores, and a result does not depend on where it ran). The local pool's
+workers ignore SIGINT, so Ctrl-C reaches the search alone, which stops them.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import threading
+import time
+import uuid
+
+import numpy as np
+
+from .muscles import sine_gait
+from .rotations import polar_rotations
+from .sim import SimulationError, simulate
+from .threads import limited_blas_threads
+
+__all__ = ["OBJECTIVES", "Trial", "Rollouts", "rollout", "body_rotation_rows"]
+
+#: The objectives a :class:`Trial` scores with.
+OBJECTIVES = ("travel", "aligned")
+
+# this process's trials, by key, and how many it received (unpickled) or built
+_TRIALS: dict = {}
+_COUNTS = {"received": 0, "built": 0}
+_BLAS_LIMIT: list = []  # the open thread limit of this worker process (kept open while it lives)
+
+
+def body_rotation_rows(sim) -> np.ndarray:
+    """The map from a state to ``sum_i m_i x_i (X_i - C)^T`` (row-major), whose polar part is the body's rotation.
+
+    Parameters
+    ----------
+    sim : ModalMuscle or FullSpaceSimulator
+
+    Returns
+    -------
+    rows : ndarray, shape (dim * dim, r)
+    """
+    dim, n = sim.mesh.p.shape
+    m = sim.mass[::dim]
+    X = sim.mesh.p.T
+    W = m[:, None] * (X - (m @ X) / m.sum())  # (n, dim)
+    rows = np.zeros((dim * dim, n * dim))
+    for i in range(dim):
+        rows[i * dim : (i + 1) * dim, i::dim] = W.T
+    return rows if sim.B is None else rows @ sim.B
+
+
+class Trial:
+    """A simulator, a rollout length and a scoring rule: runs a gait and scores it.
+
+    Parameters
+    ----------
+    sim : ModalMuscle or FullSpaceSimulator
+    steps : int
+        Rollout length.
+    direction : array_like, shape (dim,)
+        Travel direction (normalised here).
+    objective : {"travel", "aligned"}
+        See the module docs.
+    tip_limit : float
+        Tilt (radians) beyond which the tipping penalty starts.
+    tip_weight : float
+        Body sizes lost per half turn of tilt beyond the limit.
+
+    Examples
+    --------
+    >>> from skfem_modal import ModalMuscle, caterpillar
+    >>> sim = ModalMuscle.from_mesh(caterpillar(nx=12, ny=6), n_muscles=1, n_weights=2, n_clusters=3)
+    >>> trial = Trial(sim, 5, [1.0, 0.0])
+    >>> score = trial.run({"amplitude": [0.2], "period": [1.0], "phase": [0.0]})
+    >>> score["finite"], round(score["alignment"], 6)
+    (True, 1.0)
+    """
+
+    def __init__(self, sim, steps: int, direction, objective: str = "travel", tip_limit=np.pi / 3, tip_weight=10.0):
+        if objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ValueError(f"steps must be a positive integer, got {steps!r}")
+        direction = np.asarray(direction, dtype=float)
+        if direction.shape != (sim.dim,) or not np.linalg.norm(direction) > 0:
+            raise ValueError(f"direction must be a non-zero vector of {sim.dim} values, got {direction.tolist()}")
+        self.sim = sim
+        self.steps = int(steps)
+        self.direction = direction / np.linalg.norm(direction)
+        self.objective = objective
+        self.tip_limit, self.tip_weight = float(tip_limit), float(tip_weight)
+        self.size = float(np.ptp(sim.mesh.p, axis=1).max())
+        self.rotation_rows = body_rotation_rows(sim)
+        self._lock = threading.Lock()
+
+    @classmethod
+    def from_scene(cls, data: dict, base_dir=None, *, backend: str = "auto", **settings) -> Trial:
+        """Build a scene's simulator and the trial on it (``settings``: as for the constructor)."""
+        from .scene import Scene
+
+        trial = cls(Scene.from_dict(data, base_dir=base_dir).build(backend=backend), **settings)
+        _COUNTS["built"] += 1
+        return trial
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("_lock")
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+        _COUNTS["received"] += 1
+
+    def run(self, gait: dict) -> dict:
+        """Run a gait from rest and score it.
+
+        Parameters
+        ----------
+        gait : dict
+            ``amplitude`` (fractions of the ceilings), ``period``, ``phase``:
+            one value per muscle each.
+
+        Returns
+        -------
+        score : dict
+            ``fitness``, ``travel``, ``alignment``, ``max_tilt`` (radians),
+            ``penalty``, ``finite`` (False: the run went non-finite, the
+            measures are NaN) and ``mean_iterations`` (local/global, a step).
+        """
+        sim = self.sim
+        amplitudes = np.asarray(gait["amplitude"], float) * sim.ceilings
+        periods, phases = gait["period"], gait["phase"]
+        z = sim.rest_state()[0]
+        frames = np.empty((self.steps + 1, self.rotation_rows.shape[0]))
+        frames[0] = self.rotation_rows @ z
+        start = sim.com(z)
+        iterations = 0
+        with self._lock:  # a dask worker may run several tasks at once on its one copy
+            sim.reset()  # each rollout as a new simulator's: the same on any worker, and in a replay
+            try:
+                for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases)):
+                    frames[record.step] = self.rotation_rows @ record.z
+                    iterations += record.iterations
+                    z = record.z
+            except SimulationError:
+                nan = float("nan")
+                fail = -1e3 * self.size
+                return {
+                    "fitness": fail,
+                    "travel": nan,
+                    "alignment": nan,
+                    "max_tilt": nan,
+                    "penalty": nan,
+                    "finite": False,
+                    "mean_iterations": nan,
+                }
+        return {**self.score(sim.com(z) - start, frames), "mean_iterations": iterations / self.steps}
+
+    def score(self, displacement, frames) -> dict:
+        """Score a run from its centre of mass's displacement and its body frames.
+
+        Parameters
+        ----------
+        displacement : ndarray, shape (dim,)
+        frames : ndarray, shape (T, dim * dim)
+            ``body_rotation_rows @ z`` of each state.
+        """
+        dim, up, d = self.sim.dim, self.sim.up, self.direction
+        R = polar_rotations(frames.reshape(-1, dim, dim))
+        max_tilt = float(np.arccos(np.clip(R[:, up, up], -1.0, 1.0)).max())
+        alignment = max(0.0, float(np.einsum("i,tij,j->t", d, R, d).min()))
+        travel = float(displacement @ d)
+        penalty = self.tip_weight * self.size * max(0.0, max_tilt - self.tip_limit) / np.pi
+        gain = travel * alignment if self.objective == "aligned" and travel > 0 else travel
+        return {
+            "fitness": gain - penalty,
+            "travel": travel,
+            "alignment": alignment,
+            "max_tilt": max_tilt,
+            "penalty": penalty,
+            "finite": True,
+        }
+
+
+def _limit_blas(threads, parent=None) -> None:
+    """Limit this worker process's BLAS threads for as long as it lives (once; never the search's own process)."""
+    if threads is not None and not _BLAS_LIMIT and os.getpid() != parent:
+        limit = limited_blas_threads(threads)
+        limit.__enter__()
+        _BLAS_LIMIT.append(limit)
+
+
+def _install(key: str, payload: bytes, blas_threads) -> None:
+    """Pool initializer: keep the trial sent, one BLAS thread, leave Ctrl-C to the parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _limit_blas(blas_threads)
+    _TRIALS[key] = pickle.loads(payload)
+
+
+def rollout(task: dict) -> dict:
+    """Run one gait of a trial (an executor's task: plain data in and out).
+
+    ``task``: ``trial`` (the key of a trial this process holds, or the trial
+    itself, as a dask worker gets it), ``gait``, ``blas_threads``, ``parent``
+    (the search's process id: its own threads are left as they are), and
+    ``recipe`` (the scene and settings to build the trial from where this
+    process holds none) or None.
+
+    Returns
+    -------
+    score : dict
+        :meth:`Trial.run`'s, with this worker's ``pid`` and how many trials
+        it has ``received`` and ``built``.
+    """
+    _limit_blas(task.get("blas_threads"), task.get("parent"))
+    trial = task["trial"]
+    if isinstance(trial, str):
+        if trial not in _TRIALS:
+            if task.get("recipe") is None:
+                raise RuntimeError("this worker holds no trial of that key and was sent no scene to build it from")
+            _TRIALS[trial] = Trial.from_scene(**task["recipe"])
+        trial = _TRIALS[trial]
+    score = trial.run(task["gait"])
+    score.update(pid=os.getpid(), **_COUNTS)
+    return score
+
+
+def _dask_client(executor):
+    """The dask client behind an executor, or None."""
+    if executor is None or not type(executor).__module__.startswith("distributed"):
+        return None
+    return getattr(executor, "_client", None)
+
+
+class Rollouts:
+    """Runs gaits of one trial on an executor, the precompute sent once to each worker.
+
+    Parameters
+    ----------
+    trial : Trial
+    workers : int
+        Processes of the local pool (when neither ``scheduler`` nor ``executor``).
+    scheduler : str, optional
+        Address of a dask.distributed scheduler.
+    executor : concurrent.futures.Executor, optional
+        An executor of the caller's (not shut down here). A dask client's
+        gets the trial scattered; any other gets ``recipe`` with each task.
+    recipe : dict, optional
+        ``Trial.from_scene`` arguments that rebuild the trial (needed with
+        an executor that is not dask's).
+    blas_threads : int or None
+        BLAS threads per worker (None: as the worker's libraries are set).
+
+    Attributes
+    ----------
+    startup_seconds : float
+        Pickling and starting the pool (or scattering).
+    """
+
+    def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
+        from .study import make_executor
+
+        clock = time.perf_counter()
+        self._close, self._scattered = None, None
+        self.blas_threads = blas_threads
+        client = _dask_client(executor)
+        self.recipe = None
+        if executor is not None and client is None:
+            if recipe is None:
+                raise ValueError("an executor that is not dask's needs the recipe to build the trial in its workers")
+            self.executor, self.handle, self.recipe = executor, uuid.uuid4().hex, recipe
+        elif executor is not None:
+            self.executor = executor
+            self._scattered = self.handle = client.scatter(trial, broadcast=True, hash=False)
+        elif scheduler:
+            self.executor, self._close = make_executor(workers, scheduler)
+            self._scattered = self.handle = _dask_client(self.executor).scatter(trial, broadcast=True, hash=False)
+        else:
+            self.handle = uuid.uuid4().hex
+            payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
+            self.executor, self._close = make_executor(
+                workers, None, initializer=_install, initargs=(self.handle, payload, blas_threads)
+            )
+        self.startup_seconds = time.perf_counter() - clock
+
+    def map(self, gaits) -> list[dict]:
+        """Run and score each gait (in order): :func:`rollout`'s results."""
+        tasks = [
+            {
+                "trial": self.handle,
+                "gait": gait,
+                "blas_threads": self.blas_threads,
+                "parent": os.getpid(),
+                "recipe": self.recipe,
+            }
+            for gait in gaits
+        ]
+        return list(self.executor.map(rollout, tasks))
+
+    def close(self, cancel: bool = False) -> None:
+        """Stop what was started here (``cancel``: drop the tasks not yet running)."""
+        if self._scattered is not None:
+            self._scattered.release()
+            self._scattered = None
+        if self._close is not None:
+            close, self._close = self._close, None
+            close(cancel)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, value, traceback):
+        self.close(cancel=kind is not None)

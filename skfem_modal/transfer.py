@@ -1,0 +1,205 @@
+"""Gait transfer: a searched gait replayed with more accurate settings, and how much of its travel survives.
+
+A gait search optimises against the simulator it runs: a reduced one (a few
+skinning weights, rotation clusters, a fixed number of local/global
+iterations). :func:`replay` runs the same gait, from rest, for the same
+number of steps, scored the same way (:class:`~skfem_modal.rollouts.Trial`),
+with settings up a ladder of accuracy:
+
+* as searched (the search's own rollout, bit for bit);
+* 5 times the iterations a step;
+* 4 times the rotation clusters, 5 times the iterations;
+* twice the skinning weights, 4 times the clusters, 5 times the iterations;
+* the full space (every DOF, one rotation per element, iterated to a
+  tight tolerance), when the mesh has at most ``full_space_limit`` elements;
+* for a built-in shape, a copy at half the resolution, reduced as searched
+  and in the full space (the full space of a large mesh costs minutes).
+
+``survives`` is each replay's travel over the search's: 1 means the gait
+travels as far, 0 not at all, a negative value backwards.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import os
+import pickle
+import time
+import tomllib
+
+import numpy as np
+
+from .rollouts import Trial
+
+__all__ = ["LADDER", "replay", "transfer_search"]
+
+#: The reduced settings a gait is replayed with: (label, factors on weights, clusters, iterations).
+LADDER = (
+    ("as searched", {}),
+    ("iterations x5", {"iterations": 5}),
+    ("clusters x4, iterations x5", {"clusters": 4, "iterations": 5}),
+    ("weights x2, clusters x4, iterations x5", {"weights": 2, "clusters": 4, "iterations": 5}),
+)
+
+
+def _scaled(data: dict, config: dict, n_elements: int, factors: dict) -> dict:
+    """A copy of a scene dict with its weights, clusters and iterations multiplied."""
+    data = copy.deepcopy(data)
+    subspace = data.setdefault("subspace", {})
+    if "weights" in factors:
+        subspace["weights"] = config["subspace"]["weights"] * factors["weights"]
+    if "clusters" in factors:
+        subspace["clusters"] = min(config["subspace"]["clusters"] * factors["clusters"], n_elements)
+    if "iterations" in factors:
+        data.setdefault("time", {})["iterations"] = config["time"]["iterations"] * factors["iterations"]
+    return data
+
+
+def replay(
+    data: dict,
+    gait: dict,
+    *,
+    steps: int,
+    direction,
+    objective: str = "travel",
+    tip_limit: float = np.pi / 3,
+    tip_weight: float = 10.0,
+    base_dir: str | None = None,
+    full_space_limit: int = 10_000,
+    full_space_rtol: float = 1e-8,
+    progress=None,
+) -> list[dict]:
+    """Replay a gait up the ladder of accuracy (module docs).
+
+    Parameters
+    ----------
+    data : dict
+        The scene the gait was searched in.
+    gait : dict
+        ``amplitude`` (fractions of the ceilings), ``period``, ``phase``.
+    steps : int
+    direction : array_like, shape (dim,)
+    objective, tip_limit, tip_weight :
+        As for :class:`~skfem_modal.rollouts.Trial`.
+    base_dir : str, optional
+        Where the scene's relative paths start.
+    full_space_limit : int
+        Largest mesh (elements) replayed in the full space.
+    full_space_rtol : float
+        The full space's stopping rule (relative change per iteration; at most 2000 iterations a step).
+    progress : callable, optional
+        Called with each setting's label before it runs.
+
+    Returns
+    -------
+    rows : list of dict
+        Per setting: ``setting``, ``space`` (reduced or full), ``elements``,
+        ``coordinates``, ``clusters``, ``iterations`` (at most, a step),
+        ``mean_iterations``, ``travel``, ``alignment``, ``max_tilt_degrees``,
+        ``fitness``, ``survives`` (travel over the first row's) and ``seconds``.
+    """
+    from .scene import Scene
+    from .study import resolution_scene
+
+    say = progress or (lambda label: None)
+    scene = Scene.from_dict(data, base_dir=base_dir)
+    n_elements = scene.mesh.t.shape[1]
+    settings = {"steps": steps, "direction": direction, "objective": objective}
+    settings.update(tip_limit=tip_limit, tip_weight=tip_weight)
+    plans = [(label, _scaled(data, scene.config, n_elements, f), "reduced") for label, f in LADDER]
+    if n_elements <= full_space_limit:
+        plans.append(("full space", data, "full"))
+    if not scene.config["mesh"]["file"]:
+        coarse = resolution_scene(data, 0.5)
+        plans += [("half resolution, as searched", coarse, "reduced"), ("half resolution, full space", coarse, "full")]
+    rows = []
+    for label, variant, space in plans:
+        say(label)
+        clock = time.perf_counter()
+        built = Scene.from_dict(variant, base_dir=base_dir)
+        sim = built.build() if space == "reduced" else built.build_reference(rtol=full_space_rtol, max_iter=2000)
+        score = Trial(sim, **settings).run(gait)
+        rows.append(
+            {
+                "setting": label,
+                "space": space,
+                "elements": int(built.mesh.t.shape[1]),
+                "coordinates": int(sim.rest_state()[0].size),
+                "clusters": int(sim.n_clusters),
+                "iterations": int(sim.max_iter),
+                "mean_iterations": score["mean_iterations"],
+                "travel": score["travel"],
+                "alignment": score["alignment"],
+                "max_tilt_degrees": float(np.degrees(score["max_tilt"])),
+                "fitness": score["fitness"],
+                "seconds": time.perf_counter() - clock,
+            }
+        )
+    first = rows[0]["travel"]
+    for row in rows:
+        row["survives"] = row["travel"] / first if first else float("nan")
+    return rows
+
+
+COLUMNS = (
+    "setting",
+    "space",
+    "elements",
+    "coordinates",
+    "clusters",
+    "iterations",
+    "mean_iterations",
+    "travel",
+    "survives",
+    "alignment",
+    "max_tilt_degrees",
+    "fitness",
+    "seconds",
+)
+
+
+def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -> dict:
+    """Replay a finished search's best gait up the ladder; write ``transfer.csv`` beside it.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        A search's folder (``best_gait.toml`` and ``checkpoint.pkl``).
+    full_space_limit : int
+        Largest mesh (elements) replayed in the full space.
+    progress : callable, optional
+        Called with each setting's label.
+
+    Returns
+    -------
+    result : dict
+        ``rows`` (:func:`replay`'s) and ``csv`` (the path written).
+    """
+    out_dir = os.fspath(out_dir)
+    scene_path, checkpoint = os.path.join(out_dir, "best_gait.toml"), os.path.join(out_dir, "checkpoint.pkl")
+    for path in (scene_path, checkpoint):
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"{out_dir} holds no finished search: {path} is missing")
+    with open(scene_path, "rb") as f:
+        data = tomllib.load(f)
+    with open(checkpoint, "rb") as f:
+        settings = pickle.load(f)["settings"]
+    rows = replay(
+        data,
+        data["muscles"]["gait"],
+        steps=settings["steps"],
+        direction=settings["direction"],
+        objective=settings["objective"],
+        tip_limit=settings["tip_limit"],
+        tip_weight=settings["tip_weight"],
+        base_dir=out_dir,
+        full_space_limit=full_space_limit,
+        progress=progress,
+    )
+    path = os.path.join(out_dir, "transfer.csv")
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return {"rows": rows, "csv": path}
