@@ -30,6 +30,7 @@ sim = ModalMuscle.from_mesh(
     h=0.01,
     gravity=[0.0, -9.8],
     ground=ground,
+    contact_model="reference",  # the tutorial's contact: its numbers, to the last digit
     n_contacts=30,
 )
 print("effects:", ", ".join(sim.effects))

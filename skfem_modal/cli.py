@@ -145,7 +145,11 @@ def cmd_run(args) -> int:
     )
     say(f"centre of mass travel {travel}")
     if summary["ground"]:
-        say(f"worst penetration of the contact points: {summary['ground']['worst_penetration_contacts']:.3g}")
+        ground = summary["ground"]
+        say(
+            f"deepest any vertex went below the ground ({ground['model']} contact): "
+            f"{ground['worst_penetration']:.3g} ({100 * ground['worst_penetration_relative']:.2g} % of the body's size)"
+        )
     if args.render:
         return _render(args.out, args, say)
     say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")
@@ -212,9 +216,18 @@ def cmd_info(args) -> int:
             f"at most {c['time']['iterations']} iterations per step"
         )
         if c["ground"] is not None:
+            g = c["ground"]
+            count = scene.contact_count()
+            which = "every boundary vertex" if count is None else f"{count} boundary vertices"
+            rule = (
+                f"friction {0.5 if g['friction'] is None else g['friction']:g}"
+                if g["model"] == "coulomb"
+                else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
+                f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"
+            )
             print(
-                f"ground: height {scene.ground_height():.6g} along axis {scene.up}, contacts "
-                f"{c['ground']['contacts']}, stickiness {c['ground']['stickiness']:g}"
+                f"ground: height {scene.ground_height():.6g} along axis {scene.up}, {g['model']} contact at "
+                f"{which}, {rule}"
             )
         if c["pinned"] is not None:
             print(f"pinned: {scene.pinned_vertices().size} vertices")

@@ -81,6 +81,9 @@ class _Ground(Effect):
         """Whether the step's iterations should run again, seeing more vertices (see the Coulomb model)."""
         return False
 
+    def forget(self) -> None:
+        """Forget what earlier steps leave for the next (nothing, here: see the Coulomb model)."""
+
     def finish_step(self, z) -> None:
         """The end of a step's iterations, ``z`` (r,) the result: nothing to do (see the Coulomb model)."""
 
@@ -431,6 +434,15 @@ class CoulombContact(_Ground):
             self.active_count = 0
             return False
         return self._constrain(z)
+
+    def forget(self) -> None:
+        """Forget who touched, slid and how hard: the next step starts as a first one."""
+        self.touching[:] = False
+        self.sliding[:] = False
+        self.normal_force[:] = 0.0
+        self.direction[:] = 0.0
+        self.picked = np.zeros(0, np.int64)
+        self._missed = np.zeros(0, np.int64)
 
     def missed(self, z) -> bool:
         """Did the step leave vertices below the ground that its projections did not look at?

@@ -231,13 +231,12 @@ def run_scene(
     monitor = MotionMonitor(sim, None if scene.config["gravity"] is None else scene.config["gravity"]["acceleration"])
     coms = [start_com]
     step_seconds, iterations = [], []
-    worst_contact = 0.0
-    worst_frame = 0.0
+    worst_penetration = 0.0
     worst_pin = 0.0
     rest = mesh.p.T
 
     def record(step: int, z, a):
-        nonlocal worst_frame, worst_pin
+        nonlocal worst_pin
         t = step * h
         com = sim.com(z)
         if writers:
@@ -249,8 +248,6 @@ def run_scene(
         if frames is not None and step % every == 0:
             # full positions only for frames that are written out
             x = sim.positions(z)
-            if ground is not None:
-                worst_frame = max(worst_frame, float(ground - x[:, sim.up].min()))
             if sim.pinned.size:
                 worst_pin = max(worst_pin, float(np.abs(x[sim.pinned] - rest[sim.pinned]).max()))
             frames.write(t, x, field_data={"activation": a} if m else None)
@@ -268,7 +265,8 @@ def run_scene(
             step_seconds.append(done.seconds)
             iterations.append(done.iterations)
             if ground is not None:
-                worst_contact = max(worst_contact, float(ground - sim.contact_positions(done.z)[:, sim.up].min()))
+                # every boundary vertex, every step: the deepest any went below the ground
+                worst_penetration = max(worst_penetration, sim.penetration(done.z))
             coms.append(record(step, done.z, done.a))
             monitor.update(step, done.z)
             bar.update()
@@ -314,8 +312,9 @@ def run_scene(
                 if ground is None
                 else {
                     "height": ground,
-                    "worst_penetration_contacts": max(0.0, worst_contact),
-                    "worst_penetration_written_frames": None if frames is None else max(0.0, worst_frame),
+                    "model": sim.contact_model,
+                    "worst_penetration": worst_penetration,
+                    "worst_penetration_relative": worst_penetration / float(np.ptp(mesh.p, axis=1).max()),
                 },
                 "pinned": None if not sim.pinned.size or frames is None else {"worst_drift_written_frames": worst_pin},
                 "frames": None

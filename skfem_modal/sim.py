@@ -429,6 +429,8 @@ class ModalMuscle:
         simulator does.
         """
         self._solver.predicted = self._solver.max_iter
+        if self._model.contact is not None:
+            self._model.contact.forget()
         self._rebuild()
 
     @property
@@ -462,6 +464,8 @@ class ModalMuscle:
     def max_iter(self, value) -> None:
         self._solver.max_iter = _count(value, "max_iter")
         self._solver.predicted = self._solver.max_iter
+        if self._model.contact is not None:
+            self._model.contact.forget()
         self._rebuild()
 
     @property
@@ -595,8 +599,9 @@ class ModalMuscle:
             self._contact_vertices = boundary_vertices(self._mesh)
             self._model.replace(self._make_contact(self._contact_vertices, value))
             self._rebuild()
-        else:
-            self._model.contact.ground = value
+        else:  # a fresh contact: what it kept from earlier steps was about the old ground
+            self._model.replace(self._make_contact(self._model.contact.vertices, value))
+            self._rebuild()
 
     @property
     def up(self) -> int:

@@ -53,6 +53,7 @@ def build(mesh, *, mu=1e5, rho=1e3, h=0.01, muscles=3, gravity=False, ground=Non
         gravity=g,
         ground=ground,
         n_contacts=20,
+        contact_model="reference",
         push_out=push_out,
         **kw,
     )
@@ -217,6 +218,7 @@ def scaled_motion(scale: float, steps: int = 200) -> np.ndarray:
         gravity=[0.0, -9.8 * scale],
         ground=ground,
         n_contacts=20,
+        contact_model="reference",
         push_out=1.0,
         tol=0.0,
     )

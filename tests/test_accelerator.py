@@ -74,6 +74,7 @@ def test_compiled_steps_equal_numpy_steps(dim, scene):
             n_contacts=12,
             backend=acc,
             rtol=rtol,
+            contact_model="reference",
             push_out=1.0 if "push out" in scene else 0.0,
         )
         for acc in ("numpy", "numba")

@@ -65,6 +65,7 @@ def test_full_basis_reduced_simulator_equals_the_reference(dim, push_out):
         h=0.01,
         gravity=[0.0] * up + [-9.8],
         ground=float(mesh.p[up].min()) - 0.05,
+        contact_model="reference",
         push_out=push_out,
         stickiness=0.6,
     )

@@ -206,7 +206,7 @@ def test_a_scene_on_such_a_mesh_file_falls_and_lands(name, tmp_path):
             "subspace": {"clusters": 8},
             "time": {"step": 0.01, "steps": 80},
             "gravity": {"acceleration": gravity},
-            "ground": {"offset": 0.1, "push_out": 1.0},
+            "ground": {"offset": 0.1},
         }
     )
     assert scene.up == 1
@@ -216,7 +216,7 @@ def test_a_scene_on_such_a_mesh_file_falls_and_lands(name, tmp_path):
     low = summary["com"]["min"][1] - summary["com"]["start"][1]
     # dropped 0.1, it lands and stays: the centre of mass is between 0.1 and 0.3 lower
     assert -0.3 < low < -0.09
-    assert summary["ground"]["worst_penetration_contacts"] < 1e-6
+    assert summary["ground"]["worst_penetration_relative"] <= 1e-4  # the Coulomb contact's allowance
 
 
 def test_a_short_study_on_two_bodies(tmp_path):

@@ -30,6 +30,7 @@ def test_3d_creature_on_the_ground_same_trajectory_on_every_backend(push_out):
             gravity=[0.0, 0.0, -9.8],
             ground=float(mesh.p[2].min()) - 0.02,
             n_contacts=30,
+            contact_model="reference",
             push_out=push_out,
             backend=backend,
         )
@@ -66,6 +67,7 @@ def test_kicks_on_the_ground_same_trajectory_numpy_and_plain(dim):
     mesh = sm.caterpillar(nx=16, ny=8) if dim == 2 else sm.creature(cell=0.3)
     up = dim - 1
     kw = dict(n_muscles=2, n_weights=4, n_clusters=6, h=0.01, gravity=[0.0] * up + [-9.8], n_contacts=16)
+    kw["contact_model"] = "reference"
     kw["ground"] = float(mesh.p[up].min()) - 0.005
     numpy_sim = sm.ModalMuscle.from_mesh(mesh, backend="numpy", **kw)
     plain_sim = sm.ModalMuscle.from_mesh(mesh, backend="plain", **kw)
@@ -86,6 +88,7 @@ def test_a_redone_step_starts_its_contact_afresh():
     # failed attempt's contact state the trajectories part by 2e-4)
     mesh = sm.creature(cell=0.25)
     kw = dict(n_muscles=4, n_weights=6, n_clusters=12, h=0.01, gravity=[0.0, 0.0, -9.8], n_contacts=30)
+    kw["contact_model"] = "reference"
     kw["ground"] = float(mesh.p[2].min()) - 0.05  # lands at step 10
     sims = {b: sm.ModalMuscle.from_mesh(mesh, backend=b, **kw) for b in ("numpy", "plain")}
     states = {b: sim.rest_state()[:2] for b, sim in sims.items()}

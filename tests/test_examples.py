@@ -40,7 +40,7 @@ def test_caterpillar_float_example(tmp_path):
 def test_creature_crawl_example(tmp_path):
     text = run_example("creature_crawl.py", tmp_path)
     horizontal = float(re.search(r"horizontal (\S+)\)", text).group(1))
-    depth = float(re.search(r"below the ground: (\S+)", text).group(1))
+    depth = float(re.search(r"deepest vertex below the ground: (\S+)", text).group(1))
     assert horizontal > 0.1 and depth < 0.01
     frame = meshio.read(tmp_path / "creature" / "frame_00000.vtu")
     assert "tetra" in frame.cells_dict
@@ -53,4 +53,4 @@ def test_searched_gait_travels_what_docs_optimize_says():
 
     summary = run_scene(Scene.from_toml(EXAMPLES / "caterpillar_crawl_searched.toml"), None)
     assert summary["com"]["travel"][0] == pytest.approx(-14.966, abs=1e-3)
-    assert summary["ground"]["worst_penetration_contacts"] < 0.01
+    assert summary["ground"]["model"] == "reference" and summary["ground"]["worst_penetration_relative"] < 0.05

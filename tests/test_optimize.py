@@ -35,7 +35,7 @@ CREATURE = {
     "muscles": {"count": 3, "gait": {"amplitude": [0.4, 0.4, 0.4], "period": [1.0, 0.8, 0.6]}},
     "time": {"step": 0.01, "steps": 40},
     "gravity": {"acceleration": [0.0, 0.0, -9.8]},
-    "ground": {"offset": 0.05, "contacts": 20, "push_out": 1.0, "stickiness": 0.7},
+    "ground": {"offset": 0.05, "model": "reference", "contacts": 20, "push_out": 1.0, "stickiness": 0.7},
 }
 
 

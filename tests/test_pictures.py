@@ -72,7 +72,7 @@ def creature_runs(tmp_path_factory):
     scene = base / "creature.toml"
     scene.write_text(
         "[mesh]\nshape = 'creature'\nparams = { cell = 0.2 }\n[muscles]\ncount = 2\n"
-        "[muscles.gait]\namplitude = [0.3, 0.3]\nperiod = [1.0, 0.7]\n[time]\nstep = 0.01\nsteps = 20\n"
+        "[muscles.gait]\namplitude = [0.05, 0.05]\nperiod = [1.0, 0.7]\n[time]\nstep = 0.01\nsteps = 20\n"
         "[gravity]\nacceleration = [0.0, 0.0, -9.8]\n[ground]\noffset = 0.0\n[output]\nevery = 10\n"
     )
     z_up = base / "z_up"

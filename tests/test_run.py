@@ -46,7 +46,9 @@ def test_default_run_writes_every_file(default_run, reference):
     step = summary["timings"]["step_ms"]
     assert 0 < step["median"] <= step["p90"]
     assert summary["iterations"]["max"] <= 10 and sum(summary["iterations"]["histogram"].values()) == 450
-    assert 0 <= summary["ground"]["worst_penetration_contacts"] < 0.01
+    # the tutorial's reference contact lets feet sink: the report covers every vertex, every step
+    assert summary["ground"]["model"] == "reference"
+    assert 0.01 < summary["ground"]["worst_penetration_relative"] < 0.05
     assert summary["scene"]["name"] == DEFAULT_SCENE["name"]
 
 

@@ -65,8 +65,10 @@ LIVE = [
     ("gravity", None, {}),
     ("ground", -0.55, {}),
     ("ground", None, {}),
-    ("stickiness", 0.2, {}),
-    ("push_out", 1.0, {}),
+    ("stickiness", 0.2, {"contact_model": "reference"}),
+    ("push_out", 1.0, {"contact_model": "reference"}),
+    ("friction", 0.05, {}),
+    ("contact_model", "reference", {}),
     ("damping_mass", 2.0, {}),
     ("damping_stiffness", 1e-3, {"damping_mass": 0.5}),
     ("damping_mass", 0.0, {"damping_mass": 0.5}),
@@ -111,8 +113,8 @@ def test_live_settings_on_every_3d_backend(solid, backend):
     if backend == "numba" and not _accel.AVAILABLE:
         pytest.skip("numba is not installed (the optional 'fast' extra)")
     sim = build(solid, backend=backend)
-    sim.h, sim.max_iter, sim.push_out = 0.005, 6, 1.0
-    fresh = build(solid, backend=backend, h=0.005, max_iter=6, push_out=1.0)
+    sim.h, sim.max_iter, sim.friction = 0.005, 6, 0.1
+    fresh = build(solid, backend=backend, h=0.005, max_iter=6, friction=0.1)
     np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
 
 
@@ -144,6 +146,8 @@ def test_settings_are_checked_when_assigned(flat):
         sim.backend = "gpu"
     with pytest.raises(ValueError, match=r"stickiness must be in \[0, 1\]"):
         sim.stickiness = 3.0
+    with pytest.raises(AttributeError, match=r"stickiness is a setting of contact_model='reference'"):
+        build(flat).stickiness = 0.5
     with pytest.raises(AttributeError, match="no pinned vertices"):
         sim.pin_stiffness = 10.0
     with pytest.raises(ValueError, match="gravity"):

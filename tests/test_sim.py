@@ -129,6 +129,7 @@ def test_tutorial_crawl(tutorial, reference):
         gravity=[0.0, -9.8],
         contact_vertices=contacts,
         ground=ground,
+        contact_model="reference",
     )
     assert sim.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
     coms, _ = run(sim, CRAWL_GAIT, 450, tutorial["ceilings"])
@@ -217,6 +218,7 @@ def test_stickiness_zero_slides_and_one_sticks():
             h=0.01,
             gravity=[0.0, -9.8],
             ground=float(mesh.p[1].min()),
+            contact_model="reference",
             stickiness=stickiness,
         )
         z, z_dot, _ = sim.rest_state()
@@ -308,6 +310,7 @@ def test_batched_stopping_test_gives_the_answer_of_testing_each_iteration(tutori
     if contact:
         mesh = tutorial["mesh"]
         kw.update(gravity=[0.0, -9.8], ground=float(mesh.p[1].min()) - 0.05, contact_vertices=np.arange(0, 200, 7))
+        kw.update(contact_model="reference")
     batched, each = floating(tutorial, **kw), floating(tutorial, **kw)
     z, z_dot, _ = batched.rest_state()
     w, w_dot = z.copy(), z_dot.copy()
