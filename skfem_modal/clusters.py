@@ -129,7 +129,6 @@ def _kmeans(points: np.ndarray, k: int, seed: int) -> np.ndarray:
     return _fill_empty(points, labels.astype(np.int64), k)
 
 
-
 def _shares(sizes: np.ndarray, k: int) -> np.ndarray:
     """Split ``k`` clusters over parts of ``sizes`` elements: proportional, at least 1, at most the size.
 
