@@ -41,6 +41,7 @@ Both models report the deepest of all boundary vertices below the ground
 from __future__ import annotations
 
 from collections import OrderedDict
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sps
@@ -48,7 +49,8 @@ from scipy.optimize import nnls
 
 from ._fast import dot
 from .effects import Effect
-from .mesh import boundary_vertices, farthest_point_sampling
+from .mesh import boundary_vertices
+from .solver import SimulationError
 
 __all__ = ["CoulombContact", "ReferenceContact", "MODELS"]
 
@@ -62,6 +64,23 @@ _PASSES = 16
 _JOIN = 4
 # vertices a step's projections look at, at most (the end of the step checks them all)
 _MOST = 32
+# operators of sets of pushed and sticking vertices kept, the latest used
+_OPERATORS = 64
+# cosine of the angle a sliding vertex's motion turns by before its friction turns with it (1 degree)
+_TURN = float(np.cos(np.radians(1.0)))
+# projections at the end of a step that may each find more vertices below the ground
+_FINISH = 8
+
+
+class _Operator(NamedTuple):
+    """A Coulomb projection's solve for given sets of vertices (indices into the picked ones)."""
+
+    rows: np.ndarray  # (k,) the rows held: the pushed vertices' heights, then the sticking ones' tangents
+    pushes: np.ndarray  # (k, r) each row's force's push on z, H^-1 F^T as rows
+    inverse: np.ndarray  # (k, k) of A H^-1 F^T + c I
+    pushed: np.ndarray  # the pushed vertices
+    held: np.ndarray  # the sticking tangents, as flat indices into a (picked, dim) array
+    slid: np.ndarray  # the sliding vertices
 
 
 class _Ground(Effect):
@@ -76,10 +95,6 @@ class _Ground(Effect):
     def penetration(self, z) -> float:
         """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``."""
         return max(0.0, self.ground - float(self.boundary(np.asarray(z, float)).min()))
-
-    def missed(self, z) -> bool:
-        """Whether the step's iterations should run again, seeing more vertices (see the Coulomb model)."""
-        return False
 
     def forget(self) -> None:
         """Forget what earlier steps leave for the next (nothing, here: see the Coulomb model)."""
@@ -278,17 +293,21 @@ class CoulombContact(_Ground):
     settle it with the rotations.
 
     The vertices pushed are found by a primal-dual active set, warm-started
-    from the last projection; a pass is one small solve over the pushed rows.
-    A compliance a millionth of a row's own stiffness keeps that solve well
-    posed when rows depend on each other (many vertices on a flat face, more
-    than a subspace can tell apart): their pushes spread over them as the
-    smallest forces do, and the ground gives way by about a millionth of a
-    step's correction.
+    from the last projection; a pass is one small solve over the pushed rows
+    (its operator kept while the sets repeat). A compliance of a thousandth
+    of a row's own compliance (``e H^-1 e``) keeps that solve well posed when
+    rows depend on each other (many vertices on a flat face, more than a
+    subspace can tell apart): their pushes spread over them as the smallest
+    forces do, and the ground gives way by about a thousandth of a step's
+    correction.
 
-    A step looks only at the vertices that can reach the ground in it (those
-    within half a percent of the body's size of it, or moving towards it
-    fast enough); at the end of the step every candidate is checked, and one
-    that ended below is held up too, so no vertex ends a step in the ground.
+    A step looks at a few dozen vertices at most: those near the ground at
+    the start of the step or in its first global solution (within half a
+    percent of the body's size, or moving towards it fast enough), spread
+    over the body, the lowest of each patch, the touching ones first. At the
+    end of the step every candidate is checked, and any that ended more than
+    a ten-thousandth of the body's size below the ground is held up with the
+    others, so no vertex ends a step in the ground.
 
     Parameters
     ----------
@@ -321,13 +340,12 @@ class CoulombContact(_Ground):
         self.allowance = 1e-4 * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
         p = self.vertices.size
-        # per vertex, kept from step to step: pushed, sliding, normal force, the way friction pushes
+        self.rest = space.mesh.p.T[self.vertices]  # (p, dim): where the picking spreads
+        # per vertex, kept from step to step: pushed, sliding, the way friction pushes
         self.touching = np.zeros(p, bool)
         self.sliding = np.zeros(p, bool)
-        self.normal_force = np.zeros(p)
         self.direction = np.zeros((p, self.dim))
         self.picked = np.zeros(0, np.int64)
-        self._missed = np.zeros(0, np.int64)  # seen below at the end of a step's first run
         self._first = False
         self.active_count = 0
 
@@ -339,7 +357,8 @@ class CoulombContact(_Ground):
         # O(candidates x subspace) at most, and only for the vertices that ever touch
         self._pushes = np.zeros((self.vertices.size * self.dim, self.space.r))
         self._made = np.zeros(self.vertices.size * self.dim, bool)
-        # the compliance: a millionth of the mean stiffness of a vertex's height row, 1 / (e H^-1 e)
+        self._operators = {}
+        # the compliance: a thousandth of a vertex's height row's own, e H^-1 e, on average
         sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
         self.compliance = 1e-3 * float(reach.mean())
@@ -365,6 +384,7 @@ class CoulombContact(_Ground):
         if "_pushes" in state:  # made again where needed
             state["_pushes"] = np.zeros_like(self._pushes)
             state["_made"] = np.zeros_like(self._made)
+            state["_operators"] = {}
         return state
 
     def positions(self, z) -> np.ndarray:
@@ -373,32 +393,41 @@ class CoulombContact(_Ground):
 
     # ------------------------------------------------------------ a step
     def start_step(self, z_start, z_dot=None) -> None:
-        """Pick the vertices that can reach the ground in this step, and make their operators."""
-        reach = self.heights_of(z_start) - 0.005 * self.size
+        """Remember where the step starts; the step's first global solution picks the vertices."""
+        self.reach = self.heights_of(z_start)
         if z_dot is not None:
-            reach += 2.0 * self.h * np.minimum(self.heights_of(z_dot), 0.0)
+            self.reach += 2.0 * self.h * np.minimum(self.heights_of(z_dot), 0.0)
         self.z_start = z_start
+        self.picked = np.zeros(0, np.int64)
         self._first = True
-        picked = self._spread(np.flatnonzero((reach < self.ground) | self.touching), z_start)
-        self._pick(np.union1d(picked, self._missed), z_start)
 
-    def _spread(self, near, z_start) -> np.ndarray:
-        """At most a few dozen of the near vertices, well spread along the ground, the touching ones first.
+    def _spread(self, near, low) -> np.ndarray:
+        """At most a few dozen of the near vertices, spread over the body, the touching ones first.
 
         The heights of neighbouring vertices nearly repeat each other (a subspace moves them
         alike): a spread few hold a whole patch up, with far fewer, better separated rows to
-        solve for. The step's end checks every candidate, so none is left below.
+        solve for. The near vertices' box in the rest shape is cut into about as many cells as
+        there is room for, and the lowest vertex of each (by ``low``, (p,)) is kept. The step's
+        end checks every candidate, so none is left below.
         """
         if near.size <= _MOST:
             return near
-        kept = near[self.touching[near]][:_MOST]
-        rest = np.setdiff1d(near, kept, assume_unique=True)
+        touching = self.touching[near]
+        kept, rest = near[touching][:_MOST], near[~touching]
         room = _MOST - kept.size
-        if room > 0 and rest.size:
-            where = self.space.positions(z_start)[self.vertices[rest]]
-            where[:, self.up] = 0.0  # spread along the ground
-            kept = np.concatenate([kept, rest[farthest_point_sampling(where, min(room, rest.size))]])
-        return kept
+        if room <= 0 or not rest.size:
+            return kept
+        where = self.rest[rest]
+        corner = where.min(axis=0)
+        extent = where.max(axis=0) - corner
+        wide = extent > 0.05 * extent.max()  # a flat patch is cut along its width only
+        side = (float(np.prod(extent[wide])) / room) ** (1.0 / np.count_nonzero(wide))
+        cells = ((where - corner) / side).astype(np.int64)
+        cell = np.ravel_multi_index(cells.T, cells.max(axis=0) + 1)
+        order = np.lexsort((low[rest], cell))  # by cell, the lowest first in each
+        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
+        first = first[np.argsort(low[rest][first])][:room]  # the lowest cells' vertices, if too many
+        return np.concatenate([kept, rest[first]])
 
     def _pick(self, picked, z_start, start=None) -> None:
         """Make ``picked`` (indices into the candidates) the vertices the projections look at.
@@ -407,6 +436,7 @@ class CoulombContact(_Ground):
         start where ``z_start`` has them).
         """
         self.picked = picked
+        self._operators = {}  # indices into the picked ones: made again for a new pick
         if not picked.size:
             return
         dim = self.dim
@@ -423,13 +453,11 @@ class CoulombContact(_Ground):
         """Project a global solution ``z`` (r,) in place; True if it changed."""
         if self._first:
             # the step's first global solution says where the body is going (gravity, muscles,
-            # momentum): the vertices it brings near the ground join the picked ones
+            # momentum): the vertices near the ground there or at the start (or coming fast) are picked
             self._first = False
-            near = np.flatnonzero(self.heights_of(z) < self.ground + 0.005 * self.size)
-            joining = np.setdiff1d(near, self.picked, assume_unique=True)
-            if joining.size and self.picked.size < _MOST:
-                extra = self._spread(np.concatenate([self.picked, joining]), self.z_start)
-                self._pick(np.concatenate([self.picked, np.setdiff1d(extra, self.picked)]), self.z_start)
+            low = np.minimum(self.reach, self.heights_of(z))
+            near = np.flatnonzero((low < self.ground + 0.005 * self.size) | self.touching)
+            self._pick(self._spread(near, low), self.z_start)
         if not self.picked.size:
             self.active_count = 0
             return False
@@ -439,125 +467,104 @@ class CoulombContact(_Ground):
         """Forget who touched, slid and how hard: the next step starts as a first one."""
         self.touching[:] = False
         self.sliding[:] = False
-        self.normal_force[:] = 0.0
         self.direction[:] = 0.0
         self.picked = np.zeros(0, np.int64)
-        self._missed = np.zeros(0, np.int64)
-
-    def missed(self, z) -> bool:
-        """Did the step leave vertices below the ground that its projections did not look at?
-
-        Then the driver runs the step's iterations again, with them (``z`` the result).
-        """
-        below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
-        self._missed = np.setdiff1d(below, self.picked, assume_unique=True)
-        return bool(self._missed.size)
 
     def finish_step(self, z) -> None:
-        """Hold up any candidate the step left below the ground (``z`` the result, in place)."""
-        self._missed = np.zeros(0, np.int64)
-        below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
-        if not below.size:
-            return
-        missed = np.setdiff1d(below, self.picked, assume_unique=True)
-        if missed.size:
-            # seen only now: constrained from here on, with the others (their start: where they are)
-            start = self.start if self.picked.size else np.zeros((0, self.dim))
-            self._pick(np.concatenate([self.picked, missed]), z, start)
-        self._constrain(z)
+        """Hold up every candidate the step left below the ground (``z`` (r,) the result, in place).
+
+        The spread few the iterations looked at hold most of a patch up; a vertex between them
+        that sagged below joins them here (its start: where it is), and the projection is
+        repeated until no candidate is below. The next step looks at it from the start.
+        """
+        for _ in range(_FINISH):
+            below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
+            missed = np.setdiff1d(below, self.picked, assume_unique=True)
+            if not missed.size:  # the picked ones were held by the last projection
+                return
+            if missed.size:
+                start = self.start if self.picked.size else np.zeros((0, self.dim))
+                self._pick(np.concatenate([self.picked, missed]), z, start)
+            self._constrain(z)
+        raise SimulationError(f"ground contact: {below.size} vertices stay below the ground after {_FINISH} tries")
 
     # ---------------------------------------------------------- the solve
     def _constrain(self, z) -> bool:
-        """Rounds of (the sliding vertices' friction as known forces, the active set) to a fixed point."""
+        """The pushed, sticking and sliding vertices by an active set, warm-started; z (r,) in place."""
         picked, dim, up, mu = self.picked, self.dim, self.up, self.friction
-        x_base = np.asarray(self.J @ z)
+        x_t = np.asarray(self.J @ z)
         # hysteresis against going round in circles on flat faces: a vertex joins when it ends a
-        # hundred-thousandth of the body's size below the ground, leaves when the ground would pull
-        # it by more than a thousandth of the largest push
+        # ten-thousandth of the body's size below the ground, leaves when the ground would pull
+        # it by more than a hundredth of the largest push
         joining = self.ground - self.allowance
-        # the first guess: the vertices pushed last time, and the deepest few below the ground
-        below = x_base[up::dim] < joining
+        below = x_t[up::dim] < joining
         active = self.touching[picked].copy()
-        active[np.argsort(np.where(below, x_base[up::dim], np.inf))[: min(_JOIN, np.count_nonzero(below))]] = True
         if not np.count_nonzero(active):
-            self._release()
-            return False
-        z_base = z.copy()
-        sliding = active & self.sliding[picked] if mu else np.zeros(picked.size, bool)
-        estimate = self.normal_force[picked].copy()  # the sliding vertices' normal forces
-        direction = self.direction[picked].copy()
-        for _ in range(3):
-            z_t, x_t = self._push(sliding, estimate, direction, z_base, x_base)
-            stick = active & ~sliding if mu else np.zeros(picked.size, bool)
-            active, normal, tangential, x = self._active_set(active, stick, z_t, x_t, z, joining)
-            if not np.count_nonzero(active):
-                np.copyto(z, z_base)
+            if not np.count_nonzero(below):
                 self._release()
                 return False
-            stick &= active
-            needed = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
-            # sticking takes more than friction gives: slide, friction leaning the way the ground held it
-            slips = stick & (needed > mu * normal * (1.0 + 1e-9))
-            # a sliding vertex that its friction drove back (it overshot) sticks again
-            moved = (x.reshape(-1, dim) - self.start) * (np.arange(dim) != up)
-            stops = sliding & active & (np.einsum("ij,ij->i", moved, direction) > 0.0)
-            leaves = sliding & ~active
-            # the sliding ones' normal forces from this round lead the next projection's friction
-            if not (np.count_nonzero(slips) or np.count_nonzero(stops) or np.count_nonzero(leaves)):
-                break
-            direction[slips] = tangential[slips] / needed[slips, None]
-            sliding = (sliding | slips) & ~stops & active
-            estimate = normal
-        self._update_state(active, sliding, normal, direction, x)
-        return True
-
-    def _push(self, which, force, direction, z_t, x_t):
-        """``z_t`` and the positions after the friction of some vertices: ``mu`` times their force, that way."""
-        if not np.count_nonzero(which):
-            return z_t, x_t
-        rows = self.rows_of_picked.reshape(-1, self.dim)[which][:, self.tangents].ravel()
-        push = (self.friction * force[which])[:, None] * direction[which][:, self.tangents]
-        z_t = z_t + self._push_of(rows).T @ push.ravel()
-        return z_t, np.asarray(self.J @ z_t)
-
-    def _active_set(self, active, stick, z_t, x_t, z, joining):
-        """Vertices pushed onto the ground (and sticking ones held) by a primal-dual active set; z in place.
-
-        Returns the active set, the normal forces (c,), the tangential forces (c, dim) and the positions.
-        A vertex joins when it ends below ``joining`` and leaves when the ground would pull it.
-        """
-        up, dim = self.up, self.dim
+            active[self._deepest(below, x_t)] = True
+        z_t = z.copy()
+        sliding = active & self.sliding[picked]
+        direction = self.direction[picked].copy()
         seen = set()
         for attempt in range(_PASSES):
-            normal, tangential, x = self._solve(active, stick & active, z_t, x_t, z)
+            stick = active & ~sliding if mu else np.zeros_like(active)
+            normal, tangential, x = self._solve(active, stick, sliding, direction, z_t, x_t, z)
             release = active & (normal < -1e-2 * max(normal.max(initial=0.0), 1e-300))
             below = ~active & (x[up::dim] < joining)
-            if not (np.count_nonzero(release) or np.count_nonzero(below)):
-                return active, np.maximum(normal, 0.0), tangential, x
+            slips = stops = None
+            if mu:
+                needed = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
+                # sticking takes more than friction gives: slide, friction leaning the way the ground held it
+                slips = stick & (needed > mu * normal * (1.0 + 1e-9)) & ~release
+                # a sliding vertex that its friction drove back (it overshot) sticks again
+                moved = (x.reshape(-1, dim) - self.start) * (np.arange(dim) != up)
+                stops = sliding & (np.einsum("ij,ij->i", moved, direction) > self.tol)
+            if not (np.count_nonzero(release) or np.count_nonzero(below)) and not (
+                mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
+            ):
+                self._update_state(active, sliding, np.maximum(normal, 0.0), direction, x)
+                return True
             if attempt == _PASSES - 1:
                 break
-            key = active.tobytes()
+            key = active.tobytes() + sliding.tobytes()
             if attempt < _PASSES // 2 and key not in seen:
                 seen.add(key)
                 # release every vertex the ground pulls, hold the deepest few below: the rows of
                 # neighbouring vertices nearly repeat each other, so a few stand for a whole patch
-                heights = np.where(below, x[up::dim], np.inf)
                 active = active & ~release
-                active[np.argsort(heights)[: min(_JOIN, np.count_nonzero(below))]] = True
+                active[self._deepest(below, x)] = True
+                if mu:
+                    direction[slips] = tangential[slips] / needed[slips, None]
+                    sliding = (sliding | slips) & ~stops & active
             elif np.count_nonzero(below):
                 # going round in circles: one change at a time, the deepest vertex first
                 active = active | (below & (x[up::dim] <= x[up::dim][below].min()))
-            else:
+            elif np.count_nonzero(release):
                 active = active.copy()
                 active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
+                sliding &= active
+            else:  # friction alone goes round: every vertex that changes sticks
+                sliding = sliding & ~stops & ~slips
             if not np.count_nonzero(active):
                 # nothing pushed after all: unless the unpushed state leaves a vertex below
                 active = x_t[up::dim] < joining
+                sliding &= active
                 if not np.count_nonzero(active):
                     np.copyto(z, z_t)
-                    return active, np.zeros(active.size), np.zeros((active.size, dim)), x_t
-        # going round in circles: the whole problem over the rows concerned, exactly
-        return self._least_distance(active | below, stick, z_t, x_t, z)
+                    self._release()
+                    return True
+        # going round in circles: the whole problem over the rows concerned, exactly (sticking)
+        near = active | below
+        normal, tangential, x = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
+        self._update_state(normal > 0.0, np.zeros(picked.size, bool), normal, direction, x)
+        return True
+
+    def _deepest(self, below, x) -> np.ndarray:
+        """The few deepest of the vertices ``below`` (indices into the picked ones)."""
+        heights = np.where(below, x[self.up :: self.dim], np.inf)
+        return np.argsort(heights)[: min(_JOIN, np.count_nonzero(below))]
 
     def _least_distance(self, near, stick, z_t, x_t, z):
         """The projection as a least-distance problem over some rows, solved by NNLS (Lawson and Hanson).
@@ -589,36 +596,62 @@ class CoulombContact(_Ground):
         tangential = np.zeros((picked.size, dim))
         both = lam[normal_rows.size : normal_rows.size + k] - lam[normal_rows.size + k :]
         tangential[np.ix_(stick & near, self.tangents)] = both.reshape(-1, dim - 1)
-        return normal > 0.0, normal, tangential, x
+        return normal, tangential, x
 
-    def _solve(self, active, stick, z_t, x_t, z):
+    def _solve(self, active, stick, sliding, direction, z_t, x_t, z):
         """One pass: the active vertices onto the ground, the sticking ones held; z in place.
 
-        ``(A H^-1 A^T + c I) lam = targets - A z_t``, ``z = z_t + H^-1 A^T lam`` over the rows of
-        the active vertices' heights and the sticking ones' tangents.
+        ``(A H^-1 F^T + c I) lam = targets - A z_t``, ``z = z_t + H^-1 F^T lam`` over the rows
+        ``A`` of the active vertices' heights and the sticking ones' tangents; ``F = A``, but for
+        the sliding vertices, whose force leans by ``friction`` the way friction pushes them
+        (``direction``), so that it is exactly ``friction`` times their normal force.
         Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
         """
-        picked, dim, up = self.picked, self.dim, self.up
-        normal_rows = np.flatnonzero(active) * dim + up
-        tangent_rows = (np.flatnonzero(stick)[:, None] * dim + self.tangents).ravel()
-        rows = np.concatenate([normal_rows, tangent_rows])
-        HA = self._push_of(self.rows_of_picked[rows])  # (k, r): each row's push on z
-        K = self._rows_of(self.rows_of_picked[rows]) @ HA.T
-        K.flat[:: rows.size + 1] += self.compliance
-        lam = np.linalg.solve(K, self.target[rows] - x_t[rows])
-        np.add(z_t, HA.T @ lam, out=z)
-        x = np.asarray(self.J @ z)
-        normal = np.zeros(picked.size)
-        normal[active] = lam[: normal_rows.size]
-        tangential = np.zeros((picked.size, dim))
-        tangential[np.ix_(stick, self.tangents)] = lam[normal_rows.size :].reshape(-1, dim - 1)
+        op = self._operator(active, stick, sliding, direction)
+        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        np.add(z_t, lam @ op.pushes, out=z)
+        x = self.J @ z
+        normal = np.zeros(self.picked.size)
+        normal[op.pushed] = lam[: op.pushed.size]
+        tangential = np.zeros((self.picked.size, self.dim))
+        tangential.ravel()[op.held] = lam[op.pushed.size :]
+        if op.slid.size:
+            tangential[op.slid] = (self.friction * normal[op.slid])[:, None] * direction[op.slid]
         return normal, tangential, x
+
+    def _operator(self, active, stick, sliding, direction) -> _Operator:
+        """The solve's operator for sets of pushed, sticking and sliding vertices (and the slides' ways).
+
+        Kept for the step: the sets repeat from one iteration to the next, and so do the ways
+        the vertices slide (:meth:`_update_state` turns one only when the motion turned).
+        """
+        slid = np.flatnonzero(sliding) if self.friction else np.zeros(0, np.int64)
+        key = active.tobytes() + stick.tobytes() + slid.tobytes() + direction[slid].tobytes()
+        found = self._operators.get(key)
+        if found is not None:
+            return found
+        dim, up = self.dim, self.up
+        pushed = np.flatnonzero(active)
+        held = (np.flatnonzero(stick)[:, None] * dim + self.tangents).ravel()
+        rows = np.concatenate([pushed * dim + up, held])
+        candidate_rows = self.rows_of_picked[rows]
+        pushes = self._push_of(candidate_rows)
+        if slid.size:
+            lean = self.rows_of_picked.reshape(-1, dim)[slid][:, self.tangents]  # (s, dim - 1)
+            weights = self.friction * direction[slid][:, self.tangents]
+            leaned = np.einsum("st,str->sr", weights, self._push_of(lean.ravel()).reshape(*lean.shape, -1))
+            pushes[np.searchsorted(pushed, slid)] += leaned
+        K = self._rows_of(candidate_rows) @ pushes.T
+        K.flat[:: rows.size + 1] += self.compliance
+        found = self._operators[key] = _Operator(rows, pushes, np.linalg.inv(K), pushed, held, slid)
+        if len(self._operators) > _OPERATORS:
+            self._operators.pop(next(iter(self._operators)))
+        return found
 
     def _update_state(self, active, sliding, normal, direction, x) -> None:
         """What the next projection starts from: who touches, who slides and which way, the normal forces."""
         picked, dim, up = self.picked, self.dim, self.up
         self.touching[picked] = active
-        self.normal_force[picked] = np.where(active, np.maximum(normal, 0.0), 0.0)
         self.sliding[picked] = sliding & active
         self.active_count = int(np.count_nonzero(active))
         if np.count_nonzero(sliding):
@@ -626,14 +659,15 @@ class CoulombContact(_Ground):
             moved = (x.reshape(-1, dim) - self.start)[sliding]
             moved[:, up] = 0.0
             length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
-            moving = length > self.tol
-            where = np.flatnonzero(sliding)[moving]
-            direction[where] = -moved[moving] / length[moving, None]
+            way = -moved / np.maximum(length, self.tol)[:, None]
+            # turned only when the motion turned by more than a degree: then the solve's operator
+            # repeats from one iteration to the next (friction a degree off is 2 % of it sideways)
+            turned = (length > self.tol) & (np.einsum("ij,ij->i", way, direction[sliding]) < _TURN)
+            direction[np.flatnonzero(sliding)[turned]] = way[turned]
         self.direction[picked] = direction
 
     def _release(self) -> None:
         picked = self.picked
         self.touching[picked] = False
         self.sliding[picked] = False
-        self.normal_force[picked] = 0.0
         self.active_count = 0

@@ -213,9 +213,6 @@ class LocalGlobal:
         """
         found = self._attempt(backends, z, z_dot, a, contact)
         if contact is not None:
-            if contact.missed(found[0]):
-                # the contact saw too few vertices (some ended below the ground): once more, with them
-                found = self._attempt(backends, z, z_dot, a, contact)
             contact.finish_step(found[0])
         return found
 

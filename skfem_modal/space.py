@@ -225,10 +225,12 @@ class Heights:
     def __init__(self, rows, pick):
         self.rows, self.pick = rows, pick
 
-    def __call__(self, z) -> np.ndarray:
-        """The vertices' coordinates, shape (p,)."""
+    def __call__(self, z, which=None) -> np.ndarray:
+        """The vertices' coordinates, shape (p,); or only those of ``which`` (indices into the vertices)."""
         picked = z[self.pick]
-        return picked if self.rows is None else self.rows @ picked
+        if which is None:
+            return picked if self.rows is None else self.rows @ picked
+        return picked[which] if self.rows is None else self.rows[which] @ picked
 
     def __len__(self) -> int:
         return len(self.pick) if self.rows is None else self.rows.shape[0]

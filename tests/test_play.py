@@ -511,4 +511,4 @@ def test_docs_play_python_example(display, tmp_path, monkeypatch, capsys):
     assert sum("120 frames in" in line for line in out) == 2
     quoted = [float(v) for v in re.search(r"# \[([-0-9. ]+)\]", code).group(1).split()]
     shown = namespace["player"].amplitudes() / namespace["sim"].ceilings
-    np.testing.assert_allclose(shown, quoted, atol=2e-3)
+    np.testing.assert_allclose(shown, quoted, atol=1e-2)
