@@ -52,16 +52,21 @@ from .effects import Effect
 from .mesh import boundary_vertices
 from .solver import SimulationError
 
-__all__ = ["CoulombContact", "ReferenceContact", "MODELS"]
+__all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE"]
 
 #: Contact models by name (a scene's ``ground.model``).
 MODELS = ("coulomb", "reference")
+
+#: How far below the ground (of the body's size) the Coulomb contact lets a vertex end a step.
+ALLOWANCE = 2e-4
 
 _CACHE_SIZE = 512
 # passes of the active set in one projection before the exact solve (half changing whole sets, half one vertex)
 _PASSES = 16
 # vertices below the ground joining the active set per pass, at most
 _JOIN = 4
+# a missed vertex this far below the ground (of the body's size) at the end of a step has the step redone
+_REDO_DEPTH = 1e-3
 # vertices a step's projections look at, at most (the end of the step checks them all)
 _MOST = 32
 # operators of sets of pushed and sticking vertices kept, the latest used
@@ -95,6 +100,10 @@ class _Ground(Effect):
     def penetration(self, z) -> float:
         """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``."""
         return max(0.0, self.ground - float(self.boundary(np.asarray(z, float)).min()))
+
+    def missed(self, z) -> bool:
+        """Whether the step's iterations should run again, seeing more vertices (see the Coulomb model)."""
+        return False
 
     def forget(self) -> None:
         """Forget what earlier steps leave for the next (nothing, here: see the Coulomb model)."""
@@ -305,9 +314,13 @@ class CoulombContact(_Ground):
     the start of the step or in its first global solution (within half a
     percent of the body's size, or moving towards it fast enough), spread
     over the body, the lowest of each patch, the touching ones first. At the
-    end of the step every candidate is checked, and any that ended more than
-    a ten-thousandth of the body's size below the ground is held up with the
-    others, so no vertex ends a step in the ground.
+    end of the step every candidate is checked: any that ended more than
+    ``ALLOWANCE`` of the body's size below the ground is held up with the
+    others, and one that ended deeper than a thousandth has the step's
+    iterations run again, looking at it too. So no vertex ends a step in the
+    ground by more than about ``ALLOWANCE`` of the size (between the vertices
+    held, a subspace cannot keep every vertex of a flat face exactly on the
+    plane).
 
     Parameters
     ----------
@@ -336,8 +349,7 @@ class CoulombContact(_Ground):
         self.heights_of = space.heights(self.vertices, up)
         self.size = float(np.ptp(space.mesh.p, axis=1).max())
         self.tol = 1e-9 * self.size
-        # how far below the ground a vertex may end a step: the compliance's give, a ten-thousandth of the size
-        self.allowance = 1e-4 * self.size
+        self.allowance = ALLOWANCE * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
         p = self.vertices.size
         self.rest = space.mesh.p.T[self.vertices]  # (p, dim): where the picking spreads
@@ -346,6 +358,7 @@ class CoulombContact(_Ground):
         self.sliding = np.zeros(p, bool)
         self.direction = np.zeros((p, self.dim))
         self.picked = np.zeros(0, np.int64)
+        self._missed = np.zeros(0, np.int64)  # missed by a step's first run, looked at in its second
         self._first = False
         self.active_count = 0
 
@@ -457,7 +470,7 @@ class CoulombContact(_Ground):
             self._first = False
             low = np.minimum(self.reach, self.heights_of(z))
             near = np.flatnonzero((low < self.ground + 0.005 * self.size) | self.touching)
-            self._pick(self._spread(near, low), self.z_start)
+            self._pick(np.union1d(self._spread(near, low), self._missed), self.z_start)
         if not self.picked.size:
             self.active_count = 0
             return False
@@ -469,6 +482,17 @@ class CoulombContact(_Ground):
         self.sliding[:] = False
         self.direction[:] = 0.0
         self.picked = np.zeros(0, np.int64)
+        self._missed = np.zeros(0, np.int64)
+
+    def missed(self, z) -> bool:
+        """Whether the step's iterations missed a vertex that ended deep below the ground (``z`` the result).
+
+        Holding it up only at the end would kick the body: the driver runs the step's iterations
+        again, with it among the vertices looked at (the shallow ones are held at the end).
+        """
+        below = np.flatnonzero(self.heights_of(z) < self.ground - _REDO_DEPTH * self.size)
+        self._missed = np.setdiff1d(below, self.picked, assume_unique=True)
+        return bool(self._missed.size)
 
     def finish_step(self, z) -> None:
         """Hold up every candidate the step left below the ground (``z`` (r,) the result, in place).
@@ -477,6 +501,7 @@ class CoulombContact(_Ground):
         that sagged below joins them here (its start: where it is), and the projection is
         repeated until no candidate is below. The next step looks at it from the start.
         """
+        self._missed = np.zeros(0, np.int64)
         for _ in range(_FINISH):
             below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
             missed = np.setdiff1d(below, self.picked, assume_unique=True)
@@ -493,10 +518,9 @@ class CoulombContact(_Ground):
         """The pushed, sticking and sliding vertices by an active set, warm-started; z (r,) in place."""
         picked, dim, up, mu = self.picked, self.dim, self.up, self.friction
         x_t = np.asarray(self.J @ z)
-        # hysteresis against going round in circles on flat faces: a vertex joins when it ends a
-        # ten-thousandth of the body's size below the ground, leaves when the ground would pull
-        # it by more than a hundredth of the largest push
-        joining = self.ground - self.allowance
+        # the exact projection (no slack: a vertex let a little below, then pushed out in a later
+        # step, would be kicked; each global step then lowers the step's energy)
+        joining = self.ground - self.tol
         below = x_t[up::dim] < joining
         active = self.touching[picked].copy()
         if not np.count_nonzero(active):
@@ -511,7 +535,7 @@ class CoulombContact(_Ground):
         for attempt in range(_PASSES):
             stick = active & ~sliding if mu else np.zeros_like(active)
             normal, tangential, x = self._solve(active, stick, sliding, direction, z_t, x_t, z)
-            release = active & (normal < -1e-2 * max(normal.max(initial=0.0), 1e-300))
+            release = active & (normal < -1e-9 * max(normal.max(initial=0.0), 1e-300))
             below = ~active & (x[up::dim] < joining)
             slips = stops = None
             if mu:

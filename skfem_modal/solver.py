@@ -213,6 +213,9 @@ class LocalGlobal:
         """
         found = self._attempt(backends, z, z_dot, a, contact)
         if contact is not None:
+            if contact.missed(found[0]):
+                # the contact looked at too few vertices (one ended deep below the ground): once more, with it
+                found = self._attempt(backends, z, z_dot, a, contact)
             contact.finish_step(found[0])
         return found
 
