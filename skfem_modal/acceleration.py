@@ -4,15 +4,15 @@ The plain iteration ``z_(k+1) = g(z_k)`` (local rotations at ``z_k``, then the
 global solve) minimises a quadratic that lies above the step energy and
 touches it at ``z_k``, so with ``H`` the constant system matrix
 
-    E(g(z)) <= E(z) - 1/2 |g(z) - z|_H^2                       (the certain decrease)
+    E(g(z)) <= E(z) - 1/2 |g(z) - z|_H^2
 
 and ``grad E(z) = H (z - g(z))``: its fixed points are the stationary points
 of ``E``. It converges linearly, and slowly for stiff or strongly rotating
 bodies. The driver (:class:`~skfem_modal.solver.LocalGlobal`) can hand the
 backend another next iterate, proposed here from what the plain iterations
-made, and keeps it only when its energy is at most ``E(z_k)`` less the
-certain decrease: never a worse iterate than the plain one is sure to be,
-and the same fixed points (at one, every proposal is the fixed point).
+made, and keeps it only when its energy is at most that of the plain iterate
+it replaces: never a worse iterate than the plain one, and the same fixed
+points (at one, every proposal is the fixed point).
 
 * :class:`StepEnergy` evaluates ``E`` (up to a constant) and keeps the
   clusters' ``S`` and ``R`` at the last point evaluated;
@@ -105,10 +105,6 @@ class StepEnergy:
         self.S, self.R = S.reshape(-1, d, d), R.reshape(-1, d, d)
         u = z - self.exact.c
         return 0.5 * float(u @ (self.H @ u)) - float(R.ravel() @ S)
-
-    def certain_decrease(self, step) -> float:
-        """``1/2 |step|_H^2``: what the plain iteration is sure to take off the energy, for ``step = g(z) - z``."""
-        return 0.5 * float(step @ (self.H @ step))
 
 
 class Anderson:

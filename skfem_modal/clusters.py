@@ -139,23 +139,26 @@ def rotation_clusters(mesh, B, k: int, *, mass, stiffness, modes: int = 8, seed:
     labels : ndarray of int, shape (nT,)
         Cluster of each element, every value in ``0..k-1`` used.
     """
-    from .fem import _jacobian
+    from .fem import _jacobian, _positive
 
     check_mesh(mesh)
     dim, n = mesh.p.shape
     nT = mesh.t.shape[1]
     _check_count(k, nT)
     B = np.asarray(B, dtype=np.float64)
-    if B.ndim != 2 or B.shape[0] != n * dim:
-        raise ValueError(f"B must have shape ({n * dim}, r) for this mesh, got {B.shape}")
-    weights = np.broadcast_to(np.asarray(stiffness, dtype=np.float64), (nT,)) * np.abs(_signed_measures(mesh.p, mesh.t))
+    if B.ndim != 2 or B.shape[0] != n * dim or not np.all(np.isfinite(B)):
+        raise ValueError(f"B must be finite with shape ({n * dim}, r) for this mesh, got {B.shape}")
+    mass = np.asarray(mass, dtype=np.float64)
+    if mass.shape != (n * dim,) or not np.all(mass > 0) or not np.all(np.isfinite(mass)):
+        raise ValueError(f"mass must be positive and finite with shape ({n * dim},), got shape {mass.shape}")
+    weights = _positive(stiffness, nT, "stiffness") * np.abs(_signed_measures(mesh.p, mesh.t))
     J = _jacobian(mesh, "P1")
     dd = dim * dim
     # the projector onto the symmetric part of a row-major F, per element
     sym = 0.5 * (np.eye(dd) + np.eye(dd)[[dim * (i % dim) + i // dim for i in range(dd)]])
     K_B = J.T @ (sps.kron(sps.diags(weights), sps.csr_matrix(sym)) @ (J @ B))
     K = B.T @ K_B
-    M = B.T @ (np.asarray(mass, dtype=np.float64)[:, None] * B)
+    M = B.T @ (mass[:, None] * B)
     lam, phi = sla.eigh(0.5 * (K + K.T), M)
     deforming = np.nonzero(lam > 1e-10 * max(lam[-1], 0.0))[0][:modes]
     if deforming.size == 0:

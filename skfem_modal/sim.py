@@ -274,13 +274,13 @@ class ModalMuscle:
         point, reached in fewer iterations when the motion is smooth.
     acceleration : {"none", "anderson", "newton"}
         Accelerated iterates (:mod:`~skfem_modal.acceleration`; not under
-        contact), each kept only when it lowers the step energy at least as
-        much as the plain iteration is certain to: ``anderson`` extrapolates
-        from the last iterates, ``newton`` (a subspace only) takes a Newton
-        step with the exact Hessian of the rotation terms. Each iteration
-        then costs some numpy calls more, which pays where iterations are
-        expensive (many clusters, the full space), not for small compiled ones
-        (docs/accuracy.md).
+        contact), each kept only when its step energy is at most that of the
+        plain iterate it replaces: ``anderson`` extrapolates from the last
+        iterates, ``newton`` (a subspace only) takes a Newton step with the
+        exact Hessian of the rotation terms. They take far fewer iterations,
+        but each costs two energy evaluations and some numpy calls more: a
+        saving only where plain iterations are slow to converge and costly
+        (docs/accuracy.md has the measurements).
     backend : {"auto", "numpy", "numba", "plain"}
         Who does the iterations' arithmetic (:func:`~skfem_modal.solver.make_backends`;
         the same results to round-off). ``auto`` uses numba when it is installed.

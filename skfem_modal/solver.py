@@ -20,9 +20,9 @@ Faster convergence to the same point, each off by default
 (:mod:`skfem_modal.acceleration`): ``warm_start`` starts the iterations from
 the inertial prediction ``u + h v`` instead of ``u``; ``acceleration``
 (``"anderson"`` or ``"newton"``) makes the iterations one at a time and
-hands the backend an extrapolated iterate whenever its energy is below what
-the plain iteration is certain to reach. Under contact (a projection, not an
-energy) the iterations stay plain.
+hands the backend an accelerated iterate whenever its energy is no higher
+than that of the plain iterate it replaces. Under contact (a projection,
+not an energy) the iterations stay plain.
 
 A *backend* does the arithmetic of the iterations and owns its buffers; the
 driver calls:
@@ -330,12 +330,13 @@ class LocalGlobal:
         return self._finish(backend, done - count + hit if hit > 0 else hit)
 
     def _run_accelerated(self, backend, start, energy, accelerator):
-        """One iteration at a time; after each, an accelerated iterate when its energy is low enough.
+        """One iteration at a time; after each, an accelerated iterate if its energy is no higher.
 
-        The plain iterate ``g`` of ``x`` is certain to lower the energy by
-        ``1/2 |g - x|_H^2``; a proposal that does at least as well is handed
-        to the backend, otherwise the plain iterate is kept and the
-        accelerator's history forgotten.
+        A proposal made from ``x`` and its plain iterate ``g`` replaces ``g``
+        (handed to the backend) only when its step energy is at most that of
+        ``g``; otherwise ``g`` is kept and the accelerator's history
+        forgotten. So every iterate is at least as low as the plain one it
+        replaces, and the energies of the results fall with the iterations.
         """
         accelerator.reset()
         x = backend.result(0)
@@ -349,23 +350,21 @@ class LocalGlobal:
             proposal = None
             if done < self.max_iter and np.all(np.isfinite(g)):
                 proposal = accelerator.propose(x, g, energy, local)
-            E_g = energy(g) if self.etol else None
-            hit = self._first_stop(rows, start, None if E_g is None else np.array([E, E_g]), first)
+            E_g = energy(g)
+            local_g = energy.S, energy.R
+            hit = self._first_stop(rows, start, np.array([E, E_g]), first)
             if hit or done == self.max_iter:
                 return self._finish(backend, done if hit >= 0 else -1)
-            target = E - energy.certain_decrease(g - x)
             if proposal is not None:
                 E_p = energy(proposal)
-                if E_p <= target:
+                if E_p <= E_g:
                     backend.restart(proposal)
                     self.accepted += 1
                     x, E, local = proposal, E_p, (energy.S, energy.R)
                     continue
                 self.refused += 1
                 accelerator.reset()
-            x = g
-            E = E_g if E_g is not None else energy(g)
-            local = energy.S, energy.R
+            x, E, local = g, E_g, local_g
 
     def _finish(self, backend, k):
         """Hand the step's outcome to the backend: ``(z_k, k)``, or None if it refuses (k < 0: non-finite)."""
