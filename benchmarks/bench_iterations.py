@@ -14,7 +14,8 @@ Scenes:
   * caterpillar stiff: the same, ten times stiffer (mu = 1e6, the tutorial crawl's):
     the plain iteration converges slowly
   * creature: the 3D creature of examples/creature_float.toml (1180 vertices, 8 weights, 20 clusters)
-  * caterpillar full space: every DOF, a rotation per element (the study's reference), to 1e-10
+  * caterpillar full space, creature full space: every DOF, a rotation per element (the
+    study's references), to 1e-10
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ def scenes():
         ("caterpillar stiff", stiff, False),
         ("creature", creature, False),
         ("caterpillar full space", FLOATING_CATERPILLAR, True),
+        ("creature full space", creature, True),
     ]:
         scene = Scene.from_dict(data, base_dir=os.path.dirname(CREATURE))
         sim = scene.build_reference() if full else scene.build()
