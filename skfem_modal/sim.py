@@ -1124,17 +1124,28 @@ class StepRecord:
     seconds : float
         Wall time of ``sim.step``.
     iterations : int
-    residual : float
-        The step's last change ``|z_k - z_(k-1)|`` over its motion
-        ``|z_k - z|``: how far from converged it stopped, relative (0 for a
-        step that did not move).
+    change : float
+        The step's last change ``|z_k - z_(k-1)|`` (``sim.residual``).
+    start : ndarray, shape (r,)
+        The state the step started from.
     """
 
-    __slots__ = ("step", "time", "z", "z_dot", "a", "seconds", "iterations", "residual")
+    __slots__ = ("step", "time", "z", "z_dot", "a", "seconds", "iterations", "change", "start")
 
-    def __init__(self, step, time_, z, z_dot, a, seconds, iterations, residual=0.0):
+    def __init__(self, step, time_, z, z_dot, a, seconds, iterations, change=0.0, start=None):
         self.step, self.time, self.z, self.z_dot = step, time_, z, z_dot
-        self.a, self.seconds, self.iterations, self.residual = a, seconds, iterations, residual
+        self.a, self.seconds, self.iterations, self.change, self.start = a, seconds, iterations, change, start
+
+    @property
+    def residual(self) -> float:
+        """The last change over the step's motion ``|z_k - z|``: how far from converged it stopped.
+
+        0 for a step that did not move (or whose start is not known).
+        """
+        if self.start is None:
+            return 0.0
+        motion = float(np.linalg.norm(self.z - self.start))
+        return self.change / motion if motion > 0 else 0.0
 
 
 def simulate(sim, steps: int, activation=None, state=None):
@@ -1181,7 +1192,6 @@ def simulate(sim, steps: int, activation=None, state=None):
         except SimulationError as err:
             raise SimulationError(err.message, step=i + 1) from None
         seconds = time.perf_counter() - clock
+        record = StepRecord(i + 1, (i + 1) * h, z_next, z_dot, a, seconds, sim.iterations, sim.residual, z)
         z = z_next
-        motion = h * float(np.sqrt(z_dot @ z_dot))
-        residual = sim.residual / motion if motion > 0 else 0.0
-        yield StepRecord(i + 1, (i + 1) * h, z, z_dot, a, seconds, sim.iterations, residual)
+        yield record

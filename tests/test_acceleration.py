@@ -45,6 +45,8 @@ def test_restart_continues_from_the_given_iterate_on_every_backend(moving, backe
     sim, z, z_dot, a = moving
     settle(sim, backend=backend)
     fast, exact = sim.backends[0], PlainBackend(sim.model)
+    kinds = {"numpy": ("numpy (2D buffers)", "numpy (Kronecker form)"), "plain": ("plain",), "numba": ("numba",)}
+    assert fast.name == kinds[backend][sim.dim - 2 if backend == "numpy" else 0]
     fast.start(z, z_dot, a)
     exact.start(z, z_dot, a)
     rng = np.random.default_rng(0)
@@ -179,10 +181,16 @@ def test_residual_is_reported_per_step(moving):
     sim, z, z_dot, a = moving
     settle(sim, rtol=0.0, max_iter=6)
     records = list(sm.simulate(sim, 3, lambda t: a, state=(z, z_dot)))
+    assert records[-1].change == sim.residual
     for record, previous in zip(records, [z] + [r.z for r in records]):
-        motion = np.linalg.norm(record.z - previous)
-        assert record.residual == pytest.approx(sim.residual / motion if record is records[-1] else record.residual)
+        assert record.start is previous
+        assert record.residual == pytest.approx(record.change / np.linalg.norm(record.z - previous), rel=1e-12)
         assert 0 < record.residual < 1
+    # the change is the last iteration's: one more iteration from there moves z by it
+    settle(sim, rtol=0.0, max_iter=5)
+    five = sim.step(z, z_dot, a)
+    settle(sim, rtol=0.0, max_iter=6)
+    assert np.linalg.norm(sim.step(z, z_dot, a) - five) == pytest.approx(sim.residual, rel=1e-9)
     # more iterations, a smaller residual
     settle(sim, rtol=0.0, max_iter=20)
     longer = list(sm.simulate(sim, 3, lambda t: a, state=(z, z_dot)))
