@@ -92,6 +92,9 @@ class Compiled3Backend:
     def start_row(self):
         return self.Y[0]
 
+    def restart(self, z) -> None:
+        np.copyto(self.Y[self.k], z)
+
     def _run(self, first, count) -> None:
         """Iterations ``first + 1 .. first + count``; any a kernel cannot certify made by numpy."""
         done = 0

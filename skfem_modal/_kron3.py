@@ -337,6 +337,9 @@ class KroneckerBackend:
     def start_row(self):
         return self.Z_rows[0]
 
+    def restart(self, z) -> None:
+        np.copyto(self.outputs[self.k], z.reshape(self.K, 3))
+
     def iterate(self, count, contact):
         Yt, Wt, F, F16 = self.Yt, self.Wt, self.F, self.F16
         RT, RT16, trace = self.RT, self.RT16, self.trace

@@ -101,6 +101,9 @@ class Step2Backend:
     def start_row(self):
         return self.z_rows[0]
 
+    def restart(self, z) -> None:
+        np.copyto(self.z_rows[self.k], z)
+
     def iterate(self, count, contact):
         G, W_c, cs_1, cs_flat, cs = self.G, self.W_c, self.cs_1, self.cs_flat, self.cs
         cos, sin, norm, norm_column, n = self.cos, self.sin, self.norm, self.norm_column, self.n

@@ -1,9 +1,15 @@
-"""Spectral clustering of elements: groups that share one rotation in the simulator.
+"""Clusters of elements: groups that share one rotation in the simulator.
 
-Elements with similar skinning weights move alike, so k-means on the weights
-(averaged onto elements) gives compact clusters that deform coherently. Each
-cluster then gets one best-fit rotation per local step instead of one per
-element.
+Each cluster gets one best-fit rotation per local step instead of one per
+element. Two ways to choose them:
+
+* :func:`spectral_clusters`: elements with similar skinning weights move
+  alike, so k-means on the weights (averaged onto elements) gives compact
+  clusters that deform coherently;
+* :func:`rotation_clusters`: a shared rotation costs energy where the
+  elements' own rotations differ, so k-means on how the subspace's lowest
+  vibration modes rotate each element (weighted by the element's stiffness)
+  puts more clusters where rotation varies most.
 """
 
 from __future__ import annotations
@@ -11,11 +17,16 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sps
 from scipy.cluster.vq import kmeans2
 
-from .mesh import check_mesh, connected_parts
+from .mesh import _signed_measures, check_mesh, connected_parts
 
-__all__ = ["average_onto_elements", "spectral_clusters"]
+__all__ = ["average_onto_elements", "spectral_clusters", "rotation_clusters", "CLUSTER_BY"]
+
+#: What a simulator's clusters can be made from (``cluster_by``).
+CLUSTER_BY = ("weights", "rotations")
 
 
 def average_onto_elements(mesh, values) -> np.ndarray:
@@ -83,21 +94,102 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
         Cluster of each element, every value in ``0..k-1`` used.
     """
     check_mesh(mesh)
-    nT = mesh.t.shape[1]
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise TypeError(f"k (the number of clusters) must be an integer, got {type(k).__name__}")
-    if not 1 <= k <= nT:
-        raise ValueError(f"k (the number of clusters) must be in 1..{nT} (the number of elements), got {k}")
+    _check_count(k, mesh.t.shape[1])
     W = np.asarray(weights, dtype=np.float64)
     if W.ndim == 1:
         W = W[:, None]
     if W.shape[0] != mesh.p.shape[1] or not np.all(np.isfinite(W)):
         raise ValueError(f"weights must be finite with shape ({mesh.p.shape[1]}, m), got {W.shape}")
-    points = average_onto_elements(mesh, W)
+    return _per_part(mesh, average_onto_elements(mesh, W), k, lambda points, count: _kmeans(points, count, seed))
+
+
+def rotation_clusters(mesh, B, k: int, *, mass, stiffness, modes: int = 8, seed: int = 0) -> np.ndarray:
+    """Cluster the elements by how the subspace's lowest vibration modes rotate them.
+
+    The subspace's modes are those of the as-rigid-as-possible energy
+    linearised at rest (``sum_e w_e |sym grad u|^2``, rigid motions free)
+    against the mass: ``(B^T K B) phi = lambda (B^T M B) phi``. Mode ``j``
+    rotates element ``e`` by the skew part ``theta_e(phi_j)`` of its
+    gradient; at equal energy its amplitude goes as ``1 / sqrt(lambda_j)``.
+    Two elements sharing a rotation cost ``w_e |theta_e - theta_c|^2`` of
+    energy, so the clusters are a k-means of the points
+    ``theta_e(phi_j) / sqrt(lambda_j)``, ``j = 1..modes`` (the rigid modes
+    left out), each element weighted by ``w_e``: where rotation varies most,
+    clusters are smallest. A cluster never spans two separate parts of the
+    mesh (:func:`spectral_clusters` splits them the same way).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    B : ndarray, shape (n * dim, r)
+        The subspace (interleaved rows).
+    k : int
+        Number of clusters, ``1 <= k <= nT``.
+    mass : ndarray, shape (n * dim,)
+        Lumped mass per DOF.
+    stiffness : float or ndarray of shape (nT,)
+        ``mu`` per element (the weights are ``mu * volume``).
+    modes : int
+        Modes after the rigid ones (fewer if the subspace has fewer).
+    seed : int
+        Seed of the weighted k-means++ initialisation.
+
+    Returns
+    -------
+    labels : ndarray of int, shape (nT,)
+        Cluster of each element, every value in ``0..k-1`` used.
+    """
+    from .fem import _jacobian, _positive
+
+    check_mesh(mesh)
+    dim, n = mesh.p.shape
+    nT = mesh.t.shape[1]
+    _check_count(k, nT)
+    B = np.asarray(B, dtype=np.float64)
+    if B.ndim != 2 or B.shape[0] != n * dim or not np.all(np.isfinite(B)):
+        raise ValueError(f"B must be finite with shape ({n * dim}, r) for this mesh, got {B.shape}")
+    mass = np.asarray(mass, dtype=np.float64)
+    if mass.shape != (n * dim,) or not np.all(mass > 0) or not np.all(np.isfinite(mass)):
+        raise ValueError(f"mass must be positive and finite with shape ({n * dim},), got shape {mass.shape}")
+    weights = _positive(stiffness, nT, "stiffness") * np.abs(_signed_measures(mesh.p, mesh.t))
+    J = _jacobian(mesh, "P1")
+    dd = dim * dim
+    # the projector onto the symmetric part of a row-major F, per element
+    sym = 0.5 * (np.eye(dd) + np.eye(dd)[[dim * (i % dim) + i // dim for i in range(dd)]])
+    K_B = J.T @ (sps.kron(sps.diags(weights), sps.csr_matrix(sym)) @ (J @ B))
+    K = B.T @ K_B
+    M = B.T @ (mass[:, None] * B)
+    lam, phi = sla.eigh(0.5 * (K + K.T), M)
+    deforming = np.nonzero(lam > 1e-10 * max(lam[-1], 0.0))[0][:modes]
+    if deforming.size == 0:
+        # nothing in the subspace deforms (rigid motions only): compact clusters around element centres
+        centres = mesh.p[:, mesh.t].mean(axis=1).T
+        return _per_part(mesh, centres, k, lambda points, count: _kmeans(points, count, seed))
+    grads = (J @ (B @ (phi[:, deforming] / np.sqrt(lam[deforming])))).reshape(nT, dim, dim, -1)
+    # the infinitesimal rotation: the skew part's entries below the diagonal (2D) or its axial vector (3D)
+    rows, cols = ([1], [0]) if dim == 2 else ([2, 0, 1], [1, 2, 0])
+    points = 0.5 * (grads - grads.transpose(0, 2, 1, 3))[:, rows, cols].reshape(nT, -1)
+
+    def cluster(inside, count):
+        return _weighted_kmeans(points[inside], weights[inside], count, seed)
+
+    return _per_part(mesh, np.arange(nT), k, cluster)
+
+
+def _check_count(k, nT) -> None:
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise TypeError(f"k (the number of clusters) must be an integer, got {type(k).__name__}")
+    if not 1 <= k <= nT:
+        raise ValueError(f"k (the number of clusters) must be in 1..{nT} (the number of elements), got {k}")
+
+
+def _per_part(mesh, items, k: int, cluster) -> np.ndarray:
+    """``cluster(items, count)`` on each connected part of the mesh, with its share of the ``k`` clusters."""
+    nT = mesh.t.shape[1]
     parts = connected_parts(mesh)[mesh.t[0]]
     n_parts = int(parts.max()) + 1
     if n_parts == 1:
-        return _kmeans(points, k, seed)
+        return cluster(items, k)
     # a rotation cluster never spans two separate parts: each part gets its
     # share of the clusters (by element count, at least one) and its own k-means
     sizes = np.bincount(parts, minlength=n_parts)
@@ -111,9 +203,42 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
     offset = 0
     for part in range(n_parts):
         inside = np.nonzero(parts == part)[0]
-        labels[inside] = offset + _kmeans(points[inside], int(shares[part]), seed)
+        labels[inside] = offset + cluster(items[inside], int(shares[part]))
         offset += int(shares[part])
     return labels
+
+
+def _weighted_kmeans(points: np.ndarray, weights: np.ndarray, k: int, seed: int, rounds: int = 100) -> np.ndarray:
+    """Labels of a k-means of weighted points (weighted k-means++ start, Lloyd rounds); no cluster empty."""
+    n = points.shape[0]
+    if k == n:
+        return np.arange(k, dtype=np.int64)
+    if k == 1:
+        return np.zeros(n, dtype=np.int64)
+    rng = np.random.default_rng(seed)
+    w = weights / weights.sum()
+    centres = np.empty((k, points.shape[1]))
+    centres[0] = points[rng.choice(n, p=w)]
+    nearest = np.einsum("ij,ij->i", points - centres[0], points - centres[0])
+    for j in range(1, k):
+        odds = w * nearest
+        total = odds.sum()
+        pick = rng.choice(n, p=odds / total) if total > 0 else int(rng.integers(n))
+        centres[j] = points[pick]
+        nearest = np.minimum(nearest, np.einsum("ij,ij->i", points - centres[j], points - centres[j]))
+    labels = None
+    squares = np.einsum("ij,ij->i", points, points)
+    for _ in range(rounds):
+        distance = squares[:, None] - 2.0 * points @ centres.T + np.einsum("ij,ij->i", centres, centres)[None, :]
+        new = distance.argmin(axis=1)
+        if labels is not None and np.array_equal(new, labels):
+            break
+        labels = new
+        mass = np.bincount(labels, weights=weights, minlength=k)
+        sums = np.stack([np.bincount(labels, weights=weights * p, minlength=k) for p in points.T], axis=1)
+        filled = mass > 0
+        centres[filled] = sums[filled] / mass[filled, None]
+    return _fill_empty(points, labels.astype(np.int64), k)
 
 
 def _kmeans(points: np.ndarray, k: int, seed: int) -> np.ndarray:

@@ -126,6 +126,18 @@ def _jsonable(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
+def _residual_stats(residuals) -> dict:
+    """Median, 90th percentile and largest of the steps' relative residuals (zeros without steps)."""
+    values = np.asarray(residuals, dtype=float)
+    if not values.size:
+        return {"median": 0.0, "p90": 0.0, "max": 0.0}
+    return {
+        "median": float(np.median(values)),
+        "p90": float(np.percentile(values, 90)),
+        "max": float(values.max()),
+    }
+
+
 def _stats_ms(seconds: list[float]) -> dict:
     if not seconds:
         return {}
@@ -230,7 +242,7 @@ def run_scene(
     start_com = sim.com(z)
     monitor = MotionMonitor(sim, None if scene.config["gravity"] is None else scene.config["gravity"]["acceleration"])
     coms = [start_com]
-    step_seconds, iterations = [], []
+    step_seconds, iterations, residuals = [], [], []
     worst_penetration = 0.0
     worst_pin = 0.0
     rest = mesh.p.T
@@ -264,6 +276,7 @@ def run_scene(
             step = done.step
             step_seconds.append(done.seconds)
             iterations.append(done.iterations)
+            residuals.append(done.residual)
             if ground is not None:
                 # every boundary vertex, every step: the deepest any went below the ground
                 worst_penetration = max(worst_penetration, sim.penetration(done.z))
@@ -299,6 +312,7 @@ def run_scene(
                     "min": int(it.min()) if it.size else 0,
                     "max": int(it.max()) if it.size else 0,
                     "histogram": {str(k): int(v) for k, v in zip(*np.unique(it, return_counts=True))},
+                    "residual": _residual_stats(residuals),
                 },
                 "com": {
                     "start": coms[0],

@@ -170,6 +170,14 @@ SCHEMA: dict[str, Any] = {
             check=_at_least_one,
         ),
         "active_clusters": Key("int", 1, "Rotation clusters for the muscle energy.", check=_at_least_one),
+        "cluster_by": Key(
+            "str",
+            "weights",
+            "What the passive clusters are made from: `weights` (spectral clusters of the skinning weights) or "
+            "`rotations` (by how the subspace's lowest modes rotate the elements: more accuracy per cluster "
+            "where few are used).",
+            check=lambda v: None if v in ("weights", "rotations") else "'weights' or 'rotations'",
+        ),
         "seed": Key("int", 0, "Seed of the k-means clustering (same seed, same clusters)."),
     },
     "muscles": {
@@ -227,6 +235,27 @@ SCHEMA: dict[str, Any] = {
             "Also stop when the change of z is below rtol times the step's motion (0: off).",
             "",
             _non_negative,
+        ),
+        "etol": Key(
+            "float",
+            0.0,
+            "Also stop when the step energy changed by at most etol times its change since the step's first "
+            "iterate (0: off; evaluates the energy at every iterate).",
+            "",
+            _non_negative,
+        ),
+        "warm_start": Key(
+            "bool",
+            False,
+            "Start each step's iterations from the inertial prediction z + h z_dot (the same answer in fewer "
+            "iterations; not under contact).",
+        ),
+        "acceleration": Key(
+            "str",
+            "none",
+            "Accelerated iterations: `none`, `anderson` or `newton` (fewer iterations, more work each; "
+            "not under contact; docs/accuracy.md).",
+            check=lambda v: None if v in ("none", "anderson", "newton") else "'none', 'anderson' or 'newton'",
         ),
     },
     "gravity": {
@@ -710,6 +739,10 @@ class Scene:
             max_iter=c["time"]["iterations"],
             tol=c["time"]["tol"],
             rtol=c["time"]["rtol"],
+            etol=c["time"]["etol"],
+            warm_start=c["time"]["warm_start"],
+            acceleration=c["time"]["acceleration"],
+            cluster_by=c["subspace"]["cluster_by"],
             progress=progress,
             backend=backend,
             **self.effect_settings(),

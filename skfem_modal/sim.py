@@ -20,7 +20,7 @@ projecting each global solution. The pieces:
 * the driver and its backends (:mod:`skfem_modal.solver`).
 
 :class:`ModalMuscle` holds them and its settings: assigning ``h``,
-``max_iter``, ``tol``, ``rtol``, ``backend``, ``gravity``, ``ground``,
+``max_iter``, ``tol``, ``rtol``, ``etol``, ``warm_start``, ``acceleration``, ``backend``, ``gravity``, ``ground``,
 ``up``, ``contact_model``, ``friction``, ``stickiness``, ``push_out``, ``pin_stiffness``, ``damping_mass``,
 ``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
 only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from .acceleration import ACCELERATIONS
 from .contact import MODELS, CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive, scalar_basis
@@ -110,6 +111,23 @@ def _axis(value, dim):
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < dim:
         raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {value!r}")
     return int(value)
+
+
+def _flag(value, name):
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _acceleration_name(value, full_space=False):
+    if value not in ACCELERATIONS:
+        raise ValueError(f"acceleration must be one of {', '.join(map(repr, ACCELERATIONS))}, got {value!r}")
+    if value == "newton" and full_space:
+        raise ValueError(
+            "acceleration='newton' needs a subspace (its system has a row per cluster rotation); "
+            "on every DOF use 'anderson'"
+        )
+    return value
 
 
 def _backend_name(value):
@@ -245,6 +263,24 @@ class ModalMuscle:
     rtol : float
         Also stop when ``|z_k - z_{k-1}| <= rtol |z_k - z_start|``: the last
         change is small compared with this step's motion. 0 disables.
+    etol : float
+        Also stop when the step energy changed by at most ``etol`` times
+        what it has changed since the step's first iterate. 0 disables; else
+        the energy is evaluated at every iterate (about the cost of an
+        iteration in numpy).
+    warm_start : bool
+        Start each step's iterations from the inertial prediction
+        ``z + h z_dot`` instead of ``z`` (not under contact): the same fixed
+        point, reached in fewer iterations when the motion is smooth.
+    acceleration : {"none", "anderson", "newton"}
+        Accelerated iterates (:mod:`~skfem_modal.acceleration`; not under
+        contact), each kept only when its step energy is at most that of the
+        plain iterate it replaces: ``anderson`` extrapolates from the last
+        iterates, ``newton`` (a subspace only) takes a Newton step with the
+        exact Hessian of the rotation terms. They take far fewer iterations,
+        but each costs two energy evaluations and some numpy calls more: a
+        saving only where plain iterations are slow to converge and costly
+        (docs/accuracy.md has the measurements).
     backend : {"auto", "numpy", "numba", "plain"}
         Who does the iterations' arithmetic (:func:`~skfem_modal.solver.make_backends`;
         the same results to round-off). ``auto`` uses numba when it is installed.
@@ -304,6 +340,9 @@ class ModalMuscle:
         max_iter=10,
         tol=1e-6,
         rtol=0.0,
+        etol=0.0,
+        warm_start=False,
+        acceleration="none",
         backend="auto",
         max_s=2.0,
     ):
@@ -327,6 +366,9 @@ class ModalMuscle:
         max_iter = _count(max_iter, "max_iter")
         tol = _positive_scalar(tol, "tol", allow_zero=True)
         rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
+        etol = _positive_scalar(etol, "etol", allow_zero=True)
+        warm_start = _flag(warm_start, "warm_start")
+        acceleration = _acceleration_name(acceleration, full_space=B is None)
         backend = _backend_name(backend)
         if up is not None:
             up = _axis(up, dim)
@@ -386,7 +428,8 @@ class ModalMuscle:
             self._contact_vertices = cv
             effects.append(timed("contact", lambda: self._make_contact(cv, ground)))
         self._model = timed("system", lambda: Model(space, effects, h))
-        self._solver = LocalGlobal(max_iter, tol, rtol)
+        self._solver = LocalGlobal(max_iter, tol, rtol, etol=etol, warm_start=warm_start, acceleration=acceleration)
+        self._solver.bind(self._model)
         self._backend = backend
         self._backends = timed("backends", lambda: make_backends(self._model, backend, max_iter))
         self._com = _com_rows(space, self.mass)
@@ -419,6 +462,7 @@ class ModalMuscle:
     def _rebuild(self) -> None:
         """New backends after the model or the driver's limits changed."""
         self._backends = make_backends(self._model, self._backend, self._solver.max_iter)
+        self._solver.bind(self._model)
 
     def reset(self) -> None:
         """Forget what earlier steps leave for the next (the iteration count to batch, the rotations' warm starts).
@@ -485,6 +529,38 @@ class ModalMuscle:
     @rtol.setter
     def rtol(self, value) -> None:
         self._solver.rtol = _positive_scalar(value, "rtol", allow_zero=True)
+
+    @property
+    def etol(self) -> float:
+        """Relative energy-change tolerance (0: off; costs an energy evaluation per iteration)."""
+        return self._solver.etol
+
+    @etol.setter
+    def etol(self, value) -> None:
+        self._solver.etol = _positive_scalar(value, "etol", allow_zero=True)
+
+    @property
+    def warm_start(self) -> bool:
+        """Start each step's iterations from the inertial prediction ``z + h z_dot``."""
+        return self._solver.warm_start
+
+    @warm_start.setter
+    def warm_start(self, value) -> None:
+        self._solver.warm_start = _flag(value, "warm_start")
+
+    @property
+    def acceleration(self) -> str:
+        """Accelerated iterates: ``none``, ``anderson`` or ``newton`` (:mod:`~skfem_modal.acceleration`)."""
+        return self._solver.acceleration
+
+    @acceleration.setter
+    def acceleration(self, value) -> None:
+        self._solver.acceleration = _acceleration_name(value, full_space=self._B is None)
+
+    @property
+    def residual(self) -> float:
+        """The last step's residual: its last change ``|z_k - z_(k-1)|`` (what ``tol`` tests)."""
+        return self._solver.change
 
     @property
     def backend(self) -> str:
@@ -881,6 +957,10 @@ class ModalMuscle:
         max_iter=10,
         tol=1e-6,
         rtol=0.0,
+        etol=0.0,
+        warm_start=False,
+        acceleration="none",
+        cluster_by="weights",
         max_s=2.0,
         seed: int = 0,
         progress=None,
@@ -906,7 +986,12 @@ class ModalMuscle:
         vertices the muscles are the modes of the body clamped there.
         ``progress(stage)``, if given, is called before each stage. With
         ``parallel`` the modal analysis runs in a second thread beside the
-        subspace and clusters (the results do not change). Each BLAS call
+        subspace and clusters (the results do not change). ``cluster_by``:
+        ``"weights"`` (spectral clusters of the skinning weights) or
+        ``"rotations"`` (by how the subspace's lowest modes rotate the
+        elements, :func:`~skfem_modal.clusters.rotation_clusters`: more
+        accuracy per cluster where few are used). ``etol``, ``warm_start``
+        and ``acceleration``: as for the constructor. Each BLAS call
         uses at most ``blas_threads`` threads meanwhile (``None``: as the
         BLAS library is set), so the two threads do not oversubscribe the
         cores (:mod:`skfem_modal.threads`).
@@ -918,12 +1003,16 @@ class ModalMuscle:
         """
         from concurrent.futures import ThreadPoolExecutor
 
-        from .clusters import spectral_clusters
+        from .clusters import CLUSTER_BY, rotation_clusters, spectral_clusters
         from .fem import _mass
         from .subspace import mass_orthonormalize, skinning_eigenmodes
 
         # arguments used late are checked before any work
         _backend_name(backend)
+        _acceleration_name(acceleration)
+        _flag(warm_start, "warm_start")
+        if cluster_by not in CLUSTER_BY:
+            raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")
         _contact_settings(contact_model, friction, stickiness, push_out)
         signs = None
         if muscle_signs is not None and n_muscles:
@@ -965,7 +1054,11 @@ class ModalMuscle:
             clock = time.perf_counter()
             say("clusters")
             cw = weights[:, : cluster_weights or n_weights]
-            labels = spectral_clusters(mesh, cw, n_clusters, seed=seed)
+            if cluster_by == "rotations":
+                mass = np.repeat(_lumped_p1(mesh, _positive(rho, mesh.t.shape[1], "rho")), mesh.p.shape[0])
+                labels = rotation_clusters(mesh, B, n_clusters, mass=mass, stiffness=mu, seed=seed)
+            else:
+                labels = spectral_clusters(mesh, cw, n_clusters, seed=seed)
             # separate bodies never share a muscle rotation: at least one cluster each
             n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
             active = spectral_clusters(mesh, cw, n_active, seed=seed) if n_active > 1 else None
@@ -1002,6 +1095,9 @@ class ModalMuscle:
                 max_iter=max_iter,
                 tol=tol,
                 rtol=rtol,
+                etol=etol,
+                warm_start=warm_start,
+                acceleration=acceleration,
                 backend=backend,
                 max_s=max_s,
             )
@@ -1044,13 +1140,28 @@ class StepRecord:
     seconds : float
         Wall time of ``sim.step``.
     iterations : int
+    change : float
+        The step's last change ``|z_k - z_(k-1)|`` (``sim.residual``).
+    start : ndarray, shape (r,)
+        The state the step started from.
     """
 
-    __slots__ = ("step", "time", "z", "z_dot", "a", "seconds", "iterations")
+    __slots__ = ("step", "time", "z", "z_dot", "a", "seconds", "iterations", "change", "start")
 
-    def __init__(self, step, time_, z, z_dot, a, seconds, iterations):
+    def __init__(self, step, time_, z, z_dot, a, seconds, iterations, change=0.0, start=None):
         self.step, self.time, self.z, self.z_dot = step, time_, z, z_dot
-        self.a, self.seconds, self.iterations = a, seconds, iterations
+        self.a, self.seconds, self.iterations, self.change, self.start = a, seconds, iterations, change, start
+
+    @property
+    def residual(self) -> float:
+        """The last change over the step's motion ``|z_k - z|``: how far from converged it stopped.
+
+        0 for a step that did not move (or whose start is not known).
+        """
+        if self.start is None:
+            return 0.0
+        motion = float(np.linalg.norm(self.z - self.start))
+        return self.change / motion if motion > 0 else 0.0
 
 
 def simulate(sim, steps: int, activation=None, state=None):
@@ -1097,5 +1208,6 @@ def simulate(sim, steps: int, activation=None, state=None):
         except SimulationError as err:
             raise SimulationError(err.message, step=i + 1) from None
         seconds = time.perf_counter() - clock
+        record = StepRecord(i + 1, (i + 1) * h, z_next, z_dot, a, seconds, sim.iterations, sim.residual, z)
         z = z_next
-        yield StepRecord(i + 1, (i + 1) * h, z, z_dot, a, seconds, sim.iterations)
+        yield record

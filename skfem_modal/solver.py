@@ -8,9 +8,21 @@ ground contact, when present, projects each global solution. One driver,
 :class:`LocalGlobal`, runs these iterations and applies the one stopping
 rule: stop at the first iteration ``k`` with
 
-    |u_k - u_(k-1)| < tol    or    |u_k - u_(k-1)| <= rtol |u_k - u_0|,
+    |u_k - u_(k-1)| < tol    or    |u_k - u_(k-1)| <= rtol |u_k - u_start|
+                             or    E(u_(k-1)) - E(u_k) <= etol (E(u_0) - E(u_k)),
 
-after at most ``max_iter``; a non-finite iterate is an error.
+(``u_start`` the step's start state, ``u_0`` the first iterate's input, ``E``
+the step energy), after at most ``max_iter``; a non-finite iterate is an
+error. The last change ``|u_k - u_(k-1)|`` is the step's *residual* (the
+plain iteration's step there: ``H^-1`` times the energy's gradient).
+
+Faster convergence to the same point, each off by default
+(:mod:`skfem_modal.acceleration`): ``warm_start`` starts the iterations from
+the inertial prediction ``u + h v`` instead of ``u``; ``acceleration``
+(``"anderson"`` or ``"newton"``) makes the iterations one at a time and
+hands the backend an accelerated iterate whenever its energy is no higher
+than that of the plain iterate it replaces. Under contact (a projection,
+not an energy) the iterations stay plain.
 
 A *backend* does the arithmetic of the iterations and owns its buffers; the
 driver calls:
@@ -19,6 +31,10 @@ driver calls:
     set up a step (its constant part and the muscles' activation);
 ``start_row()``
     the start state as a row of the backend's choosing;
+``restart(z)``
+    continue from ``z`` (shape (r,)) instead of the last iterate: the next
+    ``iterate`` starts from it and returns it as its first row. The driver
+    hands over warm starts and accelerated iterates this way;
 ``iterate(count, contact)``
     run ``count`` iterations, the contact (or None) projecting each global
     solution (``contact.project(z, watched)``, where a backend may compute
@@ -48,6 +64,8 @@ fallback of the others), and in their own modules the fast ones: 2D numpy
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import scipy.sparse as sps
@@ -147,7 +165,11 @@ class PlainBackend:
     def start_row(self):
         return self.z0
 
-    def _rotations(self, S):
+    def restart(self, z) -> None:
+        self.Y[1] = z
+
+    def rotations(self, S):
+        """The closest rotations of the clusters' ``S`` (row-major, flat), flat like it."""
         if self.dim == 2:
             return rotations2_flat(S.reshape(-1, 4))
         R, self.q = closest_rotations3(S.reshape(-1, 9), self.q)
@@ -156,7 +178,7 @@ class PlainBackend:
     def iterate(self, count, contact):
         self.Y[0] = self.Y[1]
         z = self.Y[0]
-        R = self._rotations(self.rows @ z).ravel()
+        R = self.rotations(self.rows @ z).ravel()
         if self.dense:
             z_next = self.c + self.cols_buffer @ R
         else:
@@ -181,11 +203,20 @@ class LocalGlobal:
     ----------
     max_iter : int
         Iterations a step, at most.
-    tol, rtol : float
+    tol, rtol, etol : float
         The stopping rule (module docstring); 0 switches a test off.
+        ``etol`` evaluates the step energy at every iterate.
     batch : bool
         Run the iterations the last step took before testing them (the same
         answer; False tests each as it is made).
+    warm_start : bool
+        Start each step's iterations from the inertial prediction ``u + h v``.
+    acceleration : {"none", "anderson", "newton"}
+        Hand the backend accelerated iterates (:mod:`skfem_modal.acceleration`).
+    memory : int
+        Anderson's history.
+
+    Warm starts, energies and accelerations need the model: :meth:`bind`.
 
     Attributes
     ----------
@@ -193,13 +224,47 @@ class LocalGlobal:
         Iterations of the last step.
     redone : int
         Steps a backend refused (its rotations failed their check), redone by the next.
+    accepted, refused : int
+        Accelerated iterates kept, and refused for their energy (all steps).
     """
 
-    def __init__(self, max_iter=10, tol=1e-6, rtol=0.0, batch=True):
-        self.max_iter, self.tol, self.rtol, self.batch = max_iter, tol, rtol, batch
+    def __init__(self, max_iter=10, tol=1e-6, rtol=0.0, batch=True, *, etol=0.0, warm_start=False,
+                 acceleration="none", memory=5):  # fmt: skip
+        self.max_iter, self.tol, self.rtol, self.etol, self.batch = max_iter, tol, rtol, etol, batch
+        self.warm_start, self.memory = warm_start, memory
         self.predicted = max_iter
-        self.redone = 0
+        self.redone = self.accepted = self.refused = 0
+        self._change2 = 0.0
+        self.model = None
+        self._acceleration = acceleration
+        self._helpers = None
         self._work = {}
+
+    def bind(self, model) -> None:
+        """Step this model (after it changed: its energy and accelerator are made again when needed)."""
+        self.model = model
+        self._helpers = None
+
+    @property
+    def acceleration(self) -> str:
+        """``none``, ``anderson`` or ``newton``."""
+        return self._acceleration
+
+    @acceleration.setter
+    def acceleration(self, value) -> None:
+        self._acceleration = value
+        self._helpers = None
+
+    def __getstate__(self):
+        # the energy and the accelerator are made from the model on demand
+        return {**self.__dict__, "_helpers": None}
+
+    def _energy_and_accelerator(self):
+        if self._helpers is None:
+            from .acceleration import StepEnergy, make_accelerator
+
+            self._helpers = (StepEnergy(self.model), make_accelerator(self._acceleration, self.model, self.memory))
+        return self._helpers
 
     def step(self, backends, z, z_dot, a, contact=None):
         """One step from ``(z, z_dot)``: ``(z_next, iterations)``.
@@ -225,37 +290,99 @@ class LocalGlobal:
             if contact is not None:
                 contact.start_step(z, z_dot)
             backend.start(z, z_dot, a)
-            found = self._run(backend, contact)
+            start = backend.start_row()
+            if self.warm_start and contact is None:
+                start = start.copy()
+                backend.restart(z + self.model.h * z_dot)
+            energy = accelerator = None
+            if self.etol or (self._acceleration != "none" and contact is None):
+                energy, accelerator = self._energy_and_accelerator()
+                energy.start(z, z_dot, a)
+                if contact is not None:
+                    accelerator = None
+            if accelerator is not None:
+                found = self._run_accelerated(backend, start, energy, accelerator)
+            else:
+                found = self._run(backend, contact, start, energy)
             if found is not None:
                 return found
             self.redone += 1
         raise AssertionError("the last backend must accept every step")
 
-    def _run(self, backend, contact):
-        start = backend.start_row()
+    def _run(self, backend, contact, start, energy):
+        """Plain iterations, in batches; with ``energy``, the energy of every iterate for ``etol``."""
         done, limit, batch = 0, self.max_iter, min(backend.max_batch, self.predicted if self.batch else 1)
+        energies = None if energy is None else np.array([energy(backend.result(0))])
+        first = None if energy is None else energies[0]
         while True:
             count = min(limit - done, max(1, batch - done))
-            hit = self._first_stop(backend.iterate(count, contact), start)
+            rows = backend.iterate(count, contact)
+            if energy is not None:
+                new = [energy(backend.result(done + j)) for j in range(1, count + 1)]
+                energies = np.array([energies[-1]] + new)
+            hit = self._first_stop(rows, start, energies, first)
             done += count
             if hit:
                 break
             if done == limit:
                 hit = count
                 break
-        if hit < 0:
+        return self._finish(backend, done - count + hit if hit > 0 else hit)
+
+    def _run_accelerated(self, backend, start, energy, accelerator):
+        """One iteration at a time; after each, an accelerated iterate if its energy is no higher.
+
+        A proposal made from ``x`` and its plain iterate ``g`` replaces ``g``
+        (handed to the backend) only when its step energy is at most that of
+        ``g``; otherwise ``g`` is kept and the accelerator's history
+        forgotten. So every iterate is at least as low as the plain one it
+        replaces, and the energies of the results fall with the iterations.
+        """
+        accelerator.reset()
+        x = backend.result(0)
+        E = first = energy(x)
+        local = energy.S, energy.R
+        done = 0
+        while True:
+            rows = backend.iterate(1, None)
+            done += 1
+            g = backend.result(done)
+            proposal = None
+            if done < self.max_iter and np.all(np.isfinite(g)):
+                proposal = accelerator.propose(x, g, energy, local)
+            E_g = energy(g)
+            local_g = energy.S, energy.R
+            hit = self._first_stop(rows, start, np.array([E, E_g]), first)
+            if hit or done == self.max_iter:
+                return self._finish(backend, done if hit >= 0 else -1)
+            if proposal is not None:
+                E_p = energy(proposal)
+                if E_p <= E_g:
+                    backend.restart(proposal)
+                    self.accepted += 1
+                    x, E, local = proposal, E_p, (energy.S, energy.R)
+                    continue
+                self.refused += 1
+                accelerator.reset()
+            x, E, local = g, E_g, local_g
+
+    def _finish(self, backend, k):
+        """Hand the step's outcome to the backend: ``(z_k, k)``, or None if it refuses (k < 0: non-finite)."""
+        if k < 0:
             if backend.exact:
                 raise SimulationError("the state became non-finite")
             backend.finish(None)
             return None
-        k = done - count + hit
         if not backend.finish(k):
             return None
         self.predicted = k
         return backend.result(k), k
 
-    def _first_stop(self, rows, start) -> int:
-        """The first row (1-based) that stops, negative if it is non-finite, 0 if none."""
+    def _first_stop(self, rows, start, energies=None, first=None) -> int:
+        """The first row (1-based) that stops, negative if it is non-finite, 0 if none.
+
+        ``energies``: of the rows (for ``etol``), ``first`` that of the step's first iterate's input.
+        """
         count, q = rows.shape[0] - 1, rows.shape[1]
         work = self._work.get(q)
         if work is None or work[0].shape[0] < count:
@@ -268,20 +395,32 @@ class LocalGlobal:
         if not dot(change2, work[3][:count]) < np.inf:
             # some change is not finite: that is an error, unless an earlier iteration stopped
             first_bad = int(np.argmin(change2 < np.inf))
-            stopped = self._stops(change2[:first_bad], rows[: first_bad + 1], start, work)
+            stopped = self._stops(change2[:first_bad], rows[: first_bad + 1], start, work, energies, first)
             return stopped if stopped else -(first_bad + 1)
-        return self._stops(change2, rows, start, work)
+        return self._stops(change2, rows, start, work, energies, first)
 
-    def _stops(self, change2, rows, start, work) -> int:
+    def _stops(self, change2, rows, start, work, energies, first) -> int:
         """The first of finite changes (1-based) that meets the stopping rule, 0 if none."""
         stop = change2 < self.tol**2
         if self.rtol:
             motion = np.subtract(rows[1:], start, work[0][: change2.size])
             np.multiply(motion, motion, motion)
             stop |= change2 <= self.rtol**2 * dot(motion, work[1])
+        if energies is not None and self.etol:
+            E = energies[: change2.size + 1]
+            stop |= np.abs(E[:-1] - E[1:]) <= self.etol * np.abs(first - E[1:])
         if not np.count_nonzero(stop):
+            if change2.size:
+                self._change2 = change2[-1]
             return 0
-        return int(stop.argmax()) + 1
+        hit = int(stop.argmax()) + 1
+        self._change2 = change2[hit - 1]
+        return hit
+
+    @property
+    def change(self) -> float:
+        """The last step's residual: its last change ``|u_k - u_(k-1)|``."""
+        return math.sqrt(self._change2)
 
 
 def make_backends(model, name: str, max_iter: int) -> list:
