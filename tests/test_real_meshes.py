@@ -213,6 +213,18 @@ def test_the_ghost_example_lands_and_crawls_on_the_ground():
 
 
 @needs_shared
+def test_the_elephant_example_stands_topples_and_never_sinks():
+    scene = short(Scene.from_toml(EXAMPLES / "elephant_crawl.toml"), 150)
+    assert scene.up == 1 and scene.mesh.t.shape[1] == 29011
+    summary = run_scene(scene, None)
+    com = summary["com"]
+    # it stands on its hind feet (its own units, ~128 across, normalised to 2) and wriggles until it topples
+    assert com["min"][1] - com["start"][1] < -0.2 and com["max"][1] - com["start"][1] < 0.05
+    assert summary["ground"]["worst_penetration_relative"] <= ALLOWANCE  # every vertex, every step
+    assert summary["status"] == "completed"
+
+
+@needs_shared
 @pytest.mark.slow
 def test_the_seal_example_lies_on_the_ground_and_wriggles():
     scene = short(Scene.from_toml(EXAMPLES / "seal_crawl.toml"), 120)

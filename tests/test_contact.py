@@ -1,0 +1,209 @@
+"""Ground contact that holds (the Coulomb model): friction as Coulomb says, drops at any step, every vertex.
+
+Analytic: a stiff block on an incline slides with ``g (sin theta - mu cos theta)``
+(implicit Euler's discrete travel is known exactly too) or stays put. Physical:
+a dropped body lands, loses energy, comes to rest, and no vertex ends a step
+more than ``ALLOWANCE`` of the body's size below the ground, from h = 0.001
+to 0.3, in 2D and 3D.
+"""
+
+import numpy as np
+import pytest
+
+import skfem_modal as sm
+from skfem_modal.contact import ALLOWANCE
+from skfem_modal.reference import FullSpaceSimulator
+from skfem_modal.run import run_scene
+from skfem_modal.scene import Scene
+
+G = 9.8
+THETA = np.radians(20.0)
+STEPS, H = 100, 0.01  # one second
+
+
+def size_of(mesh):
+    return float(np.ptp(mesh.p, axis=1).max())
+
+
+def incline_gravity(dim, along):
+    """Gravity tilted by THETA towards ``along`` (a unit vector in the ground plane), up the last axis."""
+    g = np.zeros(dim)
+    g[: dim - 1] = G * np.sin(THETA) * np.asarray(along)
+    g[-1] = -G * np.cos(THETA)
+    return g
+
+
+def block(dim):
+    return sm.beam2d(1.0, 0.4, 10, 4) if dim == 2 else sm.box3d(6, 4, 3, (1.0, 0.6, 0.4))
+
+
+def slide(sim, steps=STEPS):
+    """Step without input; the centre of mass's displacement and the deepest any vertex went, relative."""
+    z, z_dot, _ = sim.rest_state()
+    start, worst = sim.com(z), 0.0
+    for _ in range(steps):
+        z, z_dot = sim.step(z, z_dot, None, velocity=True)
+        worst = max(worst, sim.penetration(z))
+    return sim.com(z) - start, worst / size_of(sim.mesh)
+
+
+def travel_expected(friction):
+    """Implicit Euler's travel after STEPS steps from rest (exact for a rigid block) and the continuous one."""
+    a = max(0.0, G * (np.sin(THETA) - friction * np.cos(THETA)))
+    return a * H**2 * STEPS * (STEPS + 1) / 2, a * (STEPS * H) ** 2 / 2
+
+
+@pytest.mark.parametrize("friction", [0.0, 0.2, 0.5])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_stiff_block_on_an_incline_slides_as_coulomb_says(dim, friction):
+    mesh = block(dim)
+    # in 3D downhill is diagonal: friction must hold both tangent directions
+    along = [1.0] if dim == 2 else [np.cos(np.radians(30.0)), np.sin(np.radians(30.0))]
+    sim = sm.ModalMuscle.from_mesh(
+        mesh,
+        n_muscles=0,
+        n_weights=4,
+        n_clusters=4,
+        mu=1e7,
+        rho=1e3,
+        h=H,
+        gravity=incline_gravity(dim, along),
+        ground=float(mesh.p[-1].min()),
+        friction=friction,
+    )
+    moved, worst = slide(sim)
+    discrete, continuous = travel_expected(friction)
+    frictionless = travel_expected(0.0)[1]
+    downhill = float(moved[: dim - 1] @ along)
+    if friction < np.tan(THETA):
+        assert downhill == pytest.approx(continuous, rel=0.05)  # the issue's bound
+        assert downhill == pytest.approx(discrete, rel=1e-3)  # implicit Euler's own travel
+        sideways = moved[: dim - 1] - downhill * np.asarray(along)
+        assert np.abs(sideways).max() <= 1e-3 * downhill  # friction right against the slide
+    else:
+        assert np.abs(moved[: dim - 1]).max() < 0.01 * frictionless  # static friction holds it
+    assert abs(moved[-1]) < 1e-3 * size_of(mesh)  # on the incline, not into it or off it
+    assert worst <= ALLOWANCE
+
+
+def test_the_full_space_slides_as_the_reduced_one():
+    # the contact works on any space: every DOF free, sparse rows, the same analytic travel
+    mesh = sm.beam2d(1.0, 0.4, 5, 2)
+    sim = FullSpaceSimulator(
+        mesh,
+        None,
+        mu=1e7,
+        gamma=1e7,
+        rho=1e3,
+        h=H,
+        gravity=incline_gravity(2, [1.0]),
+        ground=float(mesh.p[1].min()),
+        friction=0.2,
+    )
+    moved, worst = slide(sim, 50)
+    a = G * (np.sin(THETA) - 0.2 * np.cos(THETA))
+    assert moved[0] == pytest.approx(a * H**2 * 50 * 51 / 2, rel=2e-3)
+    assert worst <= ALLOWANCE
+
+
+def dropped(dim, h, *, damping_mass=2.0, friction=0.5):
+    """A soft body a tenth of its size above the ground under gravity."""
+    mesh = sm.caterpillar(nx=24, ny=12) if dim == 2 else sm.creature(cell=0.25)
+    return sm.ModalMuscle.from_mesh(
+        mesh,
+        n_muscles=0,
+        n_weights=6,
+        n_clusters=10,
+        mu=1e5,
+        rho=1e3,
+        h=h,
+        gravity=[0.0] * (dim - 1) + [-9.8],
+        ground=float(mesh.p[-1].min()) - 0.1 * size_of(mesh),
+        friction=friction,
+        damping_mass=damping_mass,
+    )
+
+
+def fall(sim, seconds):
+    """Energies, kinetic energies and lowest heights above the ground (relative) after each step."""
+    z, z_dot, _ = sim.rest_state()
+    size = size_of(sim.mesh)
+    energy, kinetic, lowest = [sim.mechanical_energy(z, z_dot)], [], []
+    for _ in range(int(round(seconds / sim.h))):
+        z, z_dot = sim.step(z, z_dot, None, velocity=True)
+        energy.append(sim.mechanical_energy(z, z_dot))
+        kinetic.append(sim.kinetic_energy(z_dot))
+        lowest.append((float(sim.positions(z)[:, sim.up].min()) - sim.ground) / size)
+        assert sim.penetration(z) / size == pytest.approx(max(0.0, -lowest[-1]), abs=1e-15)
+    return np.array(energy), np.array(kinetic), np.array(lowest)
+
+
+@pytest.mark.parametrize("h", [0.001, 0.01, 0.1, 0.3])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_dropped_body_lands_and_comes_to_rest_at_any_step(dim, h):
+    energy, kinetic, lowest = fall(dropped(dim, h), 3.0)
+    assert lowest.min() >= -ALLOWANCE  # no vertex in the ground, any step
+    assert np.flatnonzero(lowest < 1e-3).size, "it never reached the ground"
+    assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()  # no step adds energy
+    # at rest on the ground: not hovering above it, not moving
+    assert -ALLOWANCE <= lowest[-1] < 1e-3
+    assert kinetic[-1] <= 2e-3 * kinetic.max()
+
+
+@pytest.mark.parametrize("friction", [0.0, 0.5])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_an_undamped_drop_at_a_tiny_step_gains_no_energy(dim, friction):
+    # little numerical damping at h = 0.001: the body bounces, and the contact must not pump it
+    energy, kinetic, lowest = fall(dropped(dim, 0.001, damping_mass=0.0, friction=friction), 1.0)
+    assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()
+    assert lowest.min() >= -ALLOWANCE
+    assert kinetic.max() > 0.5 * (energy[0] - energy.min())  # it did fall and hit: the check is not idle
+
+
+def test_the_reported_penetration_covers_every_vertex():
+    # the reference model constrains 30 points and lets the feet between them sink: the summary sees them
+    data = {
+        "mesh": {"shape": "caterpillar"},
+        "material": {"mu": 1e6},
+        "subspace": {"weights": 8, "clusters": 20},
+        "muscles": {"count": 4, "gait": {"amplitude": [0.45, 0.35, 0.25, 0.15], "period": [1.2, 0.8, 1.0, 0.6]}},
+        "time": {"step": 0.01, "steps": 120},
+        "gravity": {"acceleration": [0.0, -9.8]},
+        "ground": {"offset": 0.15, "model": "reference"},
+    }
+    scene = Scene.from_dict(data)
+    sim = scene.build()
+    deepest = 0.0
+    for record in sm.simulate(sim, scene.n_steps, lambda t: scene.activation(t, sim.ceilings)):
+        deepest = max(deepest, sim.ground - float(sim.positions(record.z)[:, 1].min()))
+        contact_points = sim.contact_positions(record.z)[:, 1].min()
+    summary = run_scene(Scene.from_dict(data), None)
+    assert summary["ground"]["worst_penetration"] == pytest.approx(deepest, rel=1e-9)
+    assert summary["ground"]["worst_penetration_relative"] > 0.01  # the reference model's sinking feet
+    assert sim.ground - contact_points < deepest  # what the contact points alone would have reported
+    coulomb = run_scene(Scene.from_dict({**data, "ground": {"offset": 0.15}}), None)
+    assert coulomb["ground"]["model"] == "coulomb"
+    assert coulomb["ground"]["worst_penetration_relative"] <= ALLOWANCE
+
+
+def test_a_scene_without_a_ground_has_no_contact():
+    data = {"mesh": {"shape": "caterpillar"}, "gravity": {"acceleration": [0.0, -9.8]}, "time": {"steps": 3}}
+    sim = Scene.from_dict(data).build()
+    assert "contact" not in sim.effects and sim.ground is None and sim.model.contact is None
+    z, z_dot, _ = sim.rest_state()
+    assert sim.penetration(z) == 0.0
+    assert run_scene(Scene.from_dict(data), None)["ground"] is None
+
+
+@pytest.mark.parametrize("example", ["caterpillar_crawl.toml", "creature_crawl.toml"])
+def test_the_example_scenes_crawl_with_every_vertex_above_the_ground(example):
+    import pathlib
+
+    scene = Scene.from_toml(pathlib.Path(__file__).resolve().parents[1] / "examples" / example)
+    assert scene.config["ground"].get("model", "coulomb") == "coulomb"
+    scene.config["time"]["steps"] = min(scene.n_steps, 200)
+    summary = run_scene(scene, None)
+    assert summary["status"] == "completed"
+    assert summary["ground"]["worst_penetration_relative"] <= ALLOWANCE
+    travel = np.asarray(summary["com"]["travel"])
+    assert np.abs(travel[: len(travel) - 1]).max() > 0.02  # it moves along the ground
