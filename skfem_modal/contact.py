@@ -71,8 +71,6 @@ _REDO_DEPTH = 1e-3
 _MOST = 32
 # operators of sets of pushed and sticking vertices kept, the latest used
 _OPERATORS = 64
-# cosine of the angle a sliding vertex's motion turns by before its friction turns with it (1 degree)
-_TURN = float(np.cos(np.radians(1.0)))
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
 
@@ -86,6 +84,9 @@ class _Operator(NamedTuple):
     pushed: np.ndarray  # the pushed vertices
     held: np.ndarray  # the sticking tangents, as flat indices into a (picked, dim) array
     slid: np.ndarray  # the sliding vertices
+    ways: np.ndarray  # (s, dim) the way friction pushes each sliding vertex
+    stuck: np.ndarray  # the sticking vertices, as indices into the pushed ones
+    free: np.ndarray  # the vertices not pushed
 
 
 class _Ground(Effect):
@@ -297,9 +298,11 @@ class CoulombContact(_Ground):
     the tangential force that takes is at most ``mu`` times its normal force;
     otherwise it *slides*, and its force ``F`` leans back by ``mu`` against
     the way it slides, so that the friction is exactly ``mu`` times the
-    normal force found in the same solve. Who sticks and who slides (and
-    which way) is updated after each projection: the local/global iterations
-    settle it with the rotations.
+    normal force found in the same solve. Who is pushed, sticks or slides is
+    updated after each projection (the local/global iterations settle it
+    with the rotations); the way a vertex slides, at the end of each step
+    (against its motion over the step: a vertex that starts sliding pushes
+    back the way the ground held it).
 
     The vertices pushed are found by a primal-dual active set, warm-started
     from the last projection; a pass is one small solve over the pushed rows
@@ -359,6 +362,7 @@ class CoulombContact(_Ground):
         self.direction = np.zeros((p, self.dim))
         self.picked = np.zeros(0, np.int64)
         self._missed = np.zeros(0, np.int64)  # missed by a step's first run, looked at in its second
+        self._last = None  # the sets of the last projection, tried first by the next
         self._first = False
         self.active_count = 0
 
@@ -398,6 +402,7 @@ class CoulombContact(_Ground):
             state["_pushes"] = np.zeros_like(self._pushes)
             state["_made"] = np.zeros_like(self._made)
             state["_operators"] = {}
+            state["_last"] = None
         return state
 
     def positions(self, z) -> np.ndarray:
@@ -450,6 +455,7 @@ class CoulombContact(_Ground):
         """
         self.picked = picked
         self._operators = {}  # indices into the picked ones: made again for a new pick
+        self._last = None
         if not picked.size:
             return
         dim = self.dim
@@ -506,10 +512,10 @@ class CoulombContact(_Ground):
             below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
             missed = np.setdiff1d(below, self.picked, assume_unique=True)
             if not missed.size:  # the picked ones were held by the last projection
+                self._turn(z)
                 return
-            if missed.size:
-                start = self.start if self.picked.size else np.zeros((0, self.dim))
-                self._pick(np.concatenate([self.picked, missed]), z, start)
+            start = self.start if self.picked.size else np.zeros((0, self.dim))
+            self._pick(np.concatenate([self.picked, missed]), z, start)
             self._constrain(z)
         raise SimulationError(f"ground contact: {below.size} vertices stay below the ground after {_FINISH} tries")
 
@@ -521,6 +527,9 @@ class CoulombContact(_Ground):
         # the exact projection (no slack: a vertex let a little below, then pushed out in a later
         # step, would be kicked; each global step then lowers the step's energy)
         joining = self.ground - self.tol
+        if self._last is not None and self._again(self._last, z, x_t, joining):
+            return True
+        self._last = None
         below = x_t[up::dim] < joining
         active = self.touching[picked].copy()
         if not np.count_nonzero(active):
@@ -548,7 +557,8 @@ class CoulombContact(_Ground):
             if not (np.count_nonzero(release) or np.count_nonzero(below)) and not (
                 mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
             ):
-                self._update_state(active, sliding, np.maximum(normal, 0.0), direction, x)
+                self._update_state(active, sliding, direction)
+                self._last = self._used  # the next projection tries the same sets first
                 return True
             if attempt == _PASSES - 1:
                 break
@@ -582,7 +592,35 @@ class CoulombContact(_Ground):
         # going round in circles: the whole problem over the rows concerned, exactly (sticking)
         near = active | below
         normal, tangential, x = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
-        self._update_state(normal > 0.0, np.zeros(picked.size, bool), normal, direction, x)
+        self._update_state(normal > 0.0, np.zeros(picked.size, bool), direction)
+        return True
+
+    def _again(self, op, z, x_t, joining) -> bool:
+        """Project with the last projection's sets if they still hold (z in place); False if not.
+
+        The local/global iterations change the solution less and less, and so seldom who is
+        pushed, who sticks or slides and which way: this checks the same conditions as the active
+        set, at a fraction of its cost.
+        """
+        up, dim = self.up, self.dim
+        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        normal = lam[: op.pushed.size]
+        if normal.min() < -1e-9 * max(normal.max(), 1e-300):
+            return False
+        z_new = z + lam @ op.pushes
+        x = self.J @ z_new
+        if op.free.size and x[up::dim][op.free].min() < joining:
+            return False
+        if op.stuck.size:
+            held = lam[op.pushed.size :].reshape(-1, dim - 1)
+            if np.any(np.einsum("ij,ij->i", held, held) > (self.friction * normal[op.stuck]) ** 2 * (1.0 + 1e-9)):
+                return False
+        if op.slid.size:
+            # a sliding vertex that its friction drove back (it overshot) would stick
+            moved = x.reshape(-1, dim)[op.slid] - self.start[op.slid]
+            if np.any(np.einsum("ij,ij->i", moved, op.ways) > self.tol):
+                return False
+        np.copyto(z, z_new)
         return True
 
     def _deepest(self, below, x) -> np.ndarray:
@@ -631,7 +669,7 @@ class CoulombContact(_Ground):
         (``direction``), so that it is exactly ``friction`` times their normal force.
         Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
         """
-        op = self._operator(active, stick, sliding, direction)
+        op = self._used = self._operator(active, stick, sliding, direction)
         lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
         np.add(z_t, lam @ op.pushes, out=z)
         x = self.J @ z
@@ -647,7 +685,7 @@ class CoulombContact(_Ground):
         """The solve's operator for sets of pushed, sticking and sliding vertices (and the slides' ways).
 
         Kept for the step: the sets repeat from one iteration to the next, and so do the ways
-        the vertices slide (:meth:`_update_state` turns one only when the motion turned).
+        the vertices slide (they follow the motion from step to step, :meth:`_turn`).
         """
         slid = np.flatnonzero(sliding) if self.friction else np.zeros(0, np.int64)
         key = active.tobytes() + stick.tobytes() + slid.tobytes() + direction[slid].tobytes()
@@ -667,30 +705,40 @@ class CoulombContact(_Ground):
             pushes[np.searchsorted(pushed, slid)] += leaned
         K = self._rows_of(candidate_rows) @ pushes.T
         K.flat[:: rows.size + 1] += self.compliance
-        found = self._operators[key] = _Operator(rows, pushes, np.linalg.inv(K), pushed, held, slid)
+        stuck = np.searchsorted(pushed, np.flatnonzero(stick))
+        free = np.flatnonzero(~active)
+        found = _Operator(rows, pushes, np.linalg.inv(K), pushed, held, slid, direction[slid].copy(), stuck, free)
+        self._operators[key] = found
         if len(self._operators) > _OPERATORS:
             self._operators.pop(next(iter(self._operators)))
         return found
 
-    def _update_state(self, active, sliding, normal, direction, x) -> None:
-        """What the next projection starts from: who touches, who slides and which way, the normal forces."""
-        picked, dim, up = self.picked, self.dim, self.up
+    def _update_state(self, active, sliding, direction) -> None:
+        """What the next projection starts from: who touches, who slides and which way."""
+        picked = self.picked
         self.touching[picked] = active
         self.sliding[picked] = sliding & active
-        self.active_count = int(np.count_nonzero(active))
-        if np.count_nonzero(sliding):
-            # keep pushing against the way each sliding vertex goes
-            moved = (x.reshape(-1, dim) - self.start)[sliding]
-            moved[:, up] = 0.0
-            length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
-            way = -moved / np.maximum(length, self.tol)[:, None]
-            # turned only when the motion turned by more than a degree: then the solve's operator
-            # repeats from one iteration to the next (friction a degree off is 2 % of it sideways)
-            turned = (length > self.tol) & (np.einsum("ij,ij->i", way, direction[sliding]) < _TURN)
-            direction[np.flatnonzero(sliding)[turned]] = way[turned]
         self.direction[picked] = direction
+        self.active_count = int(np.count_nonzero(active))
+
+    def _turn(self, z) -> None:
+        """Friction against the way each sliding vertex went over the step (``z`` (r,) its end).
+
+        The way is kept through a step's iterations (so the solve's operator repeats from one to
+        the next) and follows the motion from step to step, like the velocity a step starts with.
+        """
+        sliding = np.flatnonzero(self.sliding[self.picked])
+        if not sliding.size:
+            return
+        dim = self.dim
+        moved = (np.asarray(self.J @ z).reshape(-1, dim) - self.start)[sliding]
+        moved[:, self.up] = 0.0
+        length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
+        moving = length > self.tol
+        self.direction[self.picked[sliding[moving]]] = -moved[moving] / length[moving, None]
 
     def _release(self) -> None:
+        self._last = None
         picked = self.picked
         self.touching[picked] = False
         self.sliding[picked] = False
