@@ -71,6 +71,8 @@ _REDO_DEPTH = 1e-3
 _MOST = 32
 # operators of sets of pushed and sticking vertices kept, the latest used
 _OPERATORS = 64
+# cosine of the angle a sliding vertex's motion turns by before its friction turns with it (1 degree)
+_TURN = float(np.cos(np.radians(1.0)))
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
 
@@ -363,6 +365,7 @@ class CoulombContact(_Ground):
         self.picked = np.zeros(0, np.int64)
         self._missed = np.zeros(0, np.int64)  # missed by a step's first run, looked at in its second
         self._last = None  # the sets of the last projection, tried first by the next
+        self._made_for = np.zeros(0, np.int64)  # the picked vertices the operators are for
         self._first = False
         self.active_count = 0
 
@@ -374,7 +377,7 @@ class CoulombContact(_Ground):
         # O(candidates x subspace) at most, and only for the vertices that ever touch
         self._pushes = np.zeros((self.vertices.size * self.dim, self.space.r))
         self._made = np.zeros(self.vertices.size * self.dim, bool)
-        self._operators = {}
+        self._operators, self._last, self._made_for = {}, None, np.zeros(0, np.int64)
         # the compliance: a thousandth of a vertex's height row's own, e H^-1 e, on average
         sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
@@ -403,6 +406,7 @@ class CoulombContact(_Ground):
             state["_made"] = np.zeros_like(self._made)
             state["_operators"] = {}
             state["_last"] = None
+            state["_made_for"] = np.zeros(0, np.int64)
         return state
 
     def positions(self, z) -> np.ndarray:
@@ -453,14 +457,15 @@ class CoulombContact(_Ground):
         ``start`` gives the first ones' start-of-step positions when they are known (the others
         start where ``z_start`` has them).
         """
+        same = picked.size and np.array_equal(picked, self._made_for)
         self.picked = picked
-        self._operators = {}  # indices into the picked ones: made again for a new pick
-        self._last = None
         if not picked.size:
             return
         dim = self.dim
-        rows = self.space.rows(self.space.dofs(self.vertices[picked]))
-        self.J = rows.tocsr() if sps.issparse(rows) else rows
+        if not same:  # the operators index the picked vertices: made again for others
+            self._operators, self._last, self._made_for = {}, None, picked
+            rows = self.space.rows(self.space.dofs(self.vertices[picked]))
+            self.J = rows.tocsr() if sps.issparse(rows) else rows
         self.start = np.asarray(self.J @ z_start).reshape(-1, dim)
         if start is not None:
             self.start[: start.shape[0]] = start
@@ -487,6 +492,7 @@ class CoulombContact(_Ground):
         self.touching[:] = False
         self.sliding[:] = False
         self.direction[:] = 0.0
+        self._operators, self._last, self._made_for = {}, None, np.zeros(0, np.int64)
         self.picked = np.zeros(0, np.int64)
         self._missed = np.zeros(0, np.int64)
 
@@ -734,8 +740,14 @@ class CoulombContact(_Ground):
         moved = (np.asarray(self.J @ z).reshape(-1, dim) - self.start)[sliding]
         moved[:, self.up] = 0.0
         length = np.sqrt(np.einsum("ij,ij->i", moved, moved))
-        moving = length > self.tol
-        self.direction[self.picked[sliding[moving]]] = -moved[moving] / length[moving, None]
+        way = -moved / np.maximum(length, self.tol)[:, None]
+        which = self.picked[sliding]
+        # turned only when the motion turned by more than a degree: the operators are kept
+        # from step to step while the ways stay (friction a degree off is 2 % of it sideways)
+        turned = (length > self.tol) & (np.einsum("ij,ij->i", way, self.direction[which]) < _TURN)
+        if np.count_nonzero(turned):
+            self.direction[which[turned]] = way[turned]
+            self._last = None
 
     def _release(self) -> None:
         self._last = None
