@@ -39,24 +39,13 @@ def aspect_ratios(mesh) -> np.ndarray:
     return longest**2 / (2 * np.abs(_signed_measures(mesh.p, mesh.t)))
 
 
-def build(mesh, *, mu=1e5, rho=1e3, h=0.01, muscles=3, gravity=False, ground=None, push_out=1.0, **kw):
+def build(mesh, *, mu=1e5, rho=1e3, h=0.01, muscles=3, gravity=False, ground=None, coulomb=False, **kw):
+    """A simulator of a hard case: the reference contact at 20 points, pushing out, or the Coulomb one."""
     dim = mesh.p.shape[0]
     g = ([0.0] * (dim - 1) + [-9.8]) if gravity else None
-    return ModalMuscle.from_mesh(
-        mesh,
-        n_muscles=muscles,
-        n_weights=6,
-        n_clusters=10,
-        mu=mu,
-        rho=rho,
-        h=h,
-        gravity=g,
-        ground=ground,
-        n_contacts=20,
-        contact_model="reference",
-        push_out=push_out,
-        **kw,
-    )
+    contact = dict(contact_model="coulomb") if coulomb else dict(n_contacts=20, contact_model="reference", push_out=1.0)
+    reduction = dict(n_muscles=muscles, n_weights=6, n_clusters=10)
+    return ModalMuscle.from_mesh(mesh, **reduction, mu=mu, rho=rho, h=h, gravity=g, ground=ground, **contact, **kw)
 
 
 def run(sim, steps, *, amplitude=0.0, z0=None, z_dot0=None):
@@ -147,12 +136,15 @@ def _material(factor):
     return make
 
 
-def _large_step():
-    mesh = small_caterpillar()
-    ground = float(mesh.p[1].min()) - 0.15
-    sim = build(mesh, mu=1e6, h=0.1, gravity=True, ground=ground)
-    result = run(sim, 200, amplitude=0.5)
-    return result, outcome(result, ground=ground, size=2.0)
+def _large_step(coulomb=False):
+    def make():
+        mesh = small_caterpillar()
+        ground = float(mesh.p[1].min()) - 0.15
+        sim = build(mesh, mu=1e6, h=0.1, gravity=True, ground=ground, coulomb=coulomb)
+        result = run(sim, 200, amplitude=0.5)
+        return result, outcome(result, ground=ground, size=2.0)
+
+    return make
 
 
 def _strong_activation():
@@ -162,12 +154,12 @@ def _strong_activation():
     return result, outcome(result, floating=True, size=2.0)
 
 
-def _drop(dim):
+def _drop(dim, coulomb=False):
     def make():
         mesh = small_caterpillar() if dim == 2 else sm.creature(cell=0.2)
         up = dim - 1
         ground = float(mesh.p[up].min()) - 2.0
-        sim = build(mesh, gravity=True, ground=ground)
+        sim = build(mesh, gravity=True, ground=ground, coulomb=coulomb)
         v = np.zeros(dim)
         v[up] = -10.0
         result = run(sim, 300, z_dot0=velocity(sim, v))
@@ -188,10 +180,13 @@ CASES = {
     "elements inverted at the start": _inverted_start,
     "material 1e4 times stiffer": _material(1e4),
     "material 1e3 times softer": _material(1e-3),
-    "time step 0.1": _large_step,
+    "time step 0.1": _large_step(),
+    "time step 0.1 (Coulomb contact)": _large_step(coulomb=True),
     "activations at 3 times the ceiling": _strong_activation,
     "drop at 10 units/s from 2 units up (2D)": _drop(2),
     "drop at 10 units/s from 2 units up (3D)": _drop(3),
+    "drop at 10 units/s from 2 units up (2D, Coulomb contact)": _drop(2, coulomb=True),
+    "drop at 10 units/s from 2 units up (3D, Coulomb contact)": _drop(3, coulomb=True),
     "10,000 steps": _long_run,
 }
 
