@@ -1,0 +1,290 @@
+"""What ground contact costs per step, against the same body floating, side by side.
+
+    python benchmarks/bench_contact.py [--steps 300] [--settle 50] [--repeat 5] [--only seal ...]
+
+Three scenes, each on the default install's path (backend "numpy"), one BLAS
+thread:
+
+  * caterpillar: the tutorial's 2D crawl (README / the built-in scene: mu =
+    1e6, h = 0.01, ground 0.15 below the body, its gait)
+  * creature:    examples/creature_crawl.toml (3D, z up, the built-in shape)
+  * seal:        ../shared/meshes/seal.mesh (38689 tetrahedra, y up),
+                 normalised as examples/seal_crawl.toml, with its settings
+
+and for each, two motions (``still``: no activation, the body lies on the
+ground; ``gait``: the scene's gait) by four set-ups built from the same scene
+(so the same subspace, clusters and muscles):
+
+  * floating:      no gravity, no ground
+  * coulomb 0.5:   gravity, the Coulomb contact (the default), friction 0.5
+  * coulomb 0.0:   the same, frictionless
+  * reference:     gravity, the reference contact (30 sampled points)
+
+All set-ups of a scene take turns every 10 steps through each run, so all see
+the machine's fast and slow spells alike. A run is ``--settle`` steps (the
+body lands) then ``--steps`` timed steps; ``--repeat`` runs, each from the rest
+state; each set-up's best run (lowest median) is printed. Columns: median and
+p90 ms per step (``sim.step`` alone), the ratio of the median to the floating
+set-up's with the same motion, iterations per step, vertices the contact held
+(``sim.model.contact.active_count`` after each step: mean and most), and the
+worst penetration over the whole run (settling included) of any boundary
+vertex, ``sim.penetration(z)`` over the body's largest extent, in %.
+
+A second table says where the Coulomb contact's time goes (one more run with
+the gait, the contact's methods timed by wrappers, so a little slower): per
+step, the projections (one per global solution), the active-set passes
+(small solves) and operators made, steps redone (a deep vertex missed), and
+the share of the step spent in the contact. A third its memory: the
+pushes ``H^-1 B_row^T`` it keeps (``_pushes``: boundary vertices x dim x
+subspace doubles, allocated at binding, a row filled when first needed) and
+the most its cache of operators held in one step, against the bound
+boundary vertices x dim x subspace size x 8 bytes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import platform
+import sys
+import time
+import tomllib
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+EXAMPLES = os.path.join(HERE, "..", "examples")
+SEAL = os.path.join(HERE, "..", "..", "shared", "meshes", "seal.mesh")
+BLOCK = 10  # steps a set-up runs before the next one takes its turn
+SETUPS = ("floating", "coulomb 0.5", "coulomb 0.0", "reference")
+MOTIONS = ("still", "gait")
+# the second table's columns (header, decimals): per step, but the time of one projection
+TIME_COLUMNS = [
+    ("projections", 1),
+    ("passes", 1),
+    ("operators", 1),
+    ("us/projection", 0),
+    ("redone", 3),
+    ("step ms", 3),
+    ("contact ms", 3),
+]
+
+
+def _toml(name):
+    with open(os.path.join(EXAMPLES, name), "rb") as f:
+        return tomllib.load(f)
+
+
+def scene_dicts():
+    """The three scenes as scene dicts (the TOML keys), each with a ground and gravity."""
+    seal = _toml("seal_crawl.toml")
+    seal["mesh"] = {"file": os.path.abspath(SEAL), "normalize": True}
+    return {
+        "caterpillar": copy.deepcopy(DEFAULT_SCENE),
+        "creature": _toml("creature_crawl.toml"),
+        "seal": seal,
+    }
+
+
+def variant(data, setup):
+    """The scene ``data`` with its gravity and ground as ``setup`` says."""
+    data = copy.deepcopy(data)
+    offset = data["ground"].get("offset", 0.0)
+    if setup == "floating":
+        del data["gravity"], data["ground"]
+    elif setup == "reference":
+        data["ground"] = {"offset": offset, "model": "reference", "contacts": 30}
+    else:
+        data["ground"] = {"offset": offset, "friction": float(setup.split()[1])}
+    return data
+
+
+def run(sim, activation, steps, size, record):
+    """Step ``sim`` from rest; yield after each step, appending to ``record``'s lists."""
+    sim.reset()
+    z, z_dot, _ = sim.rest_state()
+    contact = sim.model.contact
+    for i in range(steps):
+        a = activation(i * sim.h)
+        clock = time.perf_counter()
+        z_next, z_dot = sim.step(z, z_dot, a, velocity=True)
+        record["seconds"].append(time.perf_counter() - clock)
+        record["iterations"].append(sim.iterations)
+        record["held"].append(0 if contact is None else contact.active_count)
+        record["depth"].append(sim.penetration(z_next) / size)
+        z = z_next
+        yield
+
+
+def interleaved(runs):
+    """Advance every run ``BLOCK`` steps at a time, in turn, to the end."""
+    runs = list(runs)
+    while runs:
+        for each in list(runs):
+            for _ in range(BLOCK):
+                if next(each, StopIteration) is StopIteration:
+                    runs.remove(each)
+                    break
+
+
+def build(data):
+    scene = Scene.from_dict(data, base_dir=EXAMPLES)
+    return scene, scene.build(backend="numpy")
+
+
+def timed(name, data, args):
+    """The table's rows of one scene: every set-up and motion, interleaved, best of ``--repeat``."""
+    built = {setup: build(variant(data, setup)) for setup in SETUPS}
+    size = float(np.ptp(built["floating"][0].mesh.p, axis=1).max())
+    best = {}
+    for _ in range(args.repeat):
+        records, runs = {}, []
+        for setup, (scene, sim) in built.items():
+            for motion in MOTIONS:
+                zero = np.zeros(sim.n_muscles)
+                activation = (lambda t, s=scene, m=sim: s.activation(t, m.ceilings)) if motion == "gait" else None
+                record = records[setup, motion] = {k: [] for k in ("seconds", "iterations", "held", "depth")}
+                runs.append(run(sim, activation or (lambda t, z=zero: z), args.settle + args.steps, size, record))
+        # one simulator per set-up steps both motions: each run resets it, so they go one after the other
+        for motion in MOTIONS:
+            interleaved(r for r, key in zip(runs, records) if key[1] == motion)
+        for key, record in records.items():
+            ms = np.array(record["seconds"][args.settle :]) * 1e3
+            row = dict(
+                median=float(np.median(ms)),
+                p90=float(np.percentile(ms, 90)),
+                iterations=float(np.mean(record["iterations"][args.settle :])),
+                held=np.array(record["held"][args.settle :]),
+                depth=100.0 * max(record["depth"]),
+            )
+            if key not in best or row["median"] < best[key]["median"]:
+                best[key] = row
+    for motion in MOTIONS:
+        floating = best["floating", motion]["median"]
+        for setup in SETUPS:
+            row = best[setup, motion]
+            held = row["held"]
+            print(
+                f"{name:12s} {motion:6s} {setup:12s} {row['median']:9.3f} {row['p90']:8.3f} "
+                f"{row['median'] / floating:7.1f}x {row['iterations']:6.2f} "
+                f"{held.mean():7.1f} {held.max():5d} {row['depth']:8.3f}"
+            )
+        sys.stdout.flush()
+    return built
+
+
+class _Timer:
+    """Wraps the contact's methods on one instance: how often and how long they ran."""
+
+    def __init__(self, contact, names):
+        self.calls = dict.fromkeys(names, 0)
+        self.seconds = dict.fromkeys(names, 0.0)
+        for name in names:
+            setattr(contact, name, self._wrap(name, getattr(contact, name)))
+
+    def _wrap(self, name, method):
+        def wrapped(*args, **kwargs):
+            clock = time.perf_counter()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                self.calls[name] += 1
+                self.seconds[name] += time.perf_counter() - clock
+
+        return wrapped
+
+
+def where_the_time_goes(name, scene, sim, steps):
+    """A gait run of the Coulomb contact with its methods timed; the second and third tables' rows."""
+    sim.reset()
+    contact = sim.model.contact
+    solves = _Timer(contact, ["_solve"])
+    top = _Timer(contact, ["start_step", "project", "missed", "finish_step"])
+    made = [0]
+    operator = contact._operator
+
+    def counted(*args):
+        kept = list(contact._operators.values())
+        found = operator(*args)
+        made[0] += not any(found is each for each in kept)
+        return found
+
+    contact._operator = counted
+    z, z_dot, _ = sim.rest_state()
+    total, most_cache = 0.0, 0
+    for i in range(steps):
+        clock = time.perf_counter()
+        z, z_dot = sim.step(z, z_dot, scene.activation(i * sim.h, sim.ceilings), velocity=True)
+        total += time.perf_counter() - clock
+        cache = sum(a.nbytes for op in contact._operators.values() for a in op)
+        most_cache = max(most_cache, cache)
+    in_contact = sum(top.seconds.values())
+    per_step = [
+        top.calls["project"] / steps,
+        solves.calls["_solve"] / steps,
+        made[0] / steps,
+        1e6 * top.seconds["project"] / max(top.calls["project"], 1),
+        (top.calls["start_step"] - steps) / steps,  # start_step: once per attempt at a step
+        1e3 * total / steps,
+        1e3 * in_contact / steps,
+    ]
+    print(f"{name:12s} " + " ".join(f"{v:>{len(c)}.{d}f}" for v, (c, d) in zip(per_step, TIME_COLUMNS)), end="")
+    print(f" {100 * in_contact / total:6.1f}%")
+    return most_cache
+
+
+def memory_row(name, sim, most_cache):
+    contact = sim.model.contact
+    boundary, dim, r = contact.vertices.size, contact.dim, sim.model.space.r
+    bound = boundary * dim * r * 8
+    made = int(np.count_nonzero(contact._made))
+    print(
+        f"{name:12s} {boundary:9d} {dim:3d} {r:4d} {bound / 1e6:9.2f} {contact._pushes.nbytes / 1e6:9.2f} "
+        f"{made * r * 8 / 1e6:9.3f} {most_cache / 1e6:9.3f} {(contact._pushes.nbytes + most_cache) / bound:7.3f}"
+    )
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=300, help="timed steps a run")
+    parser.add_argument("--settle", type=int, default=50, help="steps before the timed ones (landing)")
+    parser.add_argument("--repeat", type=int, default=5, help="runs of each set-up; the best is printed")
+    parser.add_argument("--only", nargs="*", help="scenes to run (caterpillar, creature, seal)")
+    args = parser.parse_args()
+    print(
+        f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
+        f"numpy {np.__version__}, {time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
+        f"backend numpy; {args.settle} settling + {args.steps} timed steps, best of {args.repeat} runs"
+    )
+    print(
+        f"{'scene':12s} {'motion':6s} {'contact':12s} {'median ms':>9s} {'p90 ms':>8s} {'x float':>8s} "
+        f"{'iter':>6s} {'held':>7s} {'most':>5s} {'depth %':>8s}"
+    )
+    scenes = {k: v for k, v in scene_dicts().items() if not args.only or k in args.only}
+    coulomb = {}
+    for name, data in scenes.items():
+        built = timed(name, data, args)
+        coulomb[name] = built["coulomb 0.5"]
+        del built
+    print("\n# where the Coulomb contact's time goes (friction 0.5, gait; its methods timed by wrappers), per step")
+    print(f"{'scene':12s} " + " ".join(c for c, _ in TIME_COLUMNS) + f" {'share':>7s}")
+    caches = {
+        name: where_the_time_goes(name, scene, sim, args.settle + args.steps) for name, (scene, sim) in coulomb.items()
+    }
+    print("\n# memory of the Coulomb contact (MB); bound: boundary vertices x dim x subspace x 8 bytes")
+    print(
+        f"{'scene':12s} {'boundary':>9s} {'dim':>3s} {'r':>4s} {'bound':>9s} {'pushes':>9s} {'rows made':>9s} "
+        f"{'operators':>9s} {'/ bound':>7s}"
+    )
+    for name, (_, sim) in coulomb.items():
+        memory_row(name, sim, caches[name])
+
+
+if __name__ == "__main__":
+    main()
