@@ -30,15 +30,18 @@ set-up's with the same motion, iterations per step, vertices the contact held
 worst penetration over the whole run (settling included) of any boundary
 vertex, ``sim.penetration(z)`` over the body's largest extent, in %.
 
-A second table says where the Coulomb contact's time goes (one more run with
-the gait, the contact's methods timed by wrappers, so a little slower): per
-step, the projections (one per global solution), the active-set passes
-(small solves) and operators made, steps redone (a deep vertex missed), and
-the share of the step spent in the contact. A third its memory: the
+A second table says where the Coulomb contact's time goes: one more run of
+each friction with the gait, the contact's methods timed by wrappers (so a
+little slower). Per step: the projections (one per global solution), the
+active-set passes (small solves), the operators made for them (the rest
+found in the step's cache), the time of one projection, the step's
+iterations run again (a vertex missed deep below, or a backend refusing the
+step), the step and the contact's share of it. A third its memory: the
 pushes ``H^-1 B_row^T`` it keeps (``_pushes``: boundary vertices x dim x
-subspace doubles, allocated at binding, a row filled when first needed) and
-the most its cache of operators held in one step, against the bound
-boundary vertices x dim x subspace size x 8 bytes.
+subspace doubles, allocated when the system is bound, a row filled when
+first needed: "rows made" is what is filled) and the most its cache of
+operators held at the end of a step, against the bound boundary vertices x
+dim x subspace size x 8 bytes.
 """
 
 from __future__ import annotations
@@ -234,7 +237,7 @@ def where_the_time_goes(name, scene, sim, steps):
         1e3 * total / steps,
         1e3 * in_contact / steps,
     ]
-    print(f"{name:12s} " + " ".join(f"{v:>{len(c)}.{d}f}" for v, (c, d) in zip(per_step, TIME_COLUMNS)), end="")
+    print(f"{name:16s} " + " ".join(f"{v:>{len(c)}.{d}f}" for v, (c, d) in zip(per_step, TIME_COLUMNS)), end="")
     print(f" {100 * in_contact / total:6.1f}%")
     return most_cache
 
@@ -245,7 +248,7 @@ def memory_row(name, sim, most_cache):
     bound = boundary * dim * r * 8
     made = int(np.count_nonzero(contact._made))
     print(
-        f"{name:12s} {boundary:9d} {dim:3d} {r:4d} {bound / 1e6:9.2f} {contact._pushes.nbytes / 1e6:9.2f} "
+        f"{name:16s} {boundary:9d} {dim:3d} {r:4d} {bound / 1e6:9.2f} {contact._pushes.nbytes / 1e6:9.2f} "
         f"{made * r * 8 / 1e6:9.3f} {most_cache / 1e6:9.3f} {(contact._pushes.nbytes + most_cache) / bound:7.3f}"
     )
 
@@ -270,17 +273,18 @@ def main():
     coulomb = {}
     for name, data in scenes.items():
         built = timed(name, data, args)
-        coulomb[name] = built["coulomb 0.5"]
+        for setup in ("coulomb 0.5", "coulomb 0.0"):
+            coulomb[f"{name} {setup.split()[1]}"] = built[setup]
         del built
-    print("\n# where the Coulomb contact's time goes (friction 0.5, gait; its methods timed by wrappers), per step")
-    print(f"{'scene':12s} " + " ".join(c for c, _ in TIME_COLUMNS) + f" {'share':>7s}")
+    print("\n# where the Coulomb contact's time goes (gait; its methods timed by wrappers), per step")
+    print(f"{'scene, friction':16s} " + " ".join(c for c, _ in TIME_COLUMNS) + f" {'share':>7s}")
     caches = {
         name: where_the_time_goes(name, scene, sim, args.settle + args.steps) for name, (scene, sim) in coulomb.items()
     }
     print("\n# memory of the Coulomb contact (MB); bound: boundary vertices x dim x subspace x 8 bytes")
     print(
-        f"{'scene':12s} {'boundary':>9s} {'dim':>3s} {'r':>4s} {'bound':>9s} {'pushes':>9s} {'rows made':>9s} "
-        f"{'operators':>9s} {'/ bound':>7s}"
+        f"{'scene, friction':16s} {'boundary':>9s} {'dim':>3s} {'r':>4s} {'bound':>9s} {'pushes':>9s} "
+        f"{'rows made':>9s} {'operators':>9s} {'/ bound':>7s}"
     )
     for name, (_, sim) in coulomb.items():
         memory_row(name, sim, caches[name])
