@@ -160,6 +160,8 @@ def build(scene, backend):
         contact_vertices=scene.get("contacts"),
         ground=scene.get("ground"),
         up=1,
+        # the reference's own contact rule: the trajectories are compared
+        contact_model="reference" if scene.get("contacts") is not None else "coulomb",
         backend=backend,
     )
 

@@ -73,6 +73,8 @@ _MOST = 32
 _OPERATORS = 64
 # cosine of the angle a sliding vertex's motion turns by before its friction turns with it (1 degree)
 _TURN = float(np.cos(np.radians(1.0)))
+# steps that keep the last step's picked vertices (while none is found below the ground at an end)
+_KEEP = 10
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
 
@@ -367,12 +369,17 @@ class CoulombContact(_Ground):
         self._last = None  # the sets of the last projection, tried first by the next
         self._made_for = np.zeros(0, np.int64)  # the picked vertices the operators are for
         self._first = False
+        self._checked = None  # a state at the end of a step and its candidates' heights
+        self._end = None  # where the last step ended
+        self._previous = np.zeros(0, np.int64)  # the last step's picked vertices
+        self._keep = 0  # steps that may keep them before the vertices are picked anew
         self.active_count = 0
 
     def bind(self, system, h) -> None:
         """Take the factored system of time step ``h`` (a new one clears the pushes made so far)."""
         self.system, self.h = system, float(h)
         self.picked = np.zeros(0, np.int64)
+        self._keep = 0
         # each candidate row's push on z, H^-1 B_row^T, made when first needed: memory
         # O(candidates x subspace) at most, and only for the vertices that ever touch
         self._pushes = np.zeros((self.vertices.size * self.dim, self.space.r))
@@ -416,12 +423,25 @@ class CoulombContact(_Ground):
     # ------------------------------------------------------------ a step
     def start_step(self, z_start, z_dot=None) -> None:
         """Remember where the step starts; the step's first global solution picks the vertices."""
-        self.reach = self.heights_of(z_start)
-        if z_dot is not None:
-            self.reach += 2.0 * self.h * np.minimum(self.heights_of(z_dot), 0.0)
-        self.z_start = z_start
+        self.z_start, self.z_dot = z_start, z_dot
+        self._previous = self.picked
+        if self._end is None or not np.array_equal(self._end, z_start):
+            self._keep = 0  # not where the last step ended: a run of its own, whose vertices are picked anew
         self.picked = np.zeros(0, np.int64)
         self._first = True
+
+    def _near(self, z) -> np.ndarray:
+        """The vertices near the ground (indices into the candidates), spread; ``z`` the step's first global solution.
+
+        It says where the body is going (gravity, muscles, momentum): the vertices near the ground
+        there or at the start (or coming towards it fast) are taken.
+        """
+        low = self.heights_of(self.z_start)
+        if self.z_dot is not None:
+            low += 2.0 * self.h * np.minimum(self.heights_of(self.z_dot), 0.0)
+        np.minimum(low, self.heights_of(z), out=low)
+        near = np.flatnonzero((low < self.ground + 0.005 * self.size) | self.touching)
+        return self._spread(near, low)
 
     def _spread(self, near, low) -> np.ndarray:
         """At most a few dozen of the near vertices, spread over the body, the touching ones first.
@@ -476,12 +496,15 @@ class CoulombContact(_Ground):
     def project(self, z, watched=None) -> bool:
         """Project a global solution ``z`` (r,) in place; True if it changed."""
         if self._first:
-            # the step's first global solution says where the body is going (gravity, muscles,
-            # momentum): the vertices near the ground there or at the start (or coming fast) are picked
             self._first = False
-            low = np.minimum(self.reach, self.heights_of(z))
-            near = np.flatnonzero((low < self.ground + 0.005 * self.size) | self.touching)
-            self._pick(np.union1d(self._spread(near, low), self._missed), self.z_start)
+            if self._keep > 0 and self._previous.size and not self._missed.size:
+                # the last step's vertices again: their operators are kept (the end of the step
+                # checks every candidate; one found below has the vertices picked anew)
+                self._keep -= 1
+                self._pick(self._previous, self.z_start)
+            else:
+                self._pick(np.union1d(self._near(z), self._missed), self.z_start)
+                self._keep = _KEEP
         if not self.picked.size:
             self.active_count = 0
             return False
@@ -494,6 +517,8 @@ class CoulombContact(_Ground):
         self.direction[:] = 0.0
         self._operators, self._last, self._made_for = {}, None, np.zeros(0, np.int64)
         self.picked = np.zeros(0, np.int64)
+        self._previous = np.zeros(0, np.int64)
+        self._keep = 0
         self._missed = np.zeros(0, np.int64)
 
     def missed(self, z) -> bool:
@@ -502,9 +527,14 @@ class CoulombContact(_Ground):
         Holding it up only at the end would kick the body: the driver runs the step's iterations
         again, with it among the vertices looked at (the shallow ones are held at the end).
         """
-        below = np.flatnonzero(self.heights_of(z) < self.ground - _REDO_DEPTH * self.size)
-        self._missed = np.setdiff1d(below, self.picked, assume_unique=True)
+        heights = self.heights_of(z)
+        self._checked = (z.copy(), heights)  # the end of the step needs them too
+        self._missed = self._unpicked(np.flatnonzero(heights < self.ground - _REDO_DEPTH * self.size))
         return bool(self._missed.size)
+
+    def _unpicked(self, vertices) -> np.ndarray:
+        """Those of ``vertices`` (indices into the candidates) the projections did not look at."""
+        return vertices[~np.isin(vertices, self.picked)] if vertices.size else vertices
 
     def finish_step(self, z) -> None:
         """Hold up every candidate the step left below the ground (``z`` (r,) the result, in place).
@@ -514,15 +544,21 @@ class CoulombContact(_Ground):
         repeated until no candidate is below. The next step looks at it from the start.
         """
         self._missed = np.zeros(0, np.int64)
+        checked, self._checked = self._checked, None
         for _ in range(_FINISH):
-            below = np.flatnonzero(self.heights_of(z) < self.ground - self.allowance)
-            missed = np.setdiff1d(below, self.picked, assume_unique=True)
+            same = checked is not None and np.array_equal(checked[0], z)
+            heights = checked[1] if same else self.heights_of(z)
+            checked = None
+            below = np.flatnonzero(heights < self.ground - self.allowance)
+            missed = self._unpicked(below)
             if not missed.size:  # the picked ones were held by the last projection
                 self._turn(z)
+                self._end = z.copy()
                 return
             start = self.start if self.picked.size else np.zeros((0, self.dim))
             self._pick(np.concatenate([self.picked, missed]), z, start)
             self._constrain(z)
+            self._keep = 0  # the vertices are picked anew next step
         raise SimulationError(f"ground contact: {below.size} vertices stay below the ground after {_FINISH} tries")
 
     # ---------------------------------------------------------- the solve
