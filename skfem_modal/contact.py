@@ -320,8 +320,11 @@ class CoulombContact(_Ground):
     A step looks at a few dozen vertices at most: those near the ground at
     the start of the step or in its first global solution (within half a
     percent of the body's size, or moving towards it fast enough), spread
-    over the body, the lowest of each patch, the touching ones first. At the
-    end of the step every candidate is checked: any that ended more than
+    over the body, the lowest of each patch, the touching ones first. A run
+    that goes on from where the last step ended keeps them for up to ten
+    steps (and with them the small solves' operators), until a step's end
+    finds a vertex below that they missed. At the end of the step every
+    candidate is checked: any that ended more than
     ``ALLOWANCE`` of the body's size below the ground is held up with the
     others, and one that ended deeper than a thousandth has the step's
     iterations run again, looking at it too. So no vertex ends a step in the
