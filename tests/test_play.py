@@ -248,7 +248,7 @@ def test_a_failed_step_resets_and_says_so(crawl):
 
 @pytest.mark.parametrize("h", [1e-4, 0.1])
 def test_tiny_and_large_steps_keep_real_time(h):
-    data = {**DEFAULT_SCENE, "time": {"step": h, "steps": 10}}
+    data = {**DEFAULT_SCENE, "time": {"step": h, "steps": int(round(1.0 / h))}}  # a second, as played
     sim = Scene.from_dict(data).build()
     clock = FakeClock()
     player = Player(sim, clock=clock, step_budget=10.0)
