@@ -37,164 +37,37 @@ from functools import partial
 
 import numpy as np
 
-from .acceleration import ACCELERATIONS
-from .contact import MODELS, CoulombContact, ReferenceContact
+from .checks import (
+    _acceleration_name,
+    _array,
+    _axis,
+    _backend_name,
+    _basis,
+    _contact_settings,
+    _count,
+    _flag,
+    _fraction,
+    _gravity_and_up,
+    _ground,
+    _labels,
+    _muscle_modes,
+    _nonnegative,
+    _pins,
+    _positive_scalar,
+)
+from .contact import CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive
 from .ingredients import ingredients, timed
 from .mesh import _signed_measures, boundary_vertices, check_mesh, validated
 from .modal import muscle_modes
 from .model import Model
-from .solver import BACKENDS, LocalGlobal, SimulationError, make_backends
+from .solver import LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
 from .units import up_axis
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
-
-
-def _array(value, shape, name):
-    arr = np.asarray(value)
-    if not np.issubdtype(arr.dtype, np.number):
-        raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    return arr
-
-
-def _positive_scalar(value, name, *, allow_zero=False):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
-        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
-    return v
-
-
-def _fraction(value, name):
-    v = _positive_scalar(value, name, allow_zero=True)
-    if v > 1:
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
-    return v
-
-
-def _count(value, name):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _labels(value, nT, name):
-    arr = np.asarray(value)
-    if arr.shape != (nT,):
-        raise ValueError(f"{name} must have one label per element, shape ({nT},), got {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
-        if np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise TypeError(f"{name} must be integers, got dtype {arr.dtype}")
-    if arr.min() < 0:
-        raise ValueError(f"{name} must be non-negative, got {arr.min()}")
-    return arr.astype(np.int64)
-
-
-def _vertices(value, n, name):
-    arr = np.unique(np.asarray(value))
-    if arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"{name} must be a non-empty array of vertex indices")
-    if arr[0] < 0 or arr[-1] >= n:
-        raise ValueError(f"{name} must be vertex indices in 0..{n - 1}, got {arr[0]}..{arr[-1]}")
-    return arr.astype(np.int64)
-
-
-def _axis(value, dim):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < dim:
-        raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {value!r}")
-    return int(value)
-
-
-def _flag(value, name):
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
-
-
-def _acceleration_name(value, full_space=False):
-    if value not in ACCELERATIONS:
-        raise ValueError(f"acceleration must be one of {', '.join(map(repr, ACCELERATIONS))}, got {value!r}")
-    if value == "newton" and full_space:
-        raise ValueError(
-            "acceleration='newton' needs a subspace (its system has a row per cluster rotation); "
-            "on every DOF use 'anderson'"
-        )
-    return value
-
-
-def _backend_name(value):
-    if value not in BACKENDS:
-        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {value!r}")
-    if value == "numba":
-        from . import _accel
-
-        if not _accel.AVAILABLE:
-            raise ValueError("backend='numba' needs numba: pip install 'skfem_modal[fast]'")
-    return value
-
-
-def _contact_settings(model, friction, stickiness, push_out) -> dict:
-    """A contact model's settings, checked: each model takes only its own."""
-    if model not in MODELS:
-        raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
-    if model == "coulomb":
-        foreign = [name for name, value in (("stickiness", stickiness), ("push_out", push_out)) if value is not None]
-        if foreign:
-            raise ValueError(
-                f"{' and '.join(foreign)}: settings of contact_model='reference', not of 'coulomb' "
-                "(which keeps every vertex above the ground and has friction)"
-            )
-        friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
-        return {"model": model, "friction": friction}
-    if friction is not None:
-        raise ValueError(
-            "friction: a setting of contact_model='coulomb', not of 'reference' (which has stickiness instead)"
-        )
-    return {
-        "model": model,
-        "stickiness": 1.0 if stickiness is None else _fraction(stickiness, "stickiness"),
-        "push_out": 0.0 if push_out is None else _fraction(push_out, "push_out"),
-    }
-
-
-def _muscle_modes(D, N: int) -> np.ndarray:
-    """Muscle modes as a checked (N, m) array."""
-    if D is None:
-        return np.zeros((N, 0))
-    D = np.asarray(D, dtype=np.float64)
-    if D.ndim == 1:
-        D = D[:, None]
-    if D.ndim != 2 or D.shape[0] != N:
-        raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
-    if not np.all(np.isfinite(D)):
-        raise ValueError("D must be finite")
-    return D
-
-
-def _nonnegative(value, name):
-    return _positive_scalar(value, name, allow_zero=True)
-
-
-def _basis(B, N: int) -> np.ndarray:
-    """A subspace basis as a checked (N, r) array."""
-    B = np.asarray(B, dtype=np.float64)
-    if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
-        raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
-    if not np.all(np.isfinite(B)):
-        raise ValueError("B must be finite")
-    return B
 
 
 def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> LocalGlobal:
@@ -207,32 +80,6 @@ def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> 
         warm_start=_flag(warm_start, "warm_start"),
         acceleration=_acceleration_name(acceleration, full_space),
     )
-
-
-def _gravity_and_up(gravity, up, dim: int):
-    """Gravity, shape (dim,), or None, and the up axis it pulls down along (or the one given), checked."""
-    if up is not None:
-        up = _axis(up, dim)
-    if gravity is not None:
-        gravity = _array(gravity, (dim,), "gravity")
-    return gravity, up_axis(gravity, dim, up)
-
-
-def _pins(pinned, pin_stiffness, n: int):
-    """Pinned vertices, shape (p,), or None, and their stiffness (None: the default), checked."""
-    pinned = None if pinned is None else _vertices(pinned, n, "pinned")
-    return pinned, None if pin_stiffness is None else _positive_scalar(pin_stiffness, "pin_stiffness")
-
-
-def _ground(ground, contact_vertices, n: int):
-    """The ground's height or None, and the contact vertices given or None, checked."""
-    if ground is not None:
-        ground = float(_array(ground, (), "ground"))
-    if contact_vertices is not None:
-        if ground is None:
-            raise ValueError("contact_vertices need a ground height (ground=...)")
-        contact_vertices = _vertices(contact_vertices, n, "contact_vertices")
-    return ground, contact_vertices
 
 
 def _element_weights(mesh, mu, gamma, rho):
@@ -308,7 +155,7 @@ def _damping_setting(name: str, coefficient: str, doc: str):
     def put(self, value):
         coefficients = {"damping_mass": self.damping_mass, "damping_stiffness": self.damping_stiffness}
         coefficients[name] = _nonnegative(value, name)
-        self._damp(*coefficients.values())
+        self._damp(coefficients["damping_mass"], coefficients["damping_stiffness"])
 
     return property(get, put, doc=doc)
 
@@ -496,7 +343,7 @@ class ModalMuscle:
         self.iterations = 0
 
     def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
-        """The effects in order, the model and the backends, from checked arguments (each stage timed)."""
+        """Make the effects in order (calling ``D`` if a callable), the model and the backends, each stage timed."""
         space, mass, stage = self._space, self.mass, partial(timed, self.timings)
         elasticity = stage("elasticity", lambda: Elasticity(space, w_mu, self._labels))
         inertia = stage("inertia", lambda: Inertia(space, mass))
@@ -519,8 +366,7 @@ class ModalMuscle:
             contact = lambda: _contact_effect(space, self._contact, self._contact_vertices, ground, self._up)
             effects.append(stage("contact", contact))
         self._model = stage("system", lambda: Model(space, effects, h))
-        self._solver.bind(self._model)
-        self._backends = stage("backends", lambda: make_backends(self._model, self._backend, self._solver.max_iter))
+        stage("backends", self._rebuild)
         self._com = _com_rows(space, mass)
 
     def __getstate__(self):
@@ -574,14 +420,7 @@ class ModalMuscle:
 
     @h.setter
     def h(self, value) -> None:
-        value, old = _positive_scalar(value, "h"), self._model.h
-        self._model.h = value
-        try:
-            self._model.assemble()
-        except ValueError:
-            self._model.h = old
-            self._model.assemble()
-            raise
+        self._model.retime(_positive_scalar(value, "h"))
         self._rebuild()
 
     @property
