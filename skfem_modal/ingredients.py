@@ -199,11 +199,8 @@ def ingredients(
     weights, B = skinning_subspace(mesh, n_weights, cluster_weights, timings)
     say("clusters")
     cw = weights[:, : cluster_weights or n_weights]
-    clock = time.perf_counter()
-    labels, active = element_clusters(
-        mesh, B, cw, n_clusters, n_active_clusters=n_active_clusters, cluster_by=cluster_by, mu=mu, rho=rho, seed=seed
-    )
-    timings["clusters"] = time.perf_counter() - clock
+    options = dict(n_active_clusters=n_active_clusters, cluster_by=cluster_by, mu=mu, rho=rho, seed=seed)
+    labels, active = timed(timings, "clusters", lambda: element_clusters(mesh, B, cw, n_clusters, **options))
 
     def muscles():
         D, timings["modal_analysis"] = modal()

@@ -848,7 +848,7 @@ class ModalMuscle:
         sim : ModalMuscle
             With ``sim.timings`` covering these stages too.
         """
-        # every argument goes by name to the stages that take it: the precompute's to ingredients, the settings on
+        # each argument goes by name to the stage that takes it: ingredients, then the constructor (the settings)
         arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
         arguments["gamma"] = mu if gamma is None else gamma
         # settings used late are checked before any work
@@ -860,8 +860,8 @@ class ModalMuscle:
         with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
             made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
             say("simulator set-up")
-            built = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
-            sim = cls(mesh, made.B, made.muscles, made.labels, **built, **_taken_by(ModalMuscle.__init__, arguments))
+            placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
+            sim = cls(mesh, made.B, made.muscles, made.labels, **placed, **_taken_by(ModalMuscle.__init__, arguments))
         sim.timings = {**made.timings, **sim.timings}
         sim.weights = made.weights
         return sim
