@@ -94,6 +94,16 @@ class Model:
         if self.contact is not None:
             self.contact.bind(self.system, h)
 
+    def retime(self, h: float) -> None:
+        """Reassemble at a new time step; if its system is singular, the old step stays and the error is raised."""
+        old, self.h = self.h, float(h)
+        try:
+            self.assemble()
+        except ValueError:
+            self.h = old
+            self.assemble()
+            raise
+
     def _singular_why(self, H) -> str:
         """Why the system matrix could not be factored, in words."""
         M = self.inertia.mass_matrix

@@ -30,18 +30,39 @@ only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
 
 from __future__ import annotations
 
+import inspect
 import time
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 
-from .acceleration import ACCELERATIONS
-from .contact import MODELS, CoulombContact, ReferenceContact
+from .checks import (
+    _acceleration_name,
+    _array,
+    _axis,
+    _backend_name,
+    _basis,
+    _contact_settings,
+    _count,
+    _flag,
+    _fraction,
+    _gravity_and_up,
+    _ground,
+    _labels,
+    _muscle_modes,
+    _nonnegative,
+    _pins,
+    _positive_scalar,
+)
+from .contact import CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
-from .fem import _lumped_p1, _positive, scalar_basis
-from .mesh import _signed_measures, boundary_vertices, check_mesh, connected_parts, sample_boundary, validated
+from .fem import _lumped_p1, _positive
+from .ingredients import ingredients, timed
+from .mesh import _signed_measures, boundary_vertices, check_mesh, validated
 from .modal import muscle_modes
 from .model import Model
-from .solver import BACKENDS, LocalGlobal, SimulationError, make_backends
+from .solver import LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
 from .units import up_axis
@@ -49,134 +70,35 @@ from .units import up_axis
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
 
-def _array(value, shape, name):
-    arr = np.asarray(value)
-    if not np.issubdtype(arr.dtype, np.number):
-        raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    return arr
+def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> LocalGlobal:
+    """The local/global driver of these limits, each checked."""
+    return LocalGlobal(
+        _count(max_iter, "max_iter"),
+        _nonnegative(tol, "tol"),
+        _nonnegative(rtol, "rtol"),
+        etol=_nonnegative(etol, "etol"),
+        warm_start=_flag(warm_start, "warm_start"),
+        acceleration=_acceleration_name(acceleration, full_space),
+    )
 
 
-def _positive_scalar(value, name, *, allow_zero=False):
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
-        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
-    return v
+def _element_weights(mesh, mu, gamma, rho):
+    """Passive and muscle stiffness times element volume, and density per element, each shape (nT,), checked."""
+    nT = mesh.t.shape[1]
+    vol = np.abs(_signed_measures(mesh.p, mesh.t))
+    return (
+        _positive(mu, nT, "mu") * vol,
+        _positive(gamma, nT, "gamma", allow_zero=True) * vol,
+        _positive(rho, nT, "rho"),
+    )
 
 
-def _fraction(value, name):
-    v = _positive_scalar(value, name, allow_zero=True)
-    if v > 1:
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
-    return v
-
-
-def _count(value, name):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _labels(value, nT, name):
-    arr = np.asarray(value)
-    if arr.shape != (nT,):
-        raise ValueError(f"{name} must have one label per element, shape ({nT},), got {arr.shape}")
-    if arr.size and not np.issubdtype(arr.dtype, np.integer):
-        if np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise TypeError(f"{name} must be integers, got dtype {arr.dtype}")
-    if arr.min() < 0:
-        raise ValueError(f"{name} must be non-negative, got {arr.min()}")
-    return arr.astype(np.int64)
-
-
-def _vertices(value, n, name):
-    arr = np.unique(np.asarray(value))
-    if arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"{name} must be a non-empty array of vertex indices")
-    if arr[0] < 0 or arr[-1] >= n:
-        raise ValueError(f"{name} must be vertex indices in 0..{n - 1}, got {arr[0]}..{arr[-1]}")
-    return arr.astype(np.int64)
-
-
-def _axis(value, dim):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < dim:
-        raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {value!r}")
-    return int(value)
-
-
-def _flag(value, name):
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
-
-
-def _acceleration_name(value, full_space=False):
-    if value not in ACCELERATIONS:
-        raise ValueError(f"acceleration must be one of {', '.join(map(repr, ACCELERATIONS))}, got {value!r}")
-    if value == "newton" and full_space:
-        raise ValueError(
-            "acceleration='newton' needs a subspace (its system has a row per cluster rotation); "
-            "on every DOF use 'anderson'"
-        )
-    return value
-
-
-def _backend_name(value):
-    if value not in BACKENDS:
-        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {value!r}")
-    if value == "numba":
-        from . import _accel
-
-        if not _accel.AVAILABLE:
-            raise ValueError("backend='numba' needs numba: pip install 'skfem_modal[fast]'")
-    return value
-
-
-def _contact_settings(model, friction, stickiness, push_out) -> dict:
-    """A contact model's settings, checked: each model takes only its own."""
-    if model not in MODELS:
-        raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
-    if model == "coulomb":
-        foreign = [name for name, value in (("stickiness", stickiness), ("push_out", push_out)) if value is not None]
-        if foreign:
-            raise ValueError(
-                f"{' and '.join(foreign)}: settings of contact_model='reference', not of 'coulomb' "
-                "(which keeps every vertex above the ground and has friction)"
-            )
-        friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
-        return {"model": model, "friction": friction}
-    if friction is not None:
-        raise ValueError(
-            "friction: a setting of contact_model='coulomb', not of 'reference' (which has stickiness instead)"
-        )
-    return {
-        "model": model,
-        "stickiness": 1.0 if stickiness is None else _fraction(stickiness, "stickiness"),
-        "push_out": 0.0 if push_out is None else _fraction(push_out, "push_out"),
-    }
-
-
-def _muscle_modes(D, N: int) -> np.ndarray:
-    """Muscle modes as a checked (N, m) array."""
-    if D is None:
-        return np.zeros((N, 0))
-    D = np.asarray(D, dtype=np.float64)
-    if D.ndim == 1:
-        D = D[:, None]
-    if D.ndim != 2 or D.shape[0] != N:
-        raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
-    if not np.all(np.isfinite(D)):
-        raise ValueError("D must be finite")
-    return D
+def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
+    """The contact effect of a contact model's settings (``_contact_settings``)."""
+    settings = dict(settings)
+    if settings.pop("model") == "coulomb":
+        return CoulombContact(space, vertices, ground, up, **settings)
+    return ReferenceContact(space, vertices, ground, up, **settings)
 
 
 def _fixed(name: str, doc: str):
@@ -191,6 +113,51 @@ def _fixed(name: str, doc: str):
         )
 
     return property(get, refuse, doc=doc)
+
+
+def _driver_setting(name: str, check, doc: str):
+    """A live setting the local/global driver holds: assigning checks it, and the next step uses it."""
+
+    def get(self):
+        return getattr(self._solver, name)
+
+    def put(self, value):
+        setattr(self._solver, name, check(value, name))
+
+    return property(get, put, doc=doc)
+
+
+def _contact_setting(name: str, model: str, check, doc: str):
+    """A live setting of one contact model (None under the other): assigning puts in a fresh contact."""
+
+    def get(self):
+        return self._contact.get(name)
+
+    def put(self, value):
+        value = check(value, name)
+        if self._contact["model"] != model:
+            raise AttributeError(
+                f"{name} is a setting of contact_model='{model}'; this simulator uses "
+                f"contact_model='{self._contact['model']}'"
+            )
+        self._new_contact(name, **{name: value})
+
+    return property(get, put, doc=doc)
+
+
+def _damping_setting(name: str, coefficient: str, doc: str):
+    """A Rayleigh damping coefficient (0 without damping): assigning adds, changes or removes the damping."""
+
+    def get(self):
+        damping = self._model.named.get("damping")
+        return 0.0 if damping is None else getattr(damping, coefficient)
+
+    def put(self, value):
+        coefficients = {"damping_mass": self.damping_mass, "damping_stiffness": self.damping_stiffness}
+        coefficients[name] = _nonnegative(value, name)
+        self._damp(coefficients["damping_mass"], coefficients["damping_stiffness"])
+
+    return property(get, put, doc=doc)
 
 
 class ModalMuscle:
@@ -350,93 +317,57 @@ class ModalMuscle:
         check_mesh(mesh)
         dim, n = mesh.p.shape
         nT = mesh.t.shape[1]
-        N = n * dim
-        if B is not None:
-            B = np.asarray(B, dtype=np.float64)
-            if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
-                raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
-            if not np.all(np.isfinite(B)):
-                raise ValueError("B must be finite")
-        pending = D if callable(D) else None
-        if pending is None:
-            D = _muscle_modes(D, N)
+        B = None if B is None else _basis(B, n * dim)
+        D = D if callable(D) else _muscle_modes(D, n * dim)  # a callable: called once the passive operators are built
         labels = _labels(labels, nT, "labels")
         active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
         h = _positive_scalar(h, "h")
-        max_iter = _count(max_iter, "max_iter")
-        tol = _positive_scalar(tol, "tol", allow_zero=True)
-        rtol = _positive_scalar(rtol, "rtol", allow_zero=True)
-        etol = _positive_scalar(etol, "etol", allow_zero=True)
-        warm_start = _flag(warm_start, "warm_start")
-        acceleration = _acceleration_name(acceleration, full_space=B is None)
-        backend = _backend_name(backend)
-        if up is not None:
-            up = _axis(up, dim)
-        if gravity is not None:
-            gravity = _array(gravity, (dim,), "gravity")
-        up = up_axis(gravity, dim, up)
-        contact_settings = _contact_settings(contact_model, friction, stickiness, push_out)
-        damping_mass = _positive_scalar(damping_mass, "damping_mass", allow_zero=True)
-        damping_stiffness = _positive_scalar(damping_stiffness, "damping_stiffness", allow_zero=True)
+        self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
+        self._backend = _backend_name(backend)
+        gravity, self._up = _gravity_and_up(gravity, up, dim)
+        self._contact = _contact_settings(contact_model, friction, stickiness, push_out)
+        damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
         max_s = _positive_scalar(max_s, "max_s")
-        pinned = None if pinned is None else _vertices(pinned, n, "pinned")
-        if pin_stiffness is not None:
-            pin_stiffness = _positive_scalar(pin_stiffness, "pin_stiffness")
-        if ground is not None:
-            ground = float(_array(ground, (), "ground"))
-        if contact_vertices is not None:
-            if ground is None:
-                raise ValueError("contact_vertices need a ground height (ground=...)")
-            contact_vertices = _vertices(contact_vertices, n, "contact_vertices")
-        vol = np.abs(_signed_measures(mesh.p, mesh.t))
-        w_mu = _positive(mu, nT, "mu") * vol
-        w_gamma = _positive(gamma, nT, "gamma", allow_zero=True) * vol
-        rho_e = _positive(rho, nT, "rho")
+        pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
+        ground, contact_vertices = _ground(ground, contact_vertices, n)
+        w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
         self._mu, self._gamma, self._rho = mu, gamma, rho
-        self.dim = dim
-        self.mass = np.repeat(_lumped_p1(mesh, rho_e), dim)
-        space = Subspace(mesh, B) if B is not None else FullSpace(mesh)
+        self.dim, self.mass = dim, np.repeat(_lumped_p1(mesh, rho_e), dim)
+        self._space = Subspace(mesh, B) if B is not None else FullSpace(mesh)
         self.timings = {"validate": time.perf_counter() - clock}
-
-        def timed(stage, make):
-            clock = time.perf_counter()
-            made = make()
-            self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - clock
-            return made
-
-        elasticity = timed("elasticity", lambda: Elasticity(space, w_mu, labels))
-        inertia = timed("inertia", lambda: Inertia(space, self.mass))
-        if pending is not None:
-            D = timed("waiting_for_modal_analysis", lambda: _muscle_modes(pending(), N))
-        self._D = D
-        effects = [elasticity, inertia]
-        if D.shape[1]:
-            effects.append(timed("muscles", lambda: Muscles(space, D, w_gamma, active_labels, self.mass, max_s)))
-        if gravity is not None:
-            effects.append(timed("gravity", lambda: Gravity(space, self.mass, gravity)))
-        self._pinned = np.zeros(0, np.int64) if pinned is None else pinned
-        if pinned is not None:
-            scale = (_passive_diagonal(space, w_mu), float(self.mass.mean()))
-            effects.append(timed("pinned", lambda: Pins(space, pinned, pin_stiffness, scale)))
-        if damping_mass or damping_stiffness:
-            effects.append(Damping(inertia, elasticity, damping_mass, damping_stiffness))
-        self._space, self._up, self._contact = space, up, contact_settings
-        self._contact_vertices = np.zeros(0, np.int64)
-        if ground is not None:
-            cv = boundary_vertices(mesh) if contact_vertices is None else contact_vertices
-            self._contact_vertices = cv
-            effects.append(timed("contact", lambda: self._make_contact(cv, ground)))
-        self._model = timed("system", lambda: Model(space, effects, h))
-        self._solver = LocalGlobal(max_iter, tol, rtol, etol=etol, warm_start=warm_start, acceleration=acceleration)
-        self._solver.bind(self._model)
-        self._backend = backend
-        self._backends = timed("backends", lambda: make_backends(self._model, backend, max_iter))
-        self._com = _com_rows(space, self.mass)
-        self.n_muscles = D.shape[1]
-        self.n_clusters = elasticity.n_clusters
+        self._build(h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices)
+        self.n_muscles = self._D.shape[1]
+        self.n_clusters = self._model.elasticity.n_clusters
         self.n_active_clusters = int(active_labels.max()) + 1 if self.n_muscles else 0
         self.iterations = 0
+
+    def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
+        """Make the effects in order (calling ``D`` if a callable), the model and the backends, each stage timed."""
+        space, mass, stage = self._space, self.mass, partial(timed, self.timings)
+        elasticity = stage("elasticity", lambda: Elasticity(space, w_mu, self._labels))
+        inertia = stage("inertia", lambda: Inertia(space, mass))
+        self._D = stage("waiting_for_modal_analysis", lambda: _muscle_modes(D(), space.N)) if callable(D) else D
+        D = self._D
+        effects = [elasticity, inertia]
+        if D.shape[1]:
+            effects.append(stage("muscles", lambda: Muscles(space, D, w_gamma, self._active_labels, mass, max_s)))
+        if gravity is not None:
+            effects.append(stage("gravity", lambda: Gravity(space, mass, gravity)))
+        self._pinned = np.zeros(0, np.int64) if pinned is None else pinned
+        if pinned is not None:
+            scale = (_passive_diagonal(space, w_mu), float(mass.mean()))
+            effects.append(stage("pinned", lambda: Pins(space, pinned, pin_stiffness, scale)))
+        if any(damping):
+            effects.append(Damping(inertia, elasticity, *damping))
+        self._contact_vertices = np.zeros(0, np.int64)
+        if ground is not None:
+            self._contact_vertices = boundary_vertices(self._mesh) if contact_vertices is None else contact_vertices
+            contact = lambda: _contact_effect(space, self._contact, self._contact_vertices, ground, self._up)
+            effects.append(stage("contact", contact))
+        self._model = stage("system", lambda: Model(space, effects, h))
+        stage("backends", self._rebuild)
+        self._com = _com_rows(space, mass)
 
     def __getstate__(self):
         # the backends are buffers and views made from the model: rebuilt on arrival
@@ -489,14 +420,7 @@ class ModalMuscle:
 
     @h.setter
     def h(self, value) -> None:
-        value, old = _positive_scalar(value, "h"), self._model.h
-        self._model.h = value
-        try:
-            self._model.assemble()
-        except ValueError:
-            self._model.h = old
-            self._model.assemble()
-            raise
+        self._model.retime(_positive_scalar(value, "h"))
         self._rebuild()
 
     @property
@@ -507,46 +431,16 @@ class ModalMuscle:
     @max_iter.setter
     def max_iter(self, value) -> None:
         self._solver.max_iter = _count(value, "max_iter")
-        self._solver.predicted = self._solver.max_iter
-        if self._model.contact is not None:
-            self._model.contact.forget()
-        self._rebuild()
+        self.reset()
 
-    @property
-    def tol(self) -> float:
-        """Absolute stopping tolerance on the change of ``z`` between iterations."""
-        return self._solver.tol
-
-    @tol.setter
-    def tol(self, value) -> None:
-        self._solver.tol = _positive_scalar(value, "tol", allow_zero=True)
-
-    @property
-    def rtol(self) -> float:
-        """Relative stopping tolerance (0: off)."""
-        return self._solver.rtol
-
-    @rtol.setter
-    def rtol(self, value) -> None:
-        self._solver.rtol = _positive_scalar(value, "rtol", allow_zero=True)
-
-    @property
-    def etol(self) -> float:
-        """Relative energy-change tolerance (0: off; costs an energy evaluation per iteration)."""
-        return self._solver.etol
-
-    @etol.setter
-    def etol(self, value) -> None:
-        self._solver.etol = _positive_scalar(value, "etol", allow_zero=True)
-
-    @property
-    def warm_start(self) -> bool:
-        """Start each step's iterations from the inertial prediction ``z + h z_dot``."""
-        return self._solver.warm_start
-
-    @warm_start.setter
-    def warm_start(self, value) -> None:
-        self._solver.warm_start = _flag(value, "warm_start")
+    tol = _driver_setting("tol", _nonnegative, "Absolute stopping tolerance on the change of ``z`` between iterations.")
+    rtol = _driver_setting("rtol", _nonnegative, "Relative stopping tolerance (0: off).")
+    etol = _driver_setting(
+        "etol", _nonnegative, "Relative energy-change tolerance (0: off; costs an energy evaluation per iteration)."
+    )
+    warm_start = _driver_setting(
+        "warm_start", _flag, "Start each step's iterations from the inertial prediction ``z + h z_dot``."
+    )
 
     @property
     def acceleration(self) -> str:
@@ -598,36 +492,18 @@ class ModalMuscle:
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
 
-    def _contact_effect(self, setting):
+    def _new_contact(self, setting, **changes) -> None:
+        """A fresh contact on the same vertices and ground, its settings changed."""
         contact = self._model.contact
         if contact is None:
             raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
-        return contact
-
-    def _make_contact(self, vertices, ground):
-        """The contact effect of the current settings."""
-        settings = dict(self._contact)
-        if settings.pop("model") == "coulomb":
-            return CoulombContact(self._space, vertices, ground, self._up, **settings)
-        return ReferenceContact(self._space, vertices, ground, self._up, **settings)
-
-    def _new_contact(self, setting, **changes) -> None:
-        contact = self._contact_effect(setting)
         self._contact.update(changes)
-        self._model.replace(self._make_contact(contact.vertices, contact.ground))
+        self._put_contact(contact.vertices, contact.ground)
+
+    def _put_contact(self, vertices, ground) -> None:
+        """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old)."""
+        self._model.replace(_contact_effect(self._space, self._contact, vertices, ground, self._up))
         self._rebuild()
-
-    def _contact_setting(self, name):
-        """A setting of the contact model in use (None when it is another model's)."""
-        return self._contact.get(name)
-
-    def _set_model_setting(self, name, value, model) -> None:
-        if self._contact["model"] != model:
-            raise AttributeError(
-                f"{name} is a setting of contact_model='{model}'; this simulator uses "
-                f"contact_model='{self._contact['model']}'"
-            )
-        self._new_contact(name, **{name: value})
 
     @property
     def contact_model(self) -> str:
@@ -636,21 +512,28 @@ class ModalMuscle:
 
     @contact_model.setter
     def contact_model(self, value) -> None:
-        settings = _contact_settings(value, None, None, None)
-        if self._model.contact is None:
-            self._contact = settings
-            return
-        self._contact = settings
-        self._new_contact("contact_model")
+        self._contact = _contact_settings(value, None, None, None)
+        if self._model.contact is not None:
+            self._new_contact("contact_model")
 
-    @property
-    def friction(self):
-        """Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise)."""
-        return self._contact_setting("friction")
-
-    @friction.setter
-    def friction(self, value) -> None:
-        self._set_model_setting("friction", _positive_scalar(value, "friction", allow_zero=True), "coulomb")
+    friction = _contact_setting(
+        "friction",
+        "coulomb",
+        _nonnegative,
+        "Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise).",
+    )
+    stickiness = _contact_setting(
+        "stickiness",
+        "reference",
+        _fraction,
+        "Fraction of a contact point's tangential velocity removed (``contact_model='reference'``; None otherwise).",
+    )
+    push_out = _contact_setting(
+        "push_out",
+        "reference",
+        _fraction,
+        "Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise).",
+    )
 
     def penetration(self, z) -> float:
         """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground)."""
@@ -671,13 +554,10 @@ class ModalMuscle:
             self._rebuild()
             return
         value = float(_array(value, (), "ground"))
-        if self._model.contact is None:
+        contact = self._model.contact
+        if contact is None:
             self._contact_vertices = boundary_vertices(self._mesh)
-            self._model.replace(self._make_contact(self._contact_vertices, value))
-            self._rebuild()
-        else:  # a fresh contact: what it kept from earlier steps was about the old ground
-            self._model.replace(self._make_contact(self._model.contact.vertices, value))
-            self._rebuild()
+        self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
 
     @property
     def up(self) -> int:
@@ -694,24 +574,6 @@ class ModalMuscle:
             self._new_contact("up")
 
     @property
-    def stickiness(self):
-        """Fraction of a contact point's tangential velocity removed (``contact_model='reference'``; None otherwise)."""
-        return self._contact_setting("stickiness")
-
-    @stickiness.setter
-    def stickiness(self, value) -> None:
-        self._set_model_setting("stickiness", _fraction(value, "stickiness"), "reference")
-
-    @property
-    def push_out(self):
-        """Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise)."""
-        return self._contact_setting("push_out")
-
-    @push_out.setter
-    def push_out(self, value) -> None:
-        self._set_model_setting("push_out", _fraction(value, "push_out"), "reference")
-
-    @property
     def pin_stiffness(self):
         """The pins' spring stiffness at the current time step (None without pins)."""
         pins = self._model.named.get("pinned")
@@ -726,35 +588,20 @@ class ModalMuscle:
         self._model.assemble()
         self._rebuild()
 
-    def _damping(self, mass=None, stiffness=None) -> None:
-        old = self._model.named.get("damping")
-        alpha = mass if mass is not None else (old.mass_coefficient if old else 0.0)
-        beta = stiffness if stiffness is not None else (old.stiffness_coefficient if old else 0.0)
+    def _damp(self, alpha: float, beta: float) -> None:
+        """Rayleigh damping with these coefficients (none when both are 0)."""
         if alpha or beta:
             self._model.replace(Damping(self._model.inertia, self._model.elasticity, alpha, beta))
-        elif old is not None:
+        elif "damping" in self._model.named:
             self._model.remove("damping")
         self._rebuild()
 
-    @property
-    def damping_mass(self) -> float:
-        """Mass-proportional Rayleigh damping alpha (1 / time)."""
-        damping = self._model.named.get("damping")
-        return 0.0 if damping is None else damping.mass_coefficient
-
-    @damping_mass.setter
-    def damping_mass(self, value) -> None:
-        self._damping(mass=_positive_scalar(value, "damping_mass", allow_zero=True))
-
-    @property
-    def damping_stiffness(self) -> float:
-        """Stiffness-proportional Rayleigh damping beta (time)."""
-        damping = self._model.named.get("damping")
-        return 0.0 if damping is None else damping.stiffness_coefficient
-
-    @damping_stiffness.setter
-    def damping_stiffness(self, value) -> None:
-        self._damping(stiffness=_positive_scalar(value, "damping_stiffness", allow_zero=True))
+    damping_mass = _damping_setting(
+        "damping_mass", "mass_coefficient", "Mass-proportional Rayleigh damping alpha (1 / time)."
+    )
+    damping_stiffness = _damping_setting(
+        "damping_stiffness", "stiffness_coefficient", "Stiffness-proportional Rayleigh damping beta (time)."
+    )
 
     @property
     def max_s(self):
@@ -1001,109 +848,29 @@ class ModalMuscle:
         sim : ModalMuscle
             With ``sim.timings`` covering these stages too.
         """
-        from concurrent.futures import ThreadPoolExecutor
-
-        from .clusters import CLUSTER_BY, rotation_clusters, spectral_clusters
-        from .fem import _mass
-        from .subspace import mass_orthonormalize, skinning_eigenmodes
-
-        # arguments used late are checked before any work
+        # each argument goes by name to the stage that takes it: ingredients, then the constructor (the settings)
+        arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
+        arguments["gamma"] = mu if gamma is None else gamma
+        # settings used late are checked before any work
         _backend_name(backend)
         _acceleration_name(acceleration)
         _flag(warm_start, "warm_start")
-        if cluster_by not in CLUSTER_BY:
-            raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")
         _contact_settings(contact_model, friction, stickiness, push_out)
-        signs = None
-        if muscle_signs is not None and n_muscles:
-            signs = np.asarray(muscle_signs, dtype=np.float64)
-            if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
-                raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
         say = progress or (lambda stage: None)
-        timings = {}
         with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
-            # scikit-fem caches mesh data on first use; build it here, before
-            # the two threads read it
-            scalar_basis(mesh)
-            if n_contacts is None and contact_model == "reference":
-                n_contacts = 30
-            contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
-
-            def modes():
-                clock = time.perf_counter()
-                found = muscle_modes(mesh, n_muscles, mu=mu, lam=lam, rho=rho, pinned=pinned)
-                return found, time.perf_counter() - clock
-
-            # the modal analysis (one sparse factorisation and back-solves, in
-            # compiled code that releases the GIL) runs first, beside the rest
-            # in a second thread when parallel: little else is in memory yet
-            say("modal analysis" + (" (in a second thread)" if parallel else ""))
-            modal = pool.submit(modes) if parallel else None
-            found = None if parallel else modes()
-            clock = time.perf_counter()
-            say("skinning eigenmodes")
-            k = max(n_weights, cluster_weights or n_weights)
-            _, weights, B = skinning_eigenmodes(mesh, k)
-            if k > n_weights:
-                B = B[:, : n_weights * (mesh.p.shape[0] + 1) * mesh.p.shape[0]]
-            timings["skinning_eigenmodes"] = time.perf_counter() - clock
-            clock = time.perf_counter()
-            say("orthonormalise")
-            B = mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True), overwrite=True)
-            timings["orthonormalize"] = time.perf_counter() - clock
-            clock = time.perf_counter()
-            say("clusters")
-            cw = weights[:, : cluster_weights or n_weights]
-            if cluster_by == "rotations":
-                mass = np.repeat(_lumped_p1(mesh, _positive(rho, mesh.t.shape[1], "rho")), mesh.p.shape[0])
-                labels = rotation_clusters(mesh, B, n_clusters, mass=mass, stiffness=mu, seed=seed)
-            else:
-                labels = spectral_clusters(mesh, cw, n_clusters, seed=seed)
-            # separate bodies never share a muscle rotation: at least one cluster each
-            n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
-            active = spectral_clusters(mesh, cw, n_active, seed=seed) if n_active > 1 else None
-            timings["clusters"] = time.perf_counter() - clock
-
-            def muscles():
-                # called by the constructor once the passive operators are built
-                D, timings["modal_analysis"] = modal.result() if parallel else found
-                return D if signs is None else D * signs
-
+            made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
             say("simulator set-up")
-            sim = cls(
-                mesh,
-                B,
-                muscles,
-                labels,
-                mu=mu,
-                gamma=mu if gamma is None else gamma,
-                rho=rho,
-                h=h,
-                active_labels=active,
-                gravity=gravity,
-                contact_vertices=contacts,
-                ground=ground,
-                up=up,
-                contact_model=contact_model,
-                friction=friction,
-                stickiness=stickiness,
-                push_out=push_out,
-                pinned=pinned,
-                pin_stiffness=pin_stiffness,
-                damping_mass=damping_mass,
-                damping_stiffness=damping_stiffness,
-                max_iter=max_iter,
-                tol=tol,
-                rtol=rtol,
-                etol=etol,
-                warm_start=warm_start,
-                acceleration=acceleration,
-                backend=backend,
-                max_s=max_s,
-            )
-        sim.timings = {**timings, **sim.timings}
-        sim.weights = weights[:, :n_weights]
+            placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
+            sim = cls(mesh, made.B, made.muscles, made.labels, **placed, **_taken_by(ModalMuscle.__init__, arguments))
+        sim.timings = {**made.timings, **sim.timings}
+        sim.weights = made.weights
         return sim
+
+
+def _taken_by(function, arguments: dict) -> dict:
+    """The arguments, by name, that ``function`` takes."""
+    parameters = inspect.signature(function).parameters
+    return {name: value for name, value in arguments.items() if name in parameters}
 
 
 def _passive_diagonal(space, weights) -> float:

@@ -1,0 +1,186 @@
+"""Checks of a simulator's arguments and settings: each gives the value to use or a clear error naming it.
+
+Used by :class:`~skfem_modal.sim.ModalMuscle`'s constructor (before any work),
+its setters and :meth:`~skfem_modal.sim.ModalMuscle.from_mesh`, so every
+setting is checked by one function wherever it is given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .acceleration import ACCELERATIONS
+from .contact import MODELS
+from .solver import BACKENDS
+from .units import up_axis
+
+
+def _array(value, shape, name):
+    arr = np.asarray(value)
+    if not np.issubdtype(arr.dtype, np.number):
+        raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return arr
+
+
+def _positive_scalar(value, name, *, allow_zero=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
+        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
+    return v
+
+
+def _fraction(value, name):
+    v = _positive_scalar(value, name, allow_zero=True)
+    if v > 1:
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    return v
+
+
+def _count(value, name):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _labels(value, nT, name):
+    arr = np.asarray(value)
+    if arr.shape != (nT,):
+        raise ValueError(f"{name} must have one label per element, shape ({nT},), got {arr.shape}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if np.issubdtype(arr.dtype, np.floating) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be integers, got dtype {arr.dtype}")
+    if arr.min() < 0:
+        raise ValueError(f"{name} must be non-negative, got {arr.min()}")
+    return arr.astype(np.int64)
+
+
+def _vertices(value, n, name):
+    arr = np.unique(np.asarray(value))
+    if arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{name} must be a non-empty array of vertex indices")
+    if arr[0] < 0 or arr[-1] >= n:
+        raise ValueError(f"{name} must be vertex indices in 0..{n - 1}, got {arr[0]}..{arr[-1]}")
+    return arr.astype(np.int64)
+
+
+def _axis(value, dim):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < dim:
+        raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {value!r}")
+    return int(value)
+
+
+def _flag(value, name):
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _acceleration_name(value, full_space=False):
+    if value not in ACCELERATIONS:
+        raise ValueError(f"acceleration must be one of {', '.join(map(repr, ACCELERATIONS))}, got {value!r}")
+    if value == "newton" and full_space:
+        raise ValueError(
+            "acceleration='newton' needs a subspace (its system has a row per cluster rotation); "
+            "on every DOF use 'anderson'"
+        )
+    return value
+
+
+def _backend_name(value):
+    if value not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {value!r}")
+    if value == "numba":
+        from . import _accel
+
+        if not _accel.AVAILABLE:
+            raise ValueError("backend='numba' needs numba: pip install 'skfem_modal[fast]'")
+    return value
+
+
+def _contact_settings(model, friction, stickiness, push_out) -> dict:
+    """A contact model's settings, checked: each model takes only its own."""
+    if model not in MODELS:
+        raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
+    if model == "coulomb":
+        foreign = [name for name, value in (("stickiness", stickiness), ("push_out", push_out)) if value is not None]
+        if foreign:
+            raise ValueError(
+                f"{' and '.join(foreign)}: settings of contact_model='reference', not of 'coulomb' "
+                "(which keeps every vertex above the ground and has friction)"
+            )
+        friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
+        return {"model": model, "friction": friction}
+    if friction is not None:
+        raise ValueError(
+            "friction: a setting of contact_model='coulomb', not of 'reference' (which has stickiness instead)"
+        )
+    return {
+        "model": model,
+        "stickiness": 1.0 if stickiness is None else _fraction(stickiness, "stickiness"),
+        "push_out": 0.0 if push_out is None else _fraction(push_out, "push_out"),
+    }
+
+
+def _muscle_modes(D, N: int) -> np.ndarray:
+    """Muscle modes as a checked (N, m) array."""
+    if D is None:
+        return np.zeros((N, 0))
+    D = np.asarray(D, dtype=np.float64)
+    if D.ndim == 1:
+        D = D[:, None]
+    if D.ndim != 2 or D.shape[0] != N:
+        raise ValueError(f"D must have shape ({N}, m) for this mesh, got {D.shape}")
+    if not np.all(np.isfinite(D)):
+        raise ValueError("D must be finite")
+    return D
+
+
+def _nonnegative(value, name):
+    """A number >= 0 and finite."""
+    return _positive_scalar(value, name, allow_zero=True)
+
+
+def _basis(B, N: int) -> np.ndarray:
+    """A subspace basis as a checked (N, r) array."""
+    B = np.asarray(B, dtype=np.float64)
+    if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
+        raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
+    if not np.all(np.isfinite(B)):
+        raise ValueError("B must be finite")
+    return B
+
+
+def _gravity_and_up(gravity, up, dim: int):
+    """Gravity, shape (dim,), or None, and the up axis it pulls down along (or the one given), checked."""
+    if up is not None:
+        up = _axis(up, dim)
+    if gravity is not None:
+        gravity = _array(gravity, (dim,), "gravity")
+    return gravity, up_axis(gravity, dim, up)
+
+
+def _pins(pinned, pin_stiffness, n: int):
+    """Pinned vertices, shape (p,), or None, and their stiffness (None: the default), checked."""
+    pinned = None if pinned is None else _vertices(pinned, n, "pinned")
+    return pinned, None if pin_stiffness is None else _positive_scalar(pin_stiffness, "pin_stiffness")
+
+
+def _ground(ground, contact_vertices, n: int):
+    """The ground's height or None, and the contact vertices given or None, checked."""
+    if ground is not None:
+        ground = float(_array(ground, (), "ground"))
+    if contact_vertices is not None:
+        if ground is None:
+            raise ValueError("contact_vertices need a ground height (ground=...)")
+        contact_vertices = _vertices(contact_vertices, n, "contact_vertices")
+    return ground, contact_vertices

@@ -1,0 +1,219 @@
+"""From a mesh to a simulator's ingredients, the pipeline behind :meth:`~skfem_modal.sim.ModalMuscle.from_mesh`.
+
+modal analysis (the muscles, in a second thread when given one) -> skinning
+subspace -> rotation clusters -> contact vertices. Each stage is a function
+of its own; :func:`ingredients` runs them in order, timing each.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from .clusters import CLUSTER_BY, rotation_clusters, spectral_clusters
+from .fem import _lumped_p1, _mass, _positive, scalar_basis
+from .mesh import connected_parts, sample_boundary
+from .modal import muscle_modes
+from .subspace import mass_orthonormalize, skinning_eigenmodes
+
+__all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters"]
+
+
+def timed(timings: dict, stage: str, make):
+    """``make()``, its wall time added to ``timings[stage]``."""
+    clock = time.perf_counter()
+    made = make()
+    timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - clock
+    return made
+
+
+def skinning_subspace(mesh, n_weights: int, cluster_weights: int | None = None, timings: dict | None = None):
+    """The skinning-eigenmode subspace, mass-orthonormalised, and its weights.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With ``n`` vertices in ``dim`` dimensions.
+    n_weights : int
+        Skinning weights spanning the subspace.
+    cluster_weights : int, optional
+        Weights to compute for clustering (default ``n_weights``); more than
+        ``n_weights`` are computed but not spanned.
+    timings : dict, optional
+        Gets the seconds of the ``skinning_eigenmodes`` and ``orthonormalize`` stages.
+
+    Returns
+    -------
+    weights : ndarray, shape (n, max(n_weights, cluster_weights))
+    B : ndarray, shape (n * dim, n_weights * (dim + 1) * dim)
+        Mass-orthonormal basis: positions are ``B @ z``.
+    """
+    timings = {} if timings is None else timings
+    dim = mesh.p.shape[0]
+    k = max(n_weights, cluster_weights or n_weights)
+    _, weights, B = timed(timings, "skinning_eigenmodes", lambda: skinning_eigenmodes(mesh, k))
+    if k > n_weights:
+        B = B[:, : n_weights * (dim + 1) * dim]
+    orthonormal = lambda: mass_orthonormalize(B, _mass(mesh, 1.0, True, "P1", True), overwrite=True)
+    B = timed(timings, "orthonormalize", orthonormal)
+    return weights, B
+
+
+def element_clusters(
+    mesh, B, weights, n_clusters: int, *, n_active_clusters=1, cluster_by="weights", mu=1e5, rho=1e3, seed=0
+):
+    """Passive and active rotation clusters of the elements.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With ``nT`` elements.
+    B : ndarray, shape (n * dim, r)
+        The subspace (what ``cluster_by="rotations"`` clusters by).
+    weights : ndarray, shape (n, k)
+        Skinning weights (what ``cluster_by="weights"`` and the active clusters cluster by).
+    n_clusters : int
+        Passive clusters.
+    n_active_clusters : int
+        Muscle clusters, raised to one per connected part of the mesh (separate
+        bodies never share a muscle rotation).
+    cluster_by : {"weights", "rotations"}
+        Spectral clusters of the weights, or
+        :func:`~skfem_modal.clusters.rotation_clusters` (mass density ``rho``,
+        stiffness ``mu``).
+    mu, rho : float or ndarray, shape (nT,)
+    seed : int
+
+    Returns
+    -------
+    labels : ndarray of int, shape (nT,)
+        Passive cluster of each element.
+    active_labels : ndarray of int, shape (nT,), or None
+        Muscle cluster of each element; None for one cluster.
+    """
+    if cluster_by == "rotations":
+        dim, nT = mesh.p.shape[0], mesh.t.shape[1]
+        mass = np.repeat(_lumped_p1(mesh, _positive(rho, nT, "rho")), dim)
+        labels = rotation_clusters(mesh, B, n_clusters, mass=mass, stiffness=mu, seed=seed)
+    else:
+        labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+    n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
+    active = spectral_clusters(mesh, weights, n_active, seed=seed) if n_active > 1 else None
+    return labels, active
+
+
+class Ingredients(NamedTuple):
+    """What :func:`ingredients` makes: the simulator's inputs and the stages' timings.
+
+    Attributes
+    ----------
+    B : ndarray, shape (n * dim, r)
+    muscles : callable
+        ``muscles()`` gives the muscle modes, shape (n * dim, m), waiting for
+        the modal analysis if it still runs (its seconds go to ``timings``).
+    labels, active_labels : ndarray of int, shape (nT,)
+        ``active_labels`` None for one muscle cluster.
+    contact_vertices : ndarray of int, shape (p,), or None
+    weights : ndarray, shape (n, n_weights)
+    timings : dict
+    """
+
+    B: np.ndarray
+    muscles: object
+    labels: np.ndarray
+    active_labels: np.ndarray | None
+    contact_vertices: np.ndarray | None
+    weights: np.ndarray
+    timings: dict
+
+
+def ingredients(
+    mesh,
+    pool=None,
+    say=None,
+    *,
+    n_muscles,
+    muscle_signs,
+    n_weights,
+    cluster_weights,
+    n_clusters,
+    n_active_clusters,
+    cluster_by,
+    mu,
+    lam,
+    rho,
+    pinned,
+    seed,
+    ground,
+    n_contacts,
+    contact_candidates,
+    contact_model,
+):
+    """Every ingredient of a simulator from a mesh: :meth:`~skfem_modal.sim.ModalMuscle.from_mesh`'s stages.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Already checked (inside :func:`~skfem_modal.mesh.validated`).
+    pool : concurrent.futures.Executor, optional
+        Runs the modal analysis beside the other stages; None: first, here.
+        It must stay open until ``muscles()`` was called.
+    say : callable, optional
+        ``say(stage)`` before each stage.
+    n_muscles, muscle_signs, n_weights, cluster_weights, n_clusters, n_active_clusters, cluster_by, mu, lam, rho,
+    pinned, seed, ground, n_contacts, contact_candidates, contact_model :
+        As for :meth:`~skfem_modal.sim.ModalMuscle.from_mesh` (which passes them on by name).
+
+    Returns
+    -------
+    Ingredients
+    """
+    if cluster_by not in CLUSTER_BY:
+        raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")
+    signs = _muscle_signs(muscle_signs, n_muscles)
+    say = say or (lambda stage: None)
+    timings = {}
+    # scikit-fem caches mesh data on first use; build it here, before the two threads read it
+    scalar_basis(mesh)
+    if n_contacts is None and contact_model == "reference":
+        n_contacts = 30
+    contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
+
+    def modes():
+        clock = time.perf_counter()
+        found = muscle_modes(mesh, n_muscles, mu=mu, lam=lam, rho=rho, pinned=pinned)
+        return found, time.perf_counter() - clock
+
+    # the modal analysis (one sparse factorisation and back-solves, in compiled
+    # code that releases the GIL) runs first, beside the rest in a second
+    # thread when there is one: little else is in memory yet
+    say("modal analysis" + (" (in a second thread)" if pool is not None else ""))
+    if pool is not None:
+        modal = pool.submit(modes).result
+    else:
+        found = modes()
+        modal = lambda: found
+    say("skinning eigenmodes")
+    weights, B = skinning_subspace(mesh, n_weights, cluster_weights, timings)
+    say("clusters")
+    cw = weights[:, : cluster_weights or n_weights]
+    options = dict(n_active_clusters=n_active_clusters, cluster_by=cluster_by, mu=mu, rho=rho, seed=seed)
+    labels, active = timed(timings, "clusters", lambda: element_clusters(mesh, B, cw, n_clusters, **options))
+
+    def muscles():
+        D, timings["modal_analysis"] = modal()
+        return D if signs is None else D * signs
+
+    return Ingredients(B, muscles, labels, active, contacts, weights[:, :n_weights], timings)
+
+
+def _muscle_signs(muscle_signs, n_muscles):
+    """The muscles' signs as an array of +-1, shape (n_muscles,), or None."""
+    if muscle_signs is None or not n_muscles:
+        return None
+    signs = np.asarray(muscle_signs, dtype=np.float64)
+    if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
+        raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
+    return signs
