@@ -56,6 +56,11 @@ def _number(text: str, what: str):
     raise ValueError(f"{what} must be a number, got {text!r}")
 
 
+def _say(args):
+    """``print``, or nothing under ``-q``."""
+    return (lambda *a: None) if args.quiet else print
+
+
 def _material(args) -> tuple[float, float]:
     from .fem import lame_parameters
 
@@ -79,7 +84,7 @@ def cmd_modes(args) -> int:
         if fixed.size == 0:
             raise ValueError(f"--fix {' '.join(args.fix)} selects no vertex")
     info = mesh_summary(mesh)
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     say(
         f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
         f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
@@ -125,7 +130,7 @@ def cmd_run(args) -> int:
     if args.render:
         _check_render(args)
     clear_earlier_run(args.out, args.overwrite, how="--overwrite")
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     say(f"scene: {scene.config['name']} ({scene.source}); effects: {', '.join(scene.effects)}")
     say(f"{scene.n_steps} steps of {scene.h:g}; writing to {args.out}")
     try:
@@ -179,7 +184,7 @@ def _render(run_dir, args, say) -> int:
 
 
 def cmd_render(args) -> int:
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     return _render(args.run_dir, args, say)
 
 
@@ -263,7 +268,7 @@ def cmd_study(args) -> int:
     from .study import FLOATING_CATERPILLAR, run_study
 
     data, base_dir = _scene_data(args.scene, FLOATING_CATERPILLAR)
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     say(f"study ({'quick' if args.quick else 'full'}) of {data.get('name', args.scene)}; writing to {args.out}")
     report = run_study(
         data,
@@ -319,7 +324,7 @@ def cmd_optimize(args) -> int:
     scene = Scene.from_dict(data, base_dir=base_dir)
     direction = _direction(args.direction, scene.dim)
     space = GaitSpace(scene.config["muscles"]["count"], args.amplitude_max, *args.period_range)
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     say(
         f"CMA-ES over {3 * space.m} gait parameters ({args.objective} along {direction.tolist()}): "
         f"{args.generations} generations of {args.popsize}, seed {args.seed}, writing to {args.out}"
@@ -413,7 +418,7 @@ def _picture_size(text: str) -> tuple[int, int]:
 def cmd_play(args) -> int:
     from .play import PlayError, play
 
-    say = (lambda *a: None) if args.quiet else print
+    say = _say(args)
     try:
         play(
             args.scene,
@@ -431,21 +436,7 @@ def cmd_play(args) -> int:
     return EXIT_OK
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-
-    parser = argparse.ArgumentParser(
-        prog="skfem-modal",
-        description="Linear modal analysis and modal-muscle soft-body simulation on scikit-fem.",
-        formatter_class=_HelpWithDefaults,
-    )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    def command(name, **kwargs):
-        return sub.add_parser(name, formatter_class=_HelpWithDefaults, **kwargs)
-
-    p = command("modes", help="linear vibration modes of a mesh, written for ParaView")
+def _modes_options(p) -> None:
     p.add_argument(
         "mesh",
         nargs="?",
@@ -476,21 +467,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-s", type=float, default=2.0, help="gradient change (Frobenius norm) that defines the ceilings"
     )
     p.add_argument("--out", default="modes.vtu", help="output .vtu file")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_modes)
 
-    def render_options(p):
-        p.add_argument(
-            "--backend",
-            choices=["auto", "pyvista", "matplotlib"],
-            default="auto",
-            help="auto: pyvista where off-screen OpenGL works, else matplotlib",
-        )
-        p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
-        p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
-        p.add_argument("--size", type=_picture_size, default="1280x720", metavar="WxH", help="picture size in pixels")
 
-    p = command("run", help="run a scene (default: the tutorial's caterpillar crawl)")
+def _render_options(p) -> None:
+    p.add_argument(
+        "--backend",
+        choices=["auto", "pyvista", "matplotlib"],
+        default="auto",
+        help="auto: pyvista where off-screen OpenGL works, else matplotlib",
+    )
+    p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
+    p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
+    p.add_argument("--size", type=_picture_size, default="1280x720", metavar="WxH", help="picture size in pixels")
+
+
+def _run_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
     p.add_argument("--out", default="out", help="output directory")
     p.add_argument(
@@ -498,25 +489,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--every", type=_positive_int, help="write every k-th frame (default: the scene's output.every)")
     p.add_argument("--render", action="store_true", help="also draw pictures and an animation (plot extra)")
-    render_options(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress, no messages (warnings and errors only)")
-    p.set_defaults(func=cmd_run)
+    _render_options(p)
 
-    p = command("info", help="what a scene or mesh holds: sizes, effects, material")
+
+def _info_options(p) -> None:
     p.add_argument("target", nargs="?", help="scene .toml, mesh file or built-in NAME (default: the built-in scene)")
     p.add_argument("--scene-reference", action="store_true", help="print the scene file reference (markdown)")
-    p.set_defaults(func=cmd_info)
 
-    p = command("study", help="accuracy against cost: the reduced simulator against the full-space reference")
+
+def _pool_options(p, workers: int, workers_help: str, what: str) -> None:
+    """--workers and --scheduler: where a command's many runs go (a local pool, or dask)."""
+    p.add_argument("--workers", type=_positive_int, default=workers, help=workers_help)
+    p.add_argument("--scheduler", help=f"address of a dask.distributed scheduler to run the {what} on")
+
+
+def _study_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml (default: the floating caterpillar)")
     p.add_argument("--out", default="study", help="output directory")
     p.add_argument("--quick", action="store_true", help="the short preset (under two minutes on 2 cores)")
-    p.add_argument("--workers", type=_positive_int, default=1, help="processes of the local pool (1: clean timings)")
-    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the sweep on")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_study)
+    _pool_options(p, 1, "processes of the local pool (1: clean timings)", "sweep")
 
-    p = command("optimize", help="search the gait that travels furthest (CMA-ES)")
+
+def _optimize_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml (default: the built-in caterpillar crawl)")
     p.add_argument("--generations", type=_positive_int, default=20, help="CMA-ES generations")
     p.add_argument("--popsize", type=_positive_int, default=12, help="candidates per generation")
@@ -562,13 +556,11 @@ def build_parser() -> argparse.ArgumentParser:
     resume = p.add_mutually_exclusive_group()
     resume.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
     resume.add_argument("--overwrite", action="store_true", help="start again, replacing the search in --out")
-    p.add_argument("--workers", type=_positive_int, default=2, help="processes of the local pool")
-    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run the rollouts on")
+    _pool_options(p, 2, "processes of the local pool", "rollouts")
     p.add_argument("--blas-threads", type=_positive_int, default=1, help="BLAS threads per worker")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and how to resume")
-    p.set_defaults(func=cmd_optimize)
 
-    p = command("play", help="a live window: sliders (or the gait) drive the muscles")
+
+def _play_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml file (default: the built-in caterpillar crawl)")
     p.add_argument(
         "--frames",
@@ -581,10 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=_picture_size, default=(960, 600), metavar="WxH", help="window size in pixels")
     p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
     p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_play)
 
-    p = command("transfer", help="replay a search's best gait with more accurate settings: how much travel survives")
+
+def _transfer_options(p) -> None:
     p.add_argument("search", nargs="?", default="search", help="the folder of a finished search")
     p.add_argument(
         "--full-space-limit",
@@ -592,14 +583,68 @@ def build_parser() -> argparse.ArgumentParser:
         default=10_000,
         help="largest mesh (elements) also replayed in the full space",
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_transfer)
 
-    p = command("render", help="pictures and an animation of a finished run")
+
+def _render_command_options(p) -> None:
     p.add_argument("run_dir", help="directory written by 'skfem-modal run'")
-    render_options(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing")
-    p.set_defaults(func=cmd_render)
+    _render_options(p)
+
+
+#: The subcommands, in the order ``--help`` lists them: name, help, its options, what runs it,
+#: and what ``-q`` says (the last option; None: no ``-q``).
+_COMMANDS = (
+    ("modes", "linear vibration modes of a mesh, written for ParaView", _modes_options, cmd_modes, "print nothing"),
+    (
+        "run",
+        "run a scene (default: the tutorial's caterpillar crawl)",
+        _run_options,
+        cmd_run,
+        "no progress, no messages (warnings and errors only)",
+    ),
+    ("info", "what a scene or mesh holds: sizes, effects, material", _info_options, cmd_info, None),
+    (
+        "study",
+        "accuracy against cost: the reduced simulator against the full-space reference",
+        _study_options,
+        cmd_study,
+        "print nothing",
+    ),
+    (
+        "optimize",
+        "search the gait that travels furthest (CMA-ES)",
+        _optimize_options,
+        cmd_optimize,
+        "print nothing but errors and how to resume",
+    ),
+    ("play", "a live window: sliders (or the gait) drive the muscles", _play_options, cmd_play, "print nothing"),
+    (
+        "transfer",
+        "replay a search's best gait with more accurate settings: how much travel survives",
+        _transfer_options,
+        cmd_transfer,
+        "print nothing",
+    ),
+    ("render", "pictures and an animation of a finished run", _render_command_options, cmd_render, "print nothing"),
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``skfem-modal`` argument parser, one subparser a subcommand (:data:`_COMMANDS`)."""
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="skfem-modal",
+        description="Linear modal analysis and modal-muscle soft-body simulation on scikit-fem.",
+        formatter_class=_HelpWithDefaults,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, summary, add_options, run, quiet in _COMMANDS:
+        p = sub.add_parser(name, help=summary, formatter_class=_HelpWithDefaults)
+        add_options(p)
+        if quiet is not None:
+            p.add_argument("-q", "--quiet", action="store_true", help=quiet)
+        p.set_defaults(func=run)
     return parser
 
 

@@ -50,6 +50,8 @@ __all__ = ["GaitSpace", "SearchInterrupted", "run_search", "scene_to_toml", "SEA
 #: The files a search writes in its output folder, and ``skfem-modal transfer`` beside them (a new search
 #: replaces only these).
 SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", "transfer.csv")
+#: The keys of the first four's paths in :func:`run_search`'s result.
+_PATH_NAMES = ("checkpoint", "history_csv", "best_scene", "plot")
 
 
 class SearchInterrupted(KeyboardInterrupt):
@@ -287,8 +289,6 @@ def run_search(
     SearchInterrupted
         On Ctrl-C, once the workers are stopped (the checkpoint holds every finished generation).
     """
-    import cma
-
     from .scene import Scene
 
     scene = Scene.from_dict(data, base_dir=base_dir)  # every scene error first
@@ -296,40 +296,14 @@ def run_search(
     space = space or GaitSpace(m)
     if space.m != m:
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
-    if generations < 1 or popsize < 2:
-        raise ValueError(f"need generations >= 1 and popsize >= 2, got {generations} and {popsize}")
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
-        raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    if not 0.0 <= jitter < 0.5:
-        raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
-    if objective not in OBJECTIVES:
-        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
-    if isinstance(steps, bool) or not (steps is None or isinstance(steps, (int, np.integer)) and steps >= 1):
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
-    for name, value in (("sigma0", sigma0), ("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
-        if not (np.isfinite(value) and value >= 0) or (name == "sigma0" and value == 0):
-            raise ValueError(f"{name} must be {'positive' if name == 'sigma0' else 'non-negative'}, got {value!r}")
+    _check_evolution(generations, popsize, sigma0)
+    _check_samples(samples, jitter)
+    trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     if resume and overwrite:
         raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
-    direction = _unit_direction(direction, scene.dim)
-    steps = steps or scene.n_steps
     out_dir = os.fspath(out_dir)
-    paths = {
-        name: os.path.join(out_dir, file)
-        for name, file in zip(("checkpoint", "history_csv", "best_scene", "plot"), SEARCH_FILES)
-    }
-    checkpoint = paths["checkpoint"]
-    # relative paths in the scene are resolved for the workers and the best-gait file
-    data = json.loads(json.dumps(data))
-    if data.get("mesh", {}).get("file") and base_dir:
-        data["mesh"]["file"] = os.path.join(base_dir, data["mesh"]["file"])
-    trial_settings = {
-        "steps": int(steps),
-        "direction": direction.tolist(),
-        "objective": objective,
-        "tip_limit": float(np.radians(tip_limit_degrees)),
-        "tip_weight": float(tip_weight),
-    }
+    paths = {name: os.path.join(out_dir, file) for name, file in zip(_PATH_NAMES, SEARCH_FILES)}
+    data = _standalone(data, base_dir)
     settings = {
         "scene": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16],
         "seed": seed,
@@ -340,29 +314,9 @@ def run_search(
         "space": [space.amplitude_max, space.period_min, space.period_max],
         **trial_settings,
     }
-    if resume:
-        if not os.path.isfile(checkpoint):
-            raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
-        state = _load_checkpoint(checkpoint, settings)
-        np.random.set_state(state["numpy_random"])
-    else:
-        if os.path.exists(checkpoint) and not overwrite:
-            raise FileExistsError(
-                f"{out_dir} holds a search ({checkpoint}): continue it with --resume (resume=True) "
-                "or start again with --overwrite (overwrite=True)"
-            )
-        gait = scene.config["muscles"]["gait"]
-        x0 = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-        # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
-        es = cma.CMAEvolutionStrategy(
-            x0.tolist(), sigma0, {"popsize": popsize, "seed": seed + 1, "bounds": [0.0, 1.0], "verbose": -9}
-        )
-        state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
-        state["numpy_random"] = np.random.get_state()
-        os.makedirs(out_dir, exist_ok=True)
-        for file in SEARCH_FILES:
-            if os.path.exists(os.path.join(out_dir, file)):
-                os.remove(os.path.join(out_dir, file))
+    gait = scene.config["muscles"]["gait"]
+    x0 = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
+    state = _first_state(out_dir, paths["checkpoint"], settings, x0, resume=resume, overwrite=overwrite)
     if state["history"]:
         _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
 
@@ -371,31 +325,111 @@ def run_search(
     precompute = time.perf_counter() - clock
     recipe = {"data": data, "base_dir": None, **trial_settings}
     bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
-    this_call = 0
+    last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
     try:
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
         ) as rollouts:
-            while state["generation"] < generations and (stop_after is None or this_call < stop_after):
-                state = _generation(state, rollouts, space, samples, jitter, seed)
-                _write_atomic(checkpoint, lambda f, s=state: pickle.dump(s, f))
-                _write_outputs(paths, data, state)
-                this_call += 1
+            while state["generation"] < last:
+                state = _generation(state, rollouts, space)
+                _save(paths, data, state)
                 bar.update()
     except KeyboardInterrupt:
         bar.close()
-        if os.path.isfile(checkpoint):  # the files follow the checkpoint, whatever the moment of the interruption
-            with open(checkpoint, "rb") as f:
-                state = pickle.load(f)
-            _write_outputs(paths, data, state)
-            _write_plot(paths["plot"], state["history"], objective)
-        raise SearchInterrupted(
-            state["generation"] if os.path.isfile(checkpoint) else 0, generations, out_dir
-        ) from None
+        raise SearchInterrupted(_restore(paths, data, objective), generations, out_dir) from None
     bar.close()
-    history = state["history"]
-    _write_plot(paths["plot"], history, objective)
-    overall = _overall_best(history)
+    _write_plot(paths["plot"], state["history"], objective)
+    return _result(state, paths, precompute)
+
+
+def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: float, tip_weight: float) -> dict:
+    """What a rollout is run and scored with (:class:`~skfem_modal.rollouts.Trial`'s settings), checked.
+
+    ``steps`` defaults to the scene's, ``direction`` (default +x) is made a
+    unit vector, the tipping penalty's limit goes into radians.
+    """
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    if isinstance(steps, bool) or not (steps is None or isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    for name, value in (("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be non-negative, got {value!r}")
+    return {
+        "steps": int(steps or scene.n_steps),
+        "direction": _unit_direction(direction, scene.dim).tolist(),
+        "objective": objective,
+        "tip_limit": float(np.radians(tip_limit_degrees)),
+        "tip_weight": float(tip_weight),
+    }
+
+
+def _standalone(data: dict, base_dir: str | None) -> dict:
+    """A copy of a scene dict whose mesh file is found from anywhere (for the workers and the best-gait file)."""
+    data = json.loads(json.dumps(data))
+    if data.get("mesh", {}).get("file") and base_dir:
+        data["mesh"]["file"] = os.path.join(base_dir, data["mesh"]["file"])
+    return data
+
+
+def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
+    """CMA-ES's settings: at least a generation of at least two candidates, a positive first step."""
+    if generations < 1 or popsize < 2:
+        raise ValueError(f"need generations >= 1 and popsize >= 2, got {generations} and {popsize}")
+    if not (np.isfinite(sigma0) and sigma0 > 0):
+        raise ValueError(f"sigma0 must be positive, got {sigma0!r}")
+
+
+def _first_state(out_dir: str, checkpoint: str, settings: dict, x0, *, resume: bool, overwrite: bool) -> dict:
+    """The state a search starts from: its checkpoint's (resuming), or CMA-ES new at ``x0``.
+
+    A new search first removes an earlier one's files from ``out_dir`` (only with ``overwrite``).
+    """
+    if resume:
+        if not os.path.isfile(checkpoint):
+            raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
+        state = _load_checkpoint(checkpoint, settings)
+        np.random.set_state(state["numpy_random"])
+        return state
+    if os.path.exists(checkpoint) and not overwrite:
+        raise FileExistsError(
+            f"{out_dir} holds a search ({checkpoint}): continue it with --resume (resume=True) "
+            "or start again with --overwrite (overwrite=True)"
+        )
+    import cma
+
+    # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
+    options = {"popsize": settings["popsize"], "seed": settings["seed"] + 1, "bounds": [0.0, 1.0], "verbose": -9}
+    es = cma.CMAEvolutionStrategy(x0.tolist(), settings["sigma0"], options)
+    state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
+    state["numpy_random"] = np.random.get_state()
+    os.makedirs(out_dir, exist_ok=True)
+    for file in SEARCH_FILES:
+        if os.path.exists(os.path.join(out_dir, file)):
+            os.remove(os.path.join(out_dir, file))
+    return state
+
+
+def _save(paths: dict, data: dict, state: dict) -> None:
+    """The checkpoint of a search state, then the files that follow it (history.csv, best_gait.toml)."""
+    _write_atomic(paths["checkpoint"], lambda f: pickle.dump(state, f))
+    _write_outputs(paths, data, state)
+
+
+def _restore(paths: dict, data: dict, objective: str) -> int:
+    """After Ctrl-C, the files as the last checkpoint has them (whatever the moment); its generation (0: none)."""
+    if not os.path.isfile(paths["checkpoint"]):
+        return 0
+    with open(paths["checkpoint"], "rb") as f:
+        state = pickle.load(f)
+    _write_outputs(paths, data, state)
+    _write_plot(paths["plot"], state["history"], objective)
+    return state["generation"]
+
+
+def _result(state: dict, paths: dict, precompute: float) -> dict:
+    """What :func:`run_search` returns, from the last state."""
+    overall = _overall_best(state["history"])
     return {
         "best": {
             "gait": overall["gait"],
@@ -406,7 +440,7 @@ def run_search(
             "travel_spread": overall["best_travel_spread"],
             "generation": overall["generation"],
         },
-        "history": history,
+        "history": state["history"],
         "generations": state["generation"],
         "rollouts": state["rollouts"],
         "seconds": state["seconds"],
@@ -415,8 +449,9 @@ def run_search(
     }
 
 
-def _generation(state: dict, rollouts, space: GaitSpace, samples: int, jitter: float, seed: int) -> dict:
+def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
     """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was)."""
+    samples, jitter, seed = (state["settings"][key] for key in ("samples", "jitter", "seed"))
     clock = time.perf_counter()
     es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
     done = state["generation"]
@@ -457,6 +492,14 @@ def _generation(state: dict, rollouts, space: GaitSpace, samples: int, jitter: f
         "seconds": state["seconds"] + row["seconds"],
         "numpy_random": np.random.get_state(),
     }
+
+
+def _check_samples(samples: int, jitter: float) -> None:
+    """The rollouts of a candidate: a positive count; its copies' changes in [0, 0.5) (see :func:`_jittered`)."""
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    if not 0.0 <= jitter < 0.5:
+        raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
 
 
 def _jittered(gait: dict, jitter: float, key) -> dict:

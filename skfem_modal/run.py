@@ -196,157 +196,165 @@ def run_scene(
     started = time.perf_counter()
     if sim is None:
         sim = scene.build(progress=_stage_printer(progress))
-    precompute = time.perf_counter() - started
-    mesh = sim.mesh
-    h, n_steps, dim = sim.h, scene.n_steps, sim.dim
-    m = sim.n_muscles
-    ground = sim.ground
-    summary = {
+    summary = _summary_start(scene, sim, precompute=time.perf_counter() - started)
+    files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every)
+    gravity = scene.config["gravity"]
+    log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0}
+    log["monitor"] = MotionMonitor(sim, None if gravity is None else gravity["acceleration"])
+    bar = Progress(scene.n_steps, "steps", enabled=progress)
+    status, error = "completed", None
+    try:
+        _run_steps(scene, sim, log, files, bar)
+    except SimulationError as err:
+        step = err.step or len(log["seconds"]) + 1
+        status, error = "failed", {"step": step, "time": step * sim.h, "message": str(err)}
+        raise SimulationError(f"{err.message} (t = {step * sim.h:g}; outputs so far kept)", step=step) from None
+    except KeyboardInterrupt:
+        status, error = "interrupted", {"step": len(log["seconds"]), "time": len(log["seconds"]) * sim.h}
+        raise
+    finally:
+        bar.close()
+        summary.update(status=status, error=error, steps_completed=len(log["seconds"]), motion=log["monitor"].finish())
+        summary["timings"].update(
+            steps_total_s=float(np.sum(log["seconds"])),
+            step_ms=_stats_ms(log["seconds"]),
+            wall_s=time.perf_counter() - started,
+        )
+        summary.update(_measured(sim, log))
+        if files is None:
+            summary.update(pinned=None, frames=None)
+        else:
+            files.close(summary)
+    return summary
+
+
+def _summary_start(scene, sim, precompute: float) -> dict:
+    """What a run's summary says before its first step: the scene, its sizes, the precompute."""
+    return {
         "skfem_modal": _version(),
         "python": platform.python_version(),
         "scene": scene.to_dict(),
-        "mesh": mesh_summary(mesh),
+        "mesh": mesh_summary(sim.mesh),
         "effects": list(sim.effects),
         "sizes": {
-            "dofs": int(mesh.p.size),
+            "dofs": int(sim.mesh.p.size),
             "subspace": int(sim.B.shape[1]),
             "clusters": int(sim.n_clusters),
             "active_clusters": int(sim.n_active_clusters),
-            "muscles": int(m),
+            "muscles": int(sim.n_muscles),
             "contact_points": int(sim.contact_vertices.size),
             "pinned_vertices": int(sim.pinned.size),
         },
         "muscle_ceilings": sim.ceilings,
         "timings": {"precompute_s": dict(sim.timings), "precompute_total_s": precompute},
-        "steps": n_steps,
-        "h": h,
+        "steps": scene.n_steps,
+        "h": sim.h,
         "status": "running",
     }
 
-    writers = {}
-    frames = None
-    if out_dir is not None:
-        out_dir = os.fspath(out_dir)
+
+def _run_steps(scene, sim, log: dict, files, bar: Progress) -> None:
+    """The step loop: the scene's steps from rest, each recorded in ``log`` (and ``files``) as it ends."""
+    ceilings = sim.ceilings
+    activation = (lambda t: scene.activation(t, ceilings)) if sim.n_muscles else None
+    z, _, a = sim.rest_state()
+    log["com"].append(_record(sim, files, 0, z, a))
+    for done in simulate(sim, scene.n_steps, activation):
+        log["seconds"].append(done.seconds)
+        log["iterations"].append(done.iterations)
+        log["residuals"].append(done.residual)
+        if sim.ground is not None:
+            # every boundary vertex, every step: the deepest any went below the ground
+            log["penetration"] = max(log["penetration"], sim.penetration(done.z))
+        log["com"].append(_record(sim, files, done.step, done.z, done.a))
+        log["monitor"].update(done.step, done.z)
+        bar.update()
+
+
+def _record(sim, files, step: int, z, a) -> np.ndarray:
+    """The centre of mass after ``step`` steps, also written to ``files`` when there are files."""
+    com = sim.com(z)
+    if files is not None:
+        files.write(step, z, a, com)
+    return com
+
+
+def _measured(sim, log: dict) -> dict:
+    """The summary's iterations, centre of mass and ground entries, from a run's log."""
+    coms = np.array(log["com"])
+    it = np.array(log["iterations"], dtype=int)
+    ground = None
+    if sim.ground is not None:
+        worst = log["penetration"]
+        ground = {
+            "height": sim.ground,
+            "model": sim.contact_model,
+            "worst_penetration": worst,
+            "worst_penetration_relative": worst / float(np.ptp(sim.mesh.p, axis=1).max()),
+        }
+    return {
+        "iterations": {
+            "mean": float(it.mean()) if it.size else 0.0,
+            "min": int(it.min()) if it.size else 0,
+            "max": int(it.max()) if it.size else 0,
+            "histogram": {str(k): int(v) for k, v in zip(*np.unique(it, return_counts=True))},
+            "residual": _residual_stats(log["residuals"]),
+        },
+        "com": {
+            "start": coms[0],
+            "end": coms[-1],
+            "travel": coms[-1] - coms[0],
+            "distance": float(np.linalg.norm(coms[-1] - coms[0])),
+            "min": coms.min(axis=0),
+            "max": coms.max(axis=0),
+        },
+        "ground": ground,
+    }
+
+
+class _RunFiles:
+    """The files a run streams to as it goes: frames, ``com.csv``, ``amplitudes.csv``; ``summary.json`` at close."""
+
+    def __init__(self, out_dir: str, sim, every: int):
         os.makedirs(out_dir, exist_ok=True)
+        self.out_dir, self.sim, self.every = out_dir, sim, every
         cell_data = {"cluster": sim.labels, "muscle_cluster": sim.active_labels}
-        frames = FrameWriter(out_dir, mesh, name="frames", cell_data=cell_data)
-        com_file = open(os.path.join(out_dir, "com.csv"), "w", newline="")
-        amp_file = open(os.path.join(out_dir, "amplitudes.csv"), "w", newline="")
-        writers = {"com": (com_file, csv.writer(com_file)), "amp": (amp_file, csv.writer(amp_file))}
-        writers["com"][1].writerow(["time"] + ["xyz"[k] for k in range(dim)])
-        writers["amp"][1].writerow(
-            ["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)]
-        )
+        self.frames = FrameWriter(out_dir, sim.mesh, name="frames", cell_data=cell_data)
+        self._files = [open(os.path.join(out_dir, name), "w", newline="") for name in ("com.csv", "amplitudes.csv")]
+        self.com, self.amplitudes = (csv.writer(f) for f in self._files)
+        m = sim.n_muscles
+        self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
+        self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
+        self.worst_pin = 0.0
 
-    z, z_dot, a = sim.rest_state()
-    start_com = sim.com(z)
-    monitor = MotionMonitor(sim, None if scene.config["gravity"] is None else scene.config["gravity"]["acceleration"])
-    coms = [start_com]
-    step_seconds, iterations, residuals = [], [], []
-    worst_penetration = 0.0
-    worst_pin = 0.0
-    rest = mesh.p.T
-
-    def record(step: int, z, a):
-        nonlocal worst_pin
-        t = step * h
-        com = sim.com(z)
-        if writers:
-            writers["com"][1].writerow([repr(t)] + [repr(float(c)) for c in com])
-            if m:
-                writers["amp"][1].writerow(
-                    [repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in sim.muscle_amplitudes(z)]
-                )
-        if frames is not None and step % every == 0:
+    def write(self, step: int, z, a, com) -> None:
+        """One step's rows, and its frame every ``every`` steps."""
+        sim = self.sim
+        t = step * sim.h
+        self.com.writerow([repr(t)] + [repr(float(c)) for c in com])
+        if sim.n_muscles:
+            realised = sim.muscle_amplitudes(z)
+            self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
+        if step % self.every == 0:
             # full positions only for frames that are written out
             x = sim.positions(z)
             if sim.pinned.size:
-                worst_pin = max(worst_pin, float(np.abs(x[sim.pinned] - rest[sim.pinned]).max()))
-            frames.write(t, x, field_data={"activation": a} if m else None)
-        return com
+                rest = sim.mesh.p.T[sim.pinned]
+                self.worst_pin = max(self.worst_pin, float(np.abs(x[sim.pinned] - rest).max()))
+            self.frames.write(t, x, field_data={"activation": a} if sim.n_muscles else None)
 
-    bar = Progress(n_steps, "steps", enabled=progress)
-    status, error = "completed", None
-    step = 0
-    ceilings = sim.ceilings
-    activation = (lambda t: scene.activation(t, ceilings)) if m else None
-    try:
-        record(0, z, a)
-        for done in simulate(sim, n_steps, activation):
-            step = done.step
-            step_seconds.append(done.seconds)
-            iterations.append(done.iterations)
-            residuals.append(done.residual)
-            if ground is not None:
-                # every boundary vertex, every step: the deepest any went below the ground
-                worst_penetration = max(worst_penetration, sim.penetration(done.z))
-            coms.append(record(step, done.z, done.a))
-            monitor.update(step, done.z)
-            bar.update()
-    except SimulationError as err:
-        step = err.step or step + 1
-        status, error = "failed", {"step": step, "time": step * h, "message": str(err)}
-        raise SimulationError(f"{err.message} (t = {step * h:g}; outputs so far kept)", step=step) from None
-    except KeyboardInterrupt:
-        status, error = "interrupted", {"step": step, "time": step * h}
-        raise
-    finally:
-        bar.close()
-        coms = np.array(coms)
-        steps_done = len(step_seconds)
-        it = np.array(iterations, dtype=int)
+    def close(self, summary: dict) -> None:
+        """Close the files and write ``summary.json``, with the frames' and pinned vertices' entries added."""
+        frames = self.frames
+        pinned = {"worst_drift_written_frames": self.worst_pin} if self.sim.pinned.size else None
+        times = [frames.times[0], frames.times[-1]]
         summary.update(
-            {
-                "status": status,
-                "error": error,
-                "steps_completed": steps_done,
-                "motion": monitor.finish(),
-                "timings": {
-                    **summary["timings"],
-                    "steps_total_s": float(np.sum(step_seconds)),
-                    "step_ms": _stats_ms(step_seconds),
-                    "wall_s": time.perf_counter() - started,
-                },
-                "iterations": {
-                    "mean": float(it.mean()) if it.size else 0.0,
-                    "min": int(it.min()) if it.size else 0,
-                    "max": int(it.max()) if it.size else 0,
-                    "histogram": {str(k): int(v) for k, v in zip(*np.unique(it, return_counts=True))},
-                    "residual": _residual_stats(residuals),
-                },
-                "com": {
-                    "start": coms[0],
-                    "end": coms[-1],
-                    "travel": coms[-1] - coms[0],
-                    "distance": float(np.linalg.norm(coms[-1] - coms[0])),
-                    "min": coms.min(axis=0),
-                    "max": coms.max(axis=0),
-                },
-                "ground": None
-                if ground is None
-                else {
-                    "height": ground,
-                    "model": sim.contact_model,
-                    "worst_penetration": worst_penetration,
-                    "worst_penetration_relative": worst_penetration / float(np.ptp(mesh.p, axis=1).max()),
-                },
-                "pinned": None if not sim.pinned.size or frames is None else {"worst_drift_written_frames": worst_pin},
-                "frames": None
-                if frames is None
-                else {
-                    "count": frames.count,
-                    "every": every,
-                    "pvd": "frames.pvd",
-                    "times": [frames.times[0], frames.times[-1]],
-                },
-            }
+            pinned=pinned, frames={"count": frames.count, "every": self.every, "pvd": "frames.pvd", "times": times}
         )
-        if frames is not None:
-            frames.close()
-            for f, _ in writers.values():
-                f.close()
-            _write_json(os.path.join(out_dir, "summary.json"), summary)
-    return summary
+        frames.close()
+        for f in self._files:
+            f.close()
+        _write_json(os.path.join(self.out_dir, "summary.json"), summary)
 
 
 def _version() -> str:

@@ -366,6 +366,22 @@ def _sweeps(cfg: dict, base: dict, resolutions) -> list:
     return tasks
 
 
+def _tasks(cfg: dict, data: dict, scenes: dict, base_dir) -> list[dict]:
+    """The runs of a study as tasks for :func:`run_reduced` (the reference is added as they go out)."""
+    return [
+        {
+            "scene": scenes[f],
+            "base_dir": base_dir,
+            "steps": cfg["steps"],
+            "overrides": over,
+            "sweep": sweep,
+            "label": label,
+            "resolution": f,
+        }
+        for sweep, label, over, f in _sweeps(cfg, data.get("subspace", {}), list(scenes))
+    ]
+
+
 def _reduced_scene(task: dict):
     """The scene of a study task: the base scene with the task's overrides."""
     from .scene import Scene
@@ -591,73 +607,66 @@ def run_study(
 
     Scene.from_dict(data, base_dir=base_dir)  # every error before any work
     cfg = PRESETS[preset]
-    steps = cfg["steps"]
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     say = print if progress else (lambda *a, **k: None)
-    own = executor is None
     close = None
-    if own:
+    if executor is None:
         executor, close = make_executor(workers, scheduler)
     started = time.perf_counter()
     try:
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
         scenes = {f: resolution_scene(data, f) for f in resolutions}
-        ref_futures = {f: executor.submit(run_reference, scenes[f], base_dir, steps) for f in resolutions}
-        references = {}
-        for f, fut in ref_futures.items():
-            references[f] = fut.result()
-            say(
-                f"reference at resolution {f:g}: {references[f]['vertices']} vertices, "
-                f"{references[f]['iterations']:.0f} iterations a step, "
-                f"{1e3 * references[f]['seconds_per_step']:.1f} ms a step"
-            )
-        tasks = _sweeps(cfg, data.get("subspace", {}), resolutions)
-        task_dicts = [
-            {
-                "scene": scenes[f],
-                "base_dir": base_dir,
-                "steps": steps,
-                "overrides": over,
-                "sweep": sweep,
-                "label": label,
-                "resolution": f,
-            }
-            for sweep, label, over, f in tasks
-        ]
-        futures = [
-            executor.submit(run_reduced, {**t, "reference": references[t["resolution"]]["x"]}) for t in task_dicts
-        ]
-        rows = []
-        for fut in futures:
-            row = fut.result()
-            rows.append(row)
-            say(f"{row['label']:28s} {100 * row['trajectory_error']:8.3f} % error")
+        references = _run_references(executor, scenes, base_dir, cfg["steps"], say)
+        tasks = _tasks(cfg, data, scenes, base_dir)
+        rows = _run_reduced_all(executor, tasks, references, say)
         # the step times, here and fairly against each other (the runs above
         # may have shared the machine, or run on other machines)
-        for row, ms in zip(rows, time_steps(task_dicts, rounds=cfg["timing_rounds"])):
+        for row, ms in zip(rows, time_steps(tasks, rounds=cfg["timing_rounds"])):
             row["step_ms"] = ms
         say("step times: " + ", ".join(f"{r['label']} {r['step_ms']:.3f} ms" for r in rows))
         modal_rows = modal_convergence(tuple(cfg["modal"]))
     finally:
-        if own and close is not None:
+        if close is not None:
             close()
-    elapsed = time.perf_counter() - started
-    same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
-    front = [same[i] for i in pareto_front([rows[i] for i in same])]
-    lines = recommend(rows)
     meta = {
         "scene": data.get("name", "scene"),
         "preset": preset,
-        "steps": steps,
+        "steps": cfg["steps"],
         "machine": f"{platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}",
         "date": time.strftime("%Y-%m-%d"),
-        "seconds": elapsed,
+        "seconds": time.perf_counter() - started,
         "timing_rounds": cfg["timing_rounds"],
         "references": {str(f): {k: v for k, v in r.items() if k != "x"} for f, r in references.items()},
     }
+    same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
+    front = [same[i] for i in pareto_front([rows[i] for i in same])]
+    lines = recommend(rows)
     paths = _write_report(out_dir, rows, modal_rows, front, lines, meta)
     return {"rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines, "meta": meta, **paths}
+
+
+def _run_references(executor, scenes: dict, base_dir, steps: int, say) -> dict:
+    """The full-space reference of each resolution's scene (:func:`run_reference`), all submitted at once."""
+    futures = {f: executor.submit(run_reference, scene, base_dir, steps) for f, scene in scenes.items()}
+    references = {}
+    for f, future in futures.items():
+        ref = references[f] = future.result()
+        say(
+            f"reference at resolution {f:g}: {ref['vertices']} vertices, {ref['iterations']:.0f} iterations a step, "
+            f"{1e3 * ref['seconds_per_step']:.1f} ms a step"
+        )
+    return references
+
+
+def _run_reduced_all(executor, tasks: list, references: dict, say) -> list[dict]:
+    """The rows of the study's reduced runs, each against the reference at its resolution."""
+    futures = [executor.submit(run_reduced, {**t, "reference": references[t["resolution"]]["x"]}) for t in tasks]
+    rows = []
+    for future in futures:
+        rows.append(future.result())
+        say(f"{rows[-1]['label']:28s} {100 * rows[-1]['trajectory_error']:8.3f} % error")
+    return rows
 
 
 _COLUMNS = [
