@@ -2,7 +2,7 @@
 
     python scripts/contact_picture.py [--out docs/img/contact_feet.png]
 
-The tutorial's crawl (README settings, the ground 0.15 below the body) run
+The built-in default scene (the tutorial's crawl, the ground 0.15 below the body) run
 twice, the same gait, once with ``contact_model="reference"`` (30 sampled
 contact points, velocities only) and once with the default Coulomb contact
 (friction 0.5). The picture shows both at the step where the reference's
@@ -15,37 +15,35 @@ no GL.
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 
 import numpy as np
 
 import skfem_modal as sm
 from skfem_modal.contact import ALLOWANCE
+from skfem_modal.scene import DEFAULT_SCENE, Scene
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs", "img", "contact_feet.png")
-STEPS = 450
 MODELS = ("reference", "coulomb")
 RED = "#d62728"
 
 
-def crawl(mesh, model):
-    """The README's crawl with a contact model: the simulator and its states, shape (STEPS + 1, r)."""
-    sim = sm.ModalMuscle.from_mesh(
-        mesh,
-        n_muscles=4,
-        muscle_signs=[1, -1, -1, 1],
-        n_weights=8,
-        n_clusters=20,
-        mu=1e6,
-        rho=1e3,
-        h=0.01,
-        gravity=[0.0, -9.8],
-        ground=mesh.p[1].min() - 0.15,
-        contact_model=model,
-    )
-    amplitudes = np.array([0.45, 0.35, 0.25, 0.15]) * sim.ceilings
-    gait = lambda t: sm.sine_gait(t, amplitudes, [1.2, 0.8, 1.0, 0.6], [0.0, 0.25, 0.5, 0.1])  # noqa: E731
-    states = [sim.rest_state()[0]] + [record.z for record in sm.simulate(sim, STEPS, gait)]
+def crawl(model):
+    """The built-in default scene (the tutorial's crawl) with a contact model: the simulator and its states.
+
+    Returns
+    -------
+    sim : ModalMuscle
+    states : ndarray, shape (steps + 1, r)
+    """
+    data = copy.deepcopy(DEFAULT_SCENE)
+    if model != data["ground"]["model"]:
+        data["ground"] = {"offset": data["ground"]["offset"], "model": model}
+    scene = Scene.from_dict(data)
+    sim = scene.build()
+    gait = lambda t: scene.activation(t, sim.ceilings)  # noqa: E731
+    states = [sim.rest_state()[0]] + [record.z for record in sm.simulate(sim, scene.n_steps, gait)]
     return sim, np.array(states)
 
 
@@ -88,9 +86,9 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    mesh = sm.caterpillar()
+    runs = {model: crawl(model) for model in MODELS}
+    mesh = runs["reference"][0].mesh
     size = float(np.ptp(mesh.p, axis=1).max())
-    runs = {model: crawl(mesh, model) for model in MODELS}
     sim, states = runs["reference"]
     depths = np.array([sim.penetration(z) for z in states])
     step = int(np.argmax(depths))
