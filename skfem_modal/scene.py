@@ -435,7 +435,7 @@ def _coerce(kind: str, value, path: str, errors: list[str]):
 def _validate_table(schema: dict, data, path: str, errors: list[str]) -> dict:
     if not isinstance(data, dict):
         errors.append(f"{path or 'scene'}: expected a table, got {data!r}")
-        return {}
+        return _validate_table(schema, {}, path, [])  # its defaults: the checks across keys read them
     out = {}
     known = [k for k in schema if not k.startswith("_")]
     for key in data:
@@ -446,14 +446,15 @@ def _validate_table(schema: dict, data, path: str, errors: list[str]) -> dict:
         spec = schema[key]
         where = f"{path}.{key}" if path else key
         if isinstance(spec, dict):
-            if key in data:
-                out[key] = _validate_table(spec, data[key], where, errors)
-            elif spec.get("_effect") or spec.get("_optional"):
+            optional = spec.get("_effect") or spec.get("_optional")
+            if optional and data.get(key) is None:  # absent, or null as summary.json writes an absent one
                 out[key] = None
+            elif key in data:
+                out[key] = _validate_table(spec, data[key], where, errors)
             else:
                 out[key] = _validate_table(spec, {}, where, errors)
             continue
-        if key not in data:
+        if data.get(key) is None:  # absent, or null (a dict's or summary.json's way to say so)
             if spec.required:
                 errors.append(f"{where}: required")
             out[key] = spec.default
@@ -873,7 +874,8 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
     flagged = {e.split(":", 1)[0] for e in errors}
 
     def valid(*paths):
-        return not any(p in flagged for p in paths)
+        # a key is wrong when it or a section holding it was flagged
+        return not any(p.rsplit(".", depth)[0] in flagged for p in paths for depth in range(p.count(".") + 1))
 
     mat = config["material"]
     if valid("material.young", "material.poisson") and (mat["young"] is None) != (mat["poisson"] is None):

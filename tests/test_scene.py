@@ -81,6 +81,23 @@ def test_all_errors_are_reported_at_once():
     )
 
 
+@pytest.mark.parametrize("section", [k for k in SCHEMA if not k.startswith("_") and isinstance(SCHEMA[k], dict)])
+def test_a_section_that_is_not_a_table_is_one_named_error(section):
+    data = {"mesh": {"shape": "caterpillar"}, section: 3}
+    with pytest.raises(SceneError) as caught:
+        Scene.from_dict(data)
+    assert str(caught.value).splitlines()[1:] == [f"  {section}: expected a table, got 3"]
+
+
+def test_a_scenes_configuration_loads_back():
+    # summary.json keeps the scene as to_dict() gives it: absent keys and sections as null
+    for scene in (Scene.default(), Scene.from_toml(EXAMPLES / "creature_crawl.toml")):
+        data = scene.to_dict()
+        assert data.pop("source") == scene.source
+        again = Scene.from_dict(data, base_dir=str(EXAMPLES))
+        assert again.config == scene.config
+
+
 def test_toml_errors(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[time\nstep = 1\n")
