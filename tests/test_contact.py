@@ -86,6 +86,38 @@ def test_a_stiff_block_on_an_incline_slides_as_coulomb_says(dim, friction):
     assert worst <= ALLOWANCE
 
 
+@pytest.mark.parametrize("friction", [0.8, 0.0])
+def test_a_ball_rolls_down_an_incline_at_five_sevenths_of_the_slide(friction):
+    # with friction a solid ball rolls without slipping (tan 20 < 0.8): a = 5/7 g sin theta; without it, it slides
+    # at g sin theta and does not turn. The iterations are converged: the default 10 lag a stiff ball's rotation.
+    import skfem
+
+    mesh = skfem.MeshTet.init_ball(3)
+    sim = sm.ModalMuscle.from_mesh(
+        mesh,
+        n_muscles=0,
+        n_weights=4,
+        n_clusters=4,
+        mu=1e7,
+        rho=1e3,
+        h=H,
+        gravity=incline_gravity(3, [1.0, 0.0]),
+        ground=float(mesh.p[-1].min()),
+        friction=friction,
+        max_iter=100,
+        tol=1e-12,
+    )
+    moved, worst = slide(sim)
+    sliding = travel_expected(0.0)[0]  # implicit Euler's travel of the frictionless slide
+    if friction:
+        assert moved[0] == pytest.approx(5 / 7 * sliding, rel=0.02)  # a polyhedral ball: 0.99 of it
+        assert moved[0] < 0.75 * sliding
+    else:
+        assert moved[0] == pytest.approx(sliding, rel=1e-6)
+    assert abs(moved[1]) < 1e-3 * moved[0]  # straight down the slope
+    assert worst <= ALLOWANCE
+
+
 def test_the_full_space_slides_as_the_reduced_one():
     # the contact works on any space: every DOF free, sparse rows, the same analytic travel
     mesh = sm.beam2d(1.0, 0.4, 5, 2)
