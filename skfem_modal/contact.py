@@ -97,6 +97,8 @@ class _Ground(Effect):
     """What every ground contact has: the plane, and the deepest boundary vertex below it."""
 
     name = "contact"
+    # whether the rule reads the iterate a global solution came from (then a warm start would change it)
+    reads_iterates = False
 
     def _plane(self, space, ground, up):
         self.dim, self.up, self.ground = space.dim, up, float(ground)
@@ -142,6 +144,7 @@ class ReferenceContact(_Ground):
     """
 
     model = "reference"
+    reads_iterates = True  # a point is active when below the ground at the current iterate
 
     def __init__(self, space, vertices, ground, up, stickiness=1.0, push_out=0.0):
         self.vertices = vertices

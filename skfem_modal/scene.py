@@ -248,7 +248,7 @@ SCHEMA: dict[str, Any] = {
             "bool",
             False,
             "Start each step's iterations from the inertial prediction z + h z_dot (the same answer in fewer "
-            "iterations; not under contact).",
+            "iterations; not under the reference contact model, whose rule reads the iterates).",
         ),
         "acceleration": Key(
             "str",

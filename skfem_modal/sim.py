@@ -237,8 +237,10 @@ class ModalMuscle:
         iteration in numpy).
     warm_start : bool
         Start each step's iterations from the inertial prediction
-        ``z + h z_dot`` instead of ``z`` (not under contact): the same fixed
-        point, reached in fewer iterations when the motion is smooth.
+        ``z + h z_dot`` instead of ``z`` (not under the reference contact,
+        whose rule reads the iterates): the same fixed point, reached in
+        fewer iterations when the motion is smooth; a rolling body's
+        rotation is not lagged (docs/contact.md).
     acceleration : {"none", "anderson", "newton"}
         Accelerated iterates (:mod:`~skfem_modal.acceleration`; not under
         contact), each kept only when its step energy is at most that of the

@@ -22,7 +22,9 @@ the inertial prediction ``u + h v`` instead of ``u``; ``acceleration``
 (``"anderson"`` or ``"newton"``) makes the iterations one at a time and
 hands the backend an accelerated iterate whenever its energy is no higher
 than that of the plain iterate it replaces. Under contact (a projection,
-not an energy) the iterations stay plain.
+not an energy) the iterations are not accelerated; they are warm-started
+unless the contact's rule reads the iterates (``contact.reads_iterates``:
+the reference model's does).
 
 A *backend* does the arithmetic of the iterations and owns its buffers; the
 driver calls:
@@ -291,7 +293,7 @@ class LocalGlobal:
                 contact.start_step(z, z_dot)
             backend.start(z, z_dot, a)
             start = backend.start_row()
-            if self.warm_start and contact is None:
+            if self.warm_start and not (contact is not None and contact.reads_iterates):
                 start = start.copy()
                 backend.restart(z + self.model.h * z_dot)
             energy = accelerator = None
