@@ -254,7 +254,7 @@ SCHEMA: dict[str, Any] = {
             "str",
             "none",
             "Accelerated iterations: `none`, `anderson` or `newton` (fewer iterations, more work each; "
-            "not under contact; docs/accuracy.md).",
+            "not under contact, where a warning says so; docs/accuracy.md).",
             check=lambda v: None if v in ("none", "anderson", "newton") else "'none', 'anderson' or 'newton'",
         ),
     },

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import inspect
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
@@ -243,7 +244,7 @@ class ModalMuscle:
         rotation is not lagged (docs/contact.md).
     acceleration : {"none", "anderson", "newton"}
         Accelerated iterates (:mod:`~skfem_modal.acceleration`; not under
-        contact), each kept only when its step energy is at most that of the
+        contact, where a warning says so), each kept only when its step energy is at most that of the
         plain iterate it replaces: ``anderson`` extrapolates from the last
         iterates, ``newton`` (a subspace only) takes a Newton step with the
         exact Hessian of the rotation terms. They take far fewer iterations,
@@ -343,6 +344,7 @@ class ModalMuscle:
         self.n_clusters = self._model.elasticity.n_clusters
         self.n_active_clusters = int(active_labels.max()) + 1 if self.n_muscles else 0
         self.iterations = 0
+        self._warn_if_acceleration_idle()
 
     def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
         """Make the effects in order (calling ``D`` if a callable), the model and the backends, each stage timed."""
@@ -452,6 +454,18 @@ class ModalMuscle:
     @acceleration.setter
     def acceleration(self, value) -> None:
         self._solver.acceleration = _acceleration_name(value, full_space=self._B is None)
+        self._warn_if_acceleration_idle()
+
+    def _warn_if_acceleration_idle(self) -> None:
+        # a setting that does nothing must say so
+        if self._solver.acceleration != "none" and self._model.contact is not None:
+            warnings.warn(
+                f"acceleration={self._solver.acceleration!r} has no effect under ground contact (a projection, not "
+                "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay "
+                "plain; warm_start=True speeds them up there (docs/contact.md)",
+                UserWarning,
+                stacklevel=3,
+            )
 
     @property
     def residual(self) -> float:
@@ -560,6 +574,8 @@ class ModalMuscle:
         if contact is None:
             self._contact_vertices = boundary_vertices(self._mesh)
         self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
+        if contact is None:
+            self._warn_if_acceleration_idle()
 
     @property
     def up(self) -> int:

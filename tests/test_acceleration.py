@@ -239,7 +239,15 @@ def test_under_contact_iterations_are_not_accelerated():
     kw = dict(n_muscles=2, n_weights=4, n_clusters=6, h=0.01, gravity=[0.0, -9.8], n_contacts=16, warm_start=True)
     kw["ground"] = float(mesh.p[1].min()) - 0.005
     plain = sm.ModalMuscle.from_mesh(mesh, **kw)
-    other = sm.ModalMuscle.from_mesh(mesh, acceleration="newton", **kw)
+    with pytest.warns(UserWarning, match="acceleration='newton' has no effect under ground contact"):
+        other = sm.ModalMuscle.from_mesh(mesh, acceleration="newton", **kw)
+    # said again when it is switched on after construction, or when a ground comes under it
+    with pytest.warns(UserWarning, match="acceleration='anderson' has no effect"):
+        plain.acceleration = "anderson"
+    plain.acceleration = "none"
+    floating = sm.ModalMuscle.from_mesh(mesh, acceleration="newton", **{**kw, "ground": None})
+    with pytest.warns(UserWarning, match="no effect under ground contact"):
+        floating.ground = kw["ground"]
     z, z_dot, _ = plain.rest_state()
     w, w_dot = z.copy(), z_dot.copy()
     for i in range(40):
