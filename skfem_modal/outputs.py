@@ -22,7 +22,7 @@ PICTURES = ("com.png", "amplitudes.png", "first_frame.png", "last_frame.png", "a
 FRAMES_DIR = "frames"
 
 _STEMS = "|".join(re.escape(os.path.splitext(name)[0]) for name in RUN_FILES + PICTURES)
-# a name of ours, or the temporary name of one being written (export.atomic_path: ".STEM.XXXXXXXX.EXT")
+# a name of ours, or the temporary name of one being written (export.atomic_path: ".STEM.<8 random characters>.EXT")
 _TOP = re.compile(rf"(?:{'|'.join(map(re.escape, RUN_FILES + PICTURES))})|\.(?:{_STEMS})\.[0-9a-f]{{8}}\.\w+")
 _FRAME = re.compile(r"\.?frame_\d{5}(?:\.[0-9a-f]{8})?\.vtu")
 

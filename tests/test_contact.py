@@ -33,6 +33,23 @@ def incline_gravity(dim, along):
     return g
 
 
+def on_incline(mesh, along, friction, **settings):
+    """A stiff body at rest on the ground, gravity tilted by THETA towards ``along`` (the up axis the last)."""
+    return sm.ModalMuscle.from_mesh(
+        mesh,
+        n_muscles=0,
+        n_weights=4,
+        n_clusters=4,
+        mu=1e7,
+        rho=1e3,
+        h=H,
+        gravity=incline_gravity(mesh.p.shape[0], along),
+        ground=float(mesh.p[-1].min()),
+        friction=friction,
+        **settings,
+    )
+
+
 def block(dim):
     return sm.beam2d(1.0, 0.4, 10, 4) if dim == 2 else sm.box3d(6, 4, 3, (1.0, 0.6, 0.4))
 
@@ -59,18 +76,7 @@ def test_a_stiff_block_on_an_incline_slides_as_coulomb_says(dim, friction):
     mesh = block(dim)
     # in 3D downhill is diagonal: friction must hold both tangent directions
     along = [1.0] if dim == 2 else [np.cos(np.radians(30.0)), np.sin(np.radians(30.0))]
-    sim = sm.ModalMuscle.from_mesh(
-        mesh,
-        n_muscles=0,
-        n_weights=4,
-        n_clusters=4,
-        mu=1e7,
-        rho=1e3,
-        h=H,
-        gravity=incline_gravity(dim, along),
-        ground=float(mesh.p[-1].min()),
-        friction=friction,
-    )
+    sim = on_incline(mesh, along, friction)
     moved, worst = slide(sim)
     discrete, continuous = travel_expected(friction)
     frictionless = travel_expected(0.0)[1]
@@ -92,21 +98,7 @@ def test_a_ball_rolls_down_an_incline_at_five_sevenths_of_the_slide(friction):
     # at g sin theta and does not turn. The iterations are converged: the default 10 lag a stiff ball's rotation.
     import skfem
 
-    mesh = skfem.MeshTet.init_ball(3)
-    sim = sm.ModalMuscle.from_mesh(
-        mesh,
-        n_muscles=0,
-        n_weights=4,
-        n_clusters=4,
-        mu=1e7,
-        rho=1e3,
-        h=H,
-        gravity=incline_gravity(3, [1.0, 0.0]),
-        ground=float(mesh.p[-1].min()),
-        friction=friction,
-        max_iter=100,
-        tol=1e-12,
-    )
+    sim = on_incline(skfem.MeshTet.init_ball(3), [1.0, 0.0], friction, max_iter=100, tol=1e-12)
     moved, worst = slide(sim)
     sliding = travel_expected(0.0)[0]  # implicit Euler's travel of the frictionless slide
     if friction:
@@ -126,19 +118,7 @@ def test_a_warm_start_lets_the_default_iterations_roll_the_ball():
     mesh = skfem.MeshTet.init_ball(3)
     travel = {}
     for warm in (False, True):
-        sim = sm.ModalMuscle.from_mesh(
-            mesh,
-            n_muscles=0,
-            n_weights=4,
-            n_clusters=4,
-            mu=1e7,
-            rho=1e3,
-            h=H,
-            gravity=incline_gravity(3, [1.0, 0.0]),
-            ground=float(mesh.p[-1].min()),
-            friction=0.8,
-            warm_start=warm,
-        )
+        sim = on_incline(mesh, [1.0, 0.0], 0.8, warm_start=warm)
         moved, worst = slide(sim)
         travel[warm] = moved[0]
         assert worst <= ALLOWANCE
