@@ -20,7 +20,33 @@ import numpy as np
 
 from .effects import ORDER
 
-__all__ = ["Model"]
+__all__ = ["Model", "motion_scale"]
+
+
+def motion_scale(space, mass, mass_matrix) -> float:
+    """How long a change of ``z`` is that moves the body's vertices by its size, on average.
+
+    A change ``dz`` moves the vertices by ``dx = B dz``; their mass-weighted
+    root mean square displacement is ``sqrt(dz^T (B^T M B) dz / m)``, ``m``
+    the body's mass. With ``B^T M B`` replaced by its mean diagonal ``c``
+    (exact for a mass-orthonormal ``B``), a displacement of the body's size
+    ``L`` (its largest extent) is a change of length ``L sqrt(m / c)``.
+
+    Parameters
+    ----------
+    space : Subspace or FullSpace
+    mass : ndarray, shape (N,)
+        Lumped mass per interleaved DOF.
+    mass_matrix : ndarray or sparse matrix, shape (r, r)
+        ``B^T M B``.
+
+    Returns
+    -------
+    float
+    """
+    size = float(np.ptp(space.mesh.p, axis=1).max())
+    body = float(np.sum(mass)) / space.dim
+    return size * float(np.sqrt(body / np.mean(mass_matrix.diagonal())))
 
 
 class Model:
@@ -48,12 +74,17 @@ class Model:
         The factored ``H``.
     rest : ndarray, shape (r,)
         The rest state.
+    scale : float
+        The length of a change of ``z`` that moves the body's vertices by its
+        size (mass-weighted root mean square): what makes ``z``'s changes
+        comparable between bodies and units (the stopping rule's ``tol``).
     """
 
     def __init__(self, space, effects, h):
         self.space = space
         self._set(effects)
         self.rest = space.coordinates(space.rest, self.inertia.mass)
+        self.scale = motion_scale(space, self.inertia.mass, self.inertia.mass_matrix)
         self.h = float(h)
         self.assemble()
 

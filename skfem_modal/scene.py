@@ -32,6 +32,7 @@ from .mesh import (
     shape_parameters,
     vertices_where,
 )
+from .solver import TOL
 from .units import ScaleWarning, scale_mismatch, up_axis
 
 __all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
@@ -224,8 +225,9 @@ SCHEMA: dict[str, Any] = {
         "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
         "tol": Key(
             "float",
-            1e-6,
-            "Stop a step's iterations when the change of z is below tol (0: always run all iterations).",
+            TOL,
+            "Stop a step's iterations when the last one moved the body by less than tol of its size "
+            "(0: always run all iterations).",
             "",
             _non_negative,
         ),

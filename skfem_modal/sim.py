@@ -63,7 +63,7 @@ from .ingredients import ingredients, timed
 from .mesh import _signed_measures, boundary_vertices, check_mesh, validated
 from .modal import muscle_modes
 from .model import Model
-from .solver import LocalGlobal, SimulationError, make_backends
+from .solver import TOL, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
 from .units import up_axis
@@ -226,8 +226,11 @@ class ModalMuscle:
     max_iter : int
         Local/global iterations per step, at most.
     tol : float
-        Stop when ``|z_k - z_{k-1}| < tol`` (the reference rule); 0 runs
-        exactly ``max_iter`` iterations.
+        Stop when the last iteration moved the body by less than ``tol`` of
+        its size: ``|z_k - z_{k-1}| < tol * motion_scale`` (the same in any
+        units; the reference's rule, an absolute ``1e-6`` on ``z``, is
+        ``tol = 1e-6 / sim.motion_scale``); 0 runs exactly ``max_iter``
+        iterations.
     rtol : float
         Also stop when ``|z_k - z_{k-1}| <= rtol |z_k - z_start|``: the last
         change is small compared with this step's motion. 0 disables.
@@ -308,7 +311,7 @@ class ModalMuscle:
         damping_mass=0.0,
         damping_stiffness=0.0,
         max_iter=10,
-        tol=1e-6,
+        tol=TOL,
         rtol=0.0,
         etol=0.0,
         warm_start=False,
@@ -437,7 +440,9 @@ class ModalMuscle:
         self._solver.max_iter = _count(value, "max_iter")
         self.reset()
 
-    tol = _driver_setting("tol", _nonnegative, "Absolute stopping tolerance on the change of ``z`` between iterations.")
+    tol = _driver_setting(
+        "tol", _nonnegative, "Stopping tolerance: the last iteration's change of ``z`` over ``motion_scale`` (0: off)."
+    )
     rtol = _driver_setting("rtol", _nonnegative, "Relative stopping tolerance (0: off).")
     etol = _driver_setting(
         "etol", _nonnegative, "Relative energy-change tolerance (0: off; costs an energy evaluation per iteration)."
@@ -469,8 +474,13 @@ class ModalMuscle:
 
     @property
     def residual(self) -> float:
-        """The last step's residual: its last change ``|z_k - z_(k-1)|`` (what ``tol`` tests)."""
+        """The last step's residual: its last change ``|z_k - z_(k-1)|`` (``tol`` tests it over ``motion_scale``)."""
         return self._solver.change
+
+    @property
+    def motion_scale(self) -> float:
+        """The length of a change of ``z`` that moves the body's vertices by its size (mass-weighted RMS)."""
+        return self._model.scale
 
     @property
     def backend(self) -> str:
@@ -820,7 +830,7 @@ class ModalMuscle:
         damping_stiffness=0.0,
         n_active_clusters: int = 1,
         max_iter=10,
-        tol=1e-6,
+        tol=TOL,
         rtol=0.0,
         etol=0.0,
         warm_start=False,

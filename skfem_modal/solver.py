@@ -8,13 +8,17 @@ ground contact, when present, projects each global solution. One driver,
 :class:`LocalGlobal`, runs these iterations and applies the one stopping
 rule: stop at the first iteration ``k`` with
 
-    |u_k - u_(k-1)| < tol    or    |u_k - u_(k-1)| <= rtol |u_k - u_start|
-                             or    E(u_(k-1)) - E(u_k) <= etol (E(u_0) - E(u_k)),
+    |u_k - u_(k-1)| < tol L    or    |u_k - u_(k-1)| <= rtol |u_k - u_start|
+                               or    E(u_(k-1)) - E(u_k) <= etol (E(u_0) - E(u_k)),
 
 (``u_start`` the step's start state, ``u_0`` the first iterate's input, ``E``
 the step energy), after at most ``max_iter``; a non-finite iterate is an
-error. The last change ``|u_k - u_(k-1)|`` is the step's *residual* (the
-plain iteration's step there: ``H^-1`` times the energy's gradient).
+error. ``L`` is the model's ``scale``, the change of ``u`` that moves the
+body by its size: ``tol`` is a fraction of the body's size, the same in any
+units and for any body (the reference's absolute ``1e-6`` on ``u`` lets a
+body measured in centimetres stop after one iteration). The last change
+``|u_k - u_(k-1)|`` is the step's *residual* (the plain iteration's step
+there: ``H^-1`` times the energy's gradient).
 
 Faster convergence to the same point, each off by default
 (:mod:`skfem_modal.acceleration`): ``warm_start`` starts the iterations from
@@ -80,6 +84,11 @@ __all__ = ["LocalGlobal", "PlainBackend", "ActivationRows", "SimulationError", "
 
 #: Backend names a simulator accepts.
 BACKENDS = ("auto", "numpy", "numba", "plain")
+
+#: The default ``tol``: iterations stop when a step's last one moved the body by
+#: less than this fraction of its size (about the reference's absolute 1e-6 on
+#: the tutorial's caterpillar, whose ``scale`` is 2.32).
+TOL = 5e-7
 
 
 class SimulationError(RuntimeError):
@@ -206,7 +215,8 @@ class LocalGlobal:
     max_iter : int
         Iterations a step, at most.
     tol, rtol, etol : float
-        The stopping rule (module docstring); 0 switches a test off.
+        The stopping rule (module docstring); 0 switches a test off. ``tol``
+        is a fraction of the body's size (of the bound model's ``scale``).
         ``etol`` evaluates the step energy at every iterate.
     batch : bool
         Run the iterations the last step took before testing them (the same
@@ -230,7 +240,7 @@ class LocalGlobal:
         Accelerated iterates kept, and refused for their energy (all steps).
     """
 
-    def __init__(self, max_iter=10, tol=1e-6, rtol=0.0, batch=True, *, etol=0.0, warm_start=False,
+    def __init__(self, max_iter=10, tol=TOL, rtol=0.0, batch=True, *, etol=0.0, warm_start=False,
                  acceleration="none", memory=5):  # fmt: skip
         self.max_iter, self.tol, self.rtol, self.etol, self.batch = max_iter, tol, rtol, etol, batch
         self.warm_start, self.memory = warm_start, memory
@@ -238,6 +248,7 @@ class LocalGlobal:
         self.redone = self.accepted = self.refused = 0
         self._change2 = 0.0
         self.model = None
+        self.scale = 1.0  # of u, the model's (bind)
         self._acceleration = acceleration
         self._helpers = None
         self._work = {}
@@ -245,6 +256,7 @@ class LocalGlobal:
     def bind(self, model) -> None:
         """Step this model (after it changed: its energy and accelerator are made again when needed)."""
         self.model = model
+        self.scale = model.scale
         self._helpers = None
 
     @property
@@ -403,7 +415,7 @@ class LocalGlobal:
 
     def _stops(self, change2, rows, start, work, energies, first) -> int:
         """The first of finite changes (1-based) that meets the stopping rule, 0 if none."""
-        stop = change2 < self.tol**2
+        stop = change2 < (self.tol * self.scale) ** 2
         if self.rtol:
             motion = np.subtract(rows[1:], start, work[0][: change2.size])
             np.multiply(motion, motion, motion)

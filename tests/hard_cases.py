@@ -55,7 +55,7 @@ def run(sim, steps, *, amplitude=0.0, z0=None, z_dot0=None):
     z_dot = z_dot if z_dot0 is None else z_dot0
     m = sim.n_muscles
     amps = amplitude * sim.ceilings
-    zs, coms, energies, lowest = [z], [sim.com(z)], [sim.mechanical_energy(z, z_dot)], []
+    zs, coms, energies, lowest, iterations = [z], [sim.com(z)], [sim.mechanical_energy(z, z_dot)], [], []
     up = sim.up
     for i in range(steps):
         a = sine_gait(i * sim.h, amps, GAIT["periods"][:m], GAIT["phases"][:m]) if amplitude else np.zeros(m)
@@ -64,9 +64,12 @@ def run(sim, steps, *, amplitude=0.0, z0=None, z_dot0=None):
         zs.append(z)
         coms.append(sim.com(z))
         energies.append(sim.mechanical_energy(z, z_dot))
+        iterations.append(sim.iterations)
         if sim.ground is not None:
             lowest.append(float(sim.contact_positions(z)[:, up].min()))
-    return dict(z=np.array(zs), com=np.array(coms), energy=np.array(energies), lowest=np.array(lowest))
+    return dict(
+        z=np.array(zs), com=np.array(coms), energy=np.array(energies), lowest=np.array(lowest), iterations=iterations
+    )
 
 
 def velocity(sim, v) -> np.ndarray:
@@ -191,13 +194,13 @@ CASES = {
 }
 
 
-def scaled_motion(scale: float, steps: int = 200) -> np.ndarray:
-    """Vertex trajectories of a crawl at a coordinate scale, divided by the scale.
+def scaled_motion(scale: float, contact_model: str, steps: int = 200):
+    """Vertex trajectories of a crawl at a coordinate scale, divided by the scale, and its iterations a step.
 
     Lengths times ``s`` with density and time unchanged: stiffness (stress)
     times ``s^2`` and gravity times ``s`` give the same motion, scaled. The
-    iterations are fixed (``tol=0``): the reference's stopping rule is an
-    absolute tolerance on ``z``, which does not scale.
+    stopping rule is the default's (a fraction of the body's size), so the
+    iterations are the same too.
     """
     mesh = small_caterpillar()
     mesh = type(mesh)(mesh.p * scale, mesh.t.copy(), sort_t=False)
@@ -213,9 +216,8 @@ def scaled_motion(scale: float, steps: int = 200) -> np.ndarray:
         gravity=[0.0, -9.8 * scale],
         ground=ground,
         n_contacts=20,
-        contact_model="reference",
-        push_out=1.0,
-        tol=0.0,
+        contact_model=contact_model,
+        **(dict(push_out=1.0) if contact_model == "reference" else {}),
     )
     result = run(sim, steps, amplitude=0.5)
-    return np.array([sim.positions(z) for z in result["z"][::20]]) / scale
+    return np.array([sim.positions(z) for z in result["z"][::20]]) / scale, result["iterations"]
