@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .checks import _clear_of_ground
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -268,7 +269,13 @@ SCHEMA: dict[str, Any] = {
     },
     "ground": {
         "_effect": True,
-        "height": Key("float", None, "Height of the ground plane along the up axis.", "length"),
+        "height": Key(
+            "float",
+            None,
+            "Height of the ground plane along the up axis (at most 1 % of the body's size above its lowest point: "
+            "a body starting deeper would be flung out).",
+            "length",
+        ),
         "offset": Key(
             "float",
             None,
@@ -945,11 +952,17 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
     up = None if ground is None else ground["up"]
     if up is not None and not 0 <= up < dim:
         errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {up}")
-    elif acc is not None:
+    else:
         try:
-            up_axis(acc, dim, up)
+            up = up_axis(acc, dim, up)
         except ValueError as err:
             errors.append(f"gravity.acceleration and ground.up: {err}")
+            up = None
+        if up is not None and ground is not None and ground["height"] is not None and valid("ground.height"):
+            try:
+                _clear_of_ground(mesh, ground["height"], up)
+            except ValueError as err:
+                errors.append(f"ground.height: {err}")
     if ground is not None:
         for cond in ground["contacts_where"] or []:
             if _bad_condition(cond, dim):

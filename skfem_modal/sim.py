@@ -44,6 +44,7 @@ from .checks import (
     _axis,
     _backend_name,
     _basis,
+    _clear_of_ground,
     _contact_settings,
     _count,
     _flag,
@@ -336,6 +337,7 @@ class ModalMuscle:
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
         ground, contact_vertices = _ground(ground, contact_vertices, n)
+        _clear_of_ground(mesh, ground, self._up)
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
         self._mu, self._gamma, self._rho = mu, gamma, rho
@@ -580,6 +582,7 @@ class ModalMuscle:
             self._rebuild()
             return
         value = float(_array(value, (), "ground"))
+        _clear_of_ground(self._mesh, value, self._up)
         contact = self._model.contact
         if contact is None:
             self._contact_vertices = boundary_vertices(self._mesh)
@@ -597,6 +600,7 @@ class ModalMuscle:
         value = _axis(value, self.dim)
         if self.gravity is not None:
             up_axis(self.gravity, self.dim, value)  # gravity must pull down along it
+        _clear_of_ground(self._mesh, self.ground, value)
         self._up = value
         if self._model.contact is not None:
             self._new_contact("up")

@@ -231,6 +231,32 @@ def test_an_undamped_drop_at_a_tiny_step_gains_no_energy(dim, friction):
     assert kinetic.max() > 0.5 * (energy[0] - energy.min())  # it did fall and hit: the check is not idle
 
 
+@pytest.mark.parametrize("contact_model", ["coulomb", "reference"])
+def test_a_body_starting_deep_in_the_ground_is_refused(contact_model):
+    # the contact would fling it out (a ghost started 30 % of its size deep rose 1.6 sizes)
+    mesh = sm.caterpillar(nx=12, ny=6)
+    lowest, size = float(mesh.p[1].min()), size_of(mesh)
+    kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -9.8], contact_model=contact_model)
+    deep = r"the body starts inside the ground: its lowest vertex \(y = -0.535385\) is 0.11 \(5.5 % of its size\)"
+    with pytest.raises(ValueError, match=deep):
+        sm.ModalMuscle.from_mesh(mesh, ground=lowest + 0.055 * size, **kw)
+    sim = sm.ModalMuscle.from_mesh(mesh, ground=lowest + 0.009 * size, **kw)  # within 1 %: lifted out
+    with pytest.raises(ValueError, match=deep):
+        sim.ground = lowest + 0.055 * size
+    assert sim.ground == lowest + 0.009 * size  # unchanged by the refused one
+    z, z_dot, _ = sim.rest_state()
+    heights = []
+    for _ in range(40):
+        z, z_dot = sim.step(z, z_dot, None, velocity=True)
+        heights.append((float(sim.positions(z)[:, 1].min()) - sim.ground) / size)
+    if contact_model == "coulomb":  # out of the ground in a step, and not thrown far
+        assert min(heights) >= -ALLOWANCE and max(heights) < 0.03
+    sim.gravity = [-9.8, -9.8]
+    with pytest.raises(ValueError, match=r"its lowest vertex \(x = -0.993007\) is 0.4756 \(23.8 % of its size\)"):
+        sim.up = 0  # the same height along x is inside the body
+    assert sim.up == 1
+
+
 def test_the_reported_penetration_covers_every_vertex():
     # the reference model constrains 30 points and lets the feet between them sink: the summary sees them
     data = {

@@ -65,6 +65,11 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(ground__contacts=0), r"ground.contacts: expected an integer >= 1 or \"all\", got 0"),
         (dict(muscles__gait__amplitude=None), r"muscles.gait.amplitude: required"),
         (dict(time__duration=2.0), r"time: give duration or steps, not both"),
+        (
+            dict(ground__offset=None, ground__height=0.0),
+            r"ground.height: the body starts inside the ground: its lowest vertex \(y = -0.570099\) is 0.5701 "
+            r"\(28.5 % of its size\) below the ground at 0",
+        ),
     ],
 )
 def test_scene_errors_name_key_value_and_expectation(changes, message):

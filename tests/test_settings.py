@@ -78,7 +78,7 @@ LIVE = [
     ("damping_mass", 0.0, {"damping_mass": 0.5}),
     ("pin_stiffness", 5e4, {"pinned": [0, 1, 2]}),
     ("max_s", 0.5, {}),
-    ("up", 0, {"gravity": [-9.8, -9.8], "up": 1, "ground": -0.55}),
+    ("up", 0, {"gravity": [-9.8, -9.8], "up": 1, "ground": -1.05}),  # below the body along x and y
 ]
 
 
