@@ -240,3 +240,38 @@ def test_state_readers_name_the_expected_shape():
         with pytest.raises(ValueError, match=rf"z must have shape \({r},\), the subspace's coordinates, got \(3,\)"):
             read(z[:3])
     np.testing.assert_allclose(sim.positions(z), SMALL.p.T, atol=1e-12)
+
+
+# ------------------------------------------------- a body 1e-6 across: its basis
+SHARED = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+
+@pytest.mark.skipif(not (SHARED / "ghost.obj").is_file(), reason=f"the real meshes are not at {SHARED}")
+def test_a_tiny_body_is_orthonormalised_in_order_without_a_warning():
+    """Columns of very different sizes are not dependent: no warning, Gram-Schmidt order kept.
+
+    (The ghost 1e-6 across used to fall back to a pivoted QR, which reordered the
+    basis, and warned "dropped 0 linearly dependent columns".)
+    """
+    import warnings
+
+    from skfem_modal.fem import _mass
+    from skfem_modal.mesh import load_mesh
+    from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes
+
+    ghost = sm.normalize_and_center(load_mesh(SHARED / "ghost.obj"))
+    tiny = type(ghost)(ghost.p * 1e-6, ghost.t)
+    _, _, B = skinning_eigenmodes(tiny, 8)  # as the scene that warned: 48 columns
+    M = _mass(tiny, 1.0, True, "P1", True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Q = mass_orthonormalize(B, M)
+    assert Q.shape == B.shape
+    np.testing.assert_allclose(Q.T @ (M @ Q), np.eye(B.shape[1]), atol=1e-12)
+    # Gram-Schmidt order: each column of B is a combination of Q's columns up to its own
+    R = Q.T @ (M @ B)
+    assert np.abs(np.tril(R, -1)).max() < 1e-9 * np.abs(R).max()
+    # a column that is a combination of others is dropped, and the warning says how many of how many
+    with pytest.warns(RuntimeWarning, match=r"dropped 1 of 49 columns, linear combinations of the others.*has 48"):
+        dropped = mass_orthonormalize(np.hstack([B, B[:, :1] * 3 + B[:, 1:2]]), M)
+    assert dropped.shape[1] == 48
