@@ -11,8 +11,9 @@ import numpy as np
 
 from .acceleration import ACCELERATIONS
 from .contact import MODELS
+from .fem import _positive
 from .solver import BACKENDS
-from .units import up_axis
+from .units import float_range_problems, up_axis
 
 
 def _array(value, shape, name):
@@ -175,15 +176,60 @@ def _pins(pinned, pin_stiffness, n: int):
     return pinned, None if pin_stiffness is None else _positive_scalar(pin_stiffness, "pin_stiffness")
 
 
-def _ground(ground, contact_vertices, n: int):
-    """The ground's height or None, and the contact vertices given or None, checked."""
-    if ground is not None:
-        ground = float(_array(ground, (), "ground"))
-    if contact_vertices is not None:
-        if ground is None:
-            raise ValueError("contact_vertices need a ground height (ground=...)")
-        contact_vertices = _vertices(contact_vertices, n, "contact_vertices")
-    return ground, contact_vertices
+def _ground(ground, n: int, contact_vertices=None, **contact):
+    """The ground's height or None, and the contact vertices given or None, checked.
+
+    ``contact``: the other contact arguments by name, None where not given
+    (``contact_model`` is given when not the default ``"coulomb"``). Any of
+    them, or ``contact_vertices``, without a ground is an error naming it:
+    nothing would use it.
+    """
+    if ground is None:
+        contact["contact_vertices"] = contact_vertices
+        given = [
+            name if np.ndim(value) else f"{name}={value!r}"
+            for name, value in contact.items()
+            if value is not None and (name, value) != ("contact_model", "coulomb")
+        ]
+        if given:
+            what, them = ("a contact setting", "it") if len(given) == 1 else ("contact settings", "them")
+            raise ValueError(
+                f"{', '.join(given)}: {what}, but there is no ground (ground=..., its height along the up axis) "
+                f"and nothing else uses {them}: give a ground or leave {them} out"
+            )
+        return None, None
+    ground = float(_array(ground, (), "ground"))
+    return ground, None if contact_vertices is None else _vertices(contact_vertices, n, "contact_vertices")
+
+
+def _fits_float64(mesh, mu, gamma, rho, h=None, gravity=None) -> None:
+    """The material, time step and gravity checked, then checked to make operators float64 can hold.
+
+    See :func:`~skfem_modal.units.float_range_problems`; the error names
+    the arguments (and their values) that take a quantity out of range.
+    """
+    nT = mesh.t.shape[1]
+    mu, rho = _positive(mu, nT, "mu"), _positive(rho, nT, "rho")
+    gamma = _positive(mu if gamma is None else gamma, nT, "gamma", allow_zero=True)
+    h = None if h is None else _positive_scalar(h, "h")
+    gravity = None if gravity is None else _array(gravity, (mesh.p.shape[0],), "gravity")
+    problems = float_range_problems(mesh, mu=mu, rho=rho, h=h, gravity=gravity, gamma=gamma)
+    if problems:
+        values = dict(mu=mu, gamma=gamma, rho=rho, h=h, gravity=gravity)
+        raise ValueError(
+            "; ".join(f"{', '.join(_named(n, values[n]) for n in names)}: {text}" for names, text in problems)
+            + " on this mesh"
+        )
+
+
+def _named(name: str, value) -> str:
+    """``name = value`` for a message; a per-element array by its range."""
+    value = np.asarray(value)
+    if value.ndim and value.size > 1 and name != "gravity":
+        return f"{name} = {value.min():g}..{value.max():g}" if value.min() != value.max() else f"{name} = {value[0]:g}"
+    if name == "gravity":
+        return f"gravity = [{', '.join(f'{v:g}' for v in value)}]"
+    return f"{name} = {float(value):g}"
 
 
 # how deep (of its size) a body may start inside the ground: the contact lifts it out in a step

@@ -83,6 +83,11 @@ def cmd_modes(args) -> int:
         fixed = np.unique(np.concatenate([vertices_where(mesh, cond) for cond in args.fix]))
         if fixed.size == 0:
             raise ValueError(f"--fix {' '.join(args.fix)} selects no vertex")
+        if fixed.size == mesh.p.shape[1]:
+            raise ValueError(
+                f"--fix {' '.join(args.fix)} selects all {fixed.size} vertices: nothing is left free to move "
+                "(fix fewer)"
+            )
     info = mesh_summary(mesh)
     say = _say(args)
     say(
@@ -222,8 +227,7 @@ def cmd_info(args) -> int:
         )
         if c["ground"] is not None:
             g = c["ground"]
-            count = scene.contact_count()
-            which = "every boundary vertex" if count is None else f"{count} boundary vertices"
+            which = _contact_points(scene)
             rule = (
                 f"friction {0.5 if g['friction'] is None else g['friction']:g}"
                 if g["model"] == "coulomb"
@@ -245,6 +249,22 @@ def cmd_info(args) -> int:
     )
     print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
     return EXIT_OK
+
+
+def _contact_points(scene) -> str:
+    """Which contact vertices a scene's run uses, in words: how many, of how many, and why."""
+    from .mesh import boundary_vertices
+
+    available = boundary_vertices(scene.mesh)
+    pool = "boundary vertices"
+    if scene.contact_candidates() is not None:
+        available = np.intersect1d(available, scene.contact_candidates())
+        pool += " where contacts_where holds"
+    used, asked = scene.contact_vertices().size, scene.contact_count()
+    if used < available.size:
+        return f"{used} of the {available.size} {pool}"
+    more = f" (contacts = {asked} asks for more: all are used)" if asked is not None and asked > used else ""
+    return f"all {used} {pool}{more}"
 
 
 def _scene_data(path, default):

@@ -174,7 +174,43 @@ def _dense_pairs(K, M, null, MN):
 
 
 def _pairs_solver(K, M, node_dim: int, null):
-    """``k -> (values, vectors)``: the ``k`` lowest eigenpairs, one factorisation for every ``k``."""
+    """``k -> (values, vectors)``: the ``k`` lowest eigenpairs, one factorisation for every ``k``.
+
+    Solved on ``K`` and ``M`` scaled to unit size by powers of two (exact),
+    then scaled back: the solver sees the same numbers whatever the units
+    (a stiffness of 1e200 would otherwise underflow the Lanczos vectors'
+    M-norms to zero). The eigenvalues come back infinite when the true ones
+    are beyond float64.
+    """
+    k_exponent = _power_of_two(K.diagonal())
+    m_exponent = _power_of_two(M.diagonal()) // 2
+    K, M = _times_power_of_two(K, -k_exponent), _times_power_of_two(M, -2 * m_exponent)
+    null = None if null is None else np.ldexp(null, m_exponent)
+    solve_scaled = _scaled_pairs_solver(K, M, node_dim, null)
+
+    def pairs(k):
+        values, vectors = solve_scaled(k)
+        with np.errstate(over="ignore"):
+            return np.ldexp(values, k_exponent - 2 * m_exponent), np.ldexp(vectors, -m_exponent)
+
+    return pairs
+
+
+def _power_of_two(diagonal) -> int:
+    """The exponent of the power of two nearest the median magnitude of a diagonal (0 if that is 0)."""
+    median = float(np.median(np.abs(diagonal)))
+    return int(np.round(np.log2(median))) if median > 0 else 0
+
+
+def _times_power_of_two(A, exponent: int):
+    """A sparse matrix times ``2**exponent``, exactly (a new matrix of the same format)."""
+    A = A.copy()
+    A.data = np.ldexp(A.data, exponent)
+    return A
+
+
+def _scaled_pairs_solver(K, M, node_dim: int, null):
+    """:func:`_pairs_solver` on matrices of unit size."""
     n = K.shape[0]
     q = 0 if null is None else null.shape[1]
     MN = None if null is None else np.asarray(M @ null)

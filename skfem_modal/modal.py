@@ -233,12 +233,17 @@ def linear_modal_analysis(
         raise ValueError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise TypeError(f"k must be an integer, got {type(k).__name__}")
+    from .checks import _fits_float64  # here: checks imports the simulator's modules, which import this one
+
+    _fits_float64(mesh, mu, None, rho)  # the eigenvalues scale as mu / rho: no infinite or vanishing ones
     dim = mesh.p.shape[0]
     K = _stiffness(mesh, mu, lam, element)
     M = _mass(mesh, rho, mass == "lumped", element, True)
     n_dofs = K.shape[0]
     pinned = fixed_nodes(mesh, fixed, element) if fixed is not None else np.zeros(0, np.int64)
     free = np.setdiff1d(np.arange(n_dofs), vector_dofs(pinned, dim))
+    if free.size == 0:
+        raise ValueError(f"fixed: pins all {mesh.p.shape[1]} vertices: no degree of freedom is left free, so no mode")
     if not 1 <= k <= free.size:
         raise ValueError(f"k must be in 1..{free.size} (the number of free DOFs), got {k}")
     if free.size < n_dofs:

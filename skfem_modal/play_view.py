@@ -274,8 +274,12 @@ class PlayView:
         self._frame_camera()
 
     # ------------------------------------------------------------- drawing
-    def draw(self) -> None:
-        """Copy the player's state into the scene: points, camera, ground, widgets, status."""
+    def draw(self, current: bool = False) -> None:
+        """Copy the player's state into the scene: points, camera, ground, widgets, status.
+
+        The status line and the sliders under the gait change a few times a
+        second; ``current`` brings them up to date now (for a screenshot).
+        """
         player = self.player
         self._points[:, : self.dim] = player.positions()
         self.body.GetPoints().Modified()
@@ -297,10 +301,10 @@ class PlayView:
                         actor.SetPosition(*snap)
         now = time.perf_counter()
         self._sync_buttons()
-        if not player.gait_on or now - self._sliders_time >= _GAIT_SLIDERS_EVERY:
+        if current or not player.gait_on or now - self._sliders_time >= _GAIT_SLIDERS_EVERY:
             self._sliders_time = now
             self._sync_sliders()
-        if now - self._status_time >= _STATUS_EVERY:
+        if current or now - self._status_time >= _STATUS_EVERY:
             self._status_time = now
             self.status.SetInput(self._status_text())
 
@@ -389,7 +393,8 @@ class PlayView:
         return stats
 
     def screenshot(self) -> np.ndarray:
-        """The window's pixels now, shape (height, width, 3), uint8."""
+        """The window's pixels now, shape (height, width, 3), uint8: status line and sliders up to date."""
+        self.draw(current=True)
         self.render()
         return np.asarray(self.plotter.screenshot(return_img=True))[:, :, :3]
 

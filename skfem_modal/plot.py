@@ -173,22 +173,58 @@ def plot_com(run, path) -> str:
 
 
 def plot_amplitudes(run, path) -> str:
-    """Commanded (dashed) and realised (solid) modal amplitudes per muscle."""
+    """Commanded (dashed) and realised (solid) modal amplitudes per muscle.
+
+    One colour per muscle, all distinct however many there are
+    (:func:`muscle_colours`); the legend, one entry per muscle and one per
+    line style, sits outside the axes, beside the curves rather than on them.
+    """
     plt = _pyplot()
-    t, commanded, realised = run["amplitudes"]
-    fig, ax = plt.subplots(figsize=(7, 3.2))
-    for k in range(commanded.shape[1]):
-        ax.plot(t, realised[:, k], color=f"C{k}", lw=1.6, label=f"muscle {k} realised")
-        ax.plot(t, commanded[:, k], color=f"C{k}", lw=1.0, ls="--", alpha=0.8, label=f"muscle {k} commanded")
-    ax.set_xlabel("time")
-    ax.set_ylabel("modal amplitude")
-    ax.grid(alpha=0.3)
-    if commanded.shape[1]:
-        ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+    fig = amplitudes_figure(run)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return os.fspath(path)
+
+
+def amplitudes_figure(run):
+    """The figure of :func:`plot_amplitudes` (a matplotlib Figure, not yet saved)."""
+    plt = _pyplot()
+    from matplotlib.lines import Line2D
+
+    t, commanded, realised = run["amplitudes"]
+    m = commanded.shape[1]
+    rows = 16  # legend entries per column
+    columns = max(1, -(-(m + 2) // rows))
+    fig, ax = plt.subplots(
+        figsize=(7 + 1.3 * columns, 3.2 + 0.12 * max(0, min(m + 2, rows) - 10)), layout="constrained"
+    )
+    colours = muscle_colours(m)
+    for k in range(m):
+        ax.plot(t, realised[:, k], color=colours[k], lw=1.6)
+        ax.plot(t, commanded[:, k], color=colours[k], lw=1.0, ls="--", alpha=0.8)
+    ax.set_xlabel("time")
+    ax.set_ylabel("modal amplitude")
+    ax.grid(alpha=0.3)
+    if m:
+        handles = [Line2D([], [], color=colours[k], lw=3) for k in range(m)]
+        handles += [Line2D([], [], color="0.3", lw=1.6), Line2D([], [], color="0.3", lw=1.0, ls="--")]
+        labels = [f"muscle {k}" for k in range(m)] + ["realised", "commanded"]
+        fig.legend(handles, labels, loc="outside right upper", fontsize=7, ncols=columns)
+    return fig
+
+
+def muscle_colours(m: int) -> np.ndarray:
+    """One colour per muscle, all distinct: matplotlib's ten for up to ten, else evenly along turbo.
+
+    Returns
+    -------
+    colours : ndarray, shape (m, 4)
+        RGBA.
+    """
+    plt = _pyplot()
+    if m <= 10:
+        return plt.get_cmap("tab10")(np.arange(m))
+    return plt.get_cmap("turbo")(np.linspace(0.05, 0.95, m))
 
 
 @dataclass

@@ -34,7 +34,7 @@ from .mesh import (
     vertices_where,
 )
 from .solver import TOL
-from .units import ScaleWarning, scale_mismatch, up_axis
+from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
 
 __all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
 
@@ -287,7 +287,8 @@ SCHEMA: dict[str, Any] = {
             "int",
             None,
             "Index of the up axis (default: the axis gravity pulls down along; without gravity the last, "
-            "y in 2D, z in 3D). Gravity must have a component along -up.",
+            "y in 2D, z in 3D). Gravity must have a component along -up: a zero gravity.acceleration with a "
+            "ground is an error (remove [gravity] for none).",
         ),
         "model": Key(
             "str",
@@ -309,7 +310,8 @@ SCHEMA: dict[str, Any] = {
             "int|all",
             None,
             "Contact vertices: that many boundary vertices by farthest-point sampling, or all of them "
-            '(default "all" with model "coulomb", 30 with "reference", as its tutorial).',
+            '(default "all" with model "coulomb", 30 with "reference", as its tutorial). More than there are '
+            "gives all of them: `skfem-modal info` and summary.json's sizes.contact_points say how many.",
             check=_contacts,
         ),
         "contacts_where": Key(
@@ -616,16 +618,7 @@ class Scene:
 
     def material(self) -> dict:
         """``mu``, ``gamma``, ``lam``, ``rho`` with defaults resolved."""
-        m = self.config["material"]
-        if m["young"] is not None:
-            from .fem import lame_parameters
-
-            mu, lam = lame_parameters(m["young"], m["poisson"])
-        else:
-            mu = 1e5 if m["mu"] is None else m["mu"]
-            lam = mu if m["lam"] is None else m["lam"]
-        gamma = mu if m["gamma"] is None else m["gamma"]
-        return {"mu": mu, "gamma": gamma, "lam": lam, "rho": m["rho"]}
+        return _material(self.config["material"])
 
     def scale_warning(self) -> str | None:
         """Why the mesh's size and the material's length scales are far apart (wrong units?), or None.
@@ -666,6 +659,18 @@ class Scene:
         if g is None or g["contacts_where"] is None:
             return None
         return np.unique(np.concatenate([vertices_where(self.mesh, cond) for cond in g["contacts_where"]]))
+
+    def contact_vertices(self) -> np.ndarray | None:
+        """The contact vertices the simulator will use (as :meth:`build` samples them), or None without a ground.
+
+        ``ground.contacts`` larger than the boundary vertices available (those
+        where ``contacts_where`` holds, if given) gives all of them.
+        """
+        if self.config["ground"] is None:
+            return None
+        from .mesh import sample_boundary
+
+        return sample_boundary(self.mesh, self.contact_count(), self.contact_candidates())
 
     def pinned_vertices(self) -> np.ndarray | None:
         p = self.config["pinned"]
@@ -768,7 +773,6 @@ class Scene:
         -------
         ref : skfem_modal.reference.FullSpaceSimulator
         """
-        from .mesh import sample_boundary
         from .modal import muscle_modes
         from .reference import FullSpaceSimulator
 
@@ -784,11 +788,8 @@ class Scene:
             pinned=settings["pinned"],
             signs=c["muscles"]["signs"] if c["muscles"]["count"] else None,
         )
-        contacts = None
-        if c["ground"] is not None:
-            contacts = sample_boundary(self.mesh, self.contact_count(), self.contact_candidates())
         return FullSpaceSimulator(
-            self.mesh, D, contact_vertices=contacts, max_iter=max_iter, tol=0.0, rtol=rtol, **settings
+            self.mesh, D, contact_vertices=self.contact_vertices(), max_iter=max_iter, tol=0.0, rtol=rtol, **settings
         )
 
     def activation(self, t: float, ceilings) -> np.ndarray:
@@ -826,6 +827,39 @@ class Scene:
     def to_dict(self) -> dict:
         """The validated configuration, JSON-ready (for summary.json)."""
         return {"source": self.source, **self.config}
+
+
+def _material(m: dict) -> dict:
+    """``mu``, ``gamma``, ``lam``, ``rho`` of a validated [material] section, defaults resolved."""
+    if m["young"] is not None:
+        from .fem import lame_parameters
+
+        mu, lam = lame_parameters(m["young"], m["poisson"])
+    else:
+        mu = 1e5 if m["mu"] is None else m["mu"]
+        lam = mu if m["lam"] is None else m["lam"]
+    gamma = mu if m["gamma"] is None else m["gamma"]
+    return {"mu": mu, "gamma": gamma, "lam": lam, "rho": m["rho"]}
+
+
+def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:
+    """The material, time step and gravity must make operators float64 can hold on this mesh, named by key."""
+    m = config["material"]
+    material = _material(m)
+    young = m["young"] is not None
+    keys = {
+        "mu": ("material.young", m["young"]) if young else ("material.mu", material["mu"]),
+        "gamma": ("material.gamma", m["gamma"]),
+        "rho": ("material.rho", material["rho"]),
+        "h": ("time.step", config["time"]["step"]),
+        "gravity": ("gravity.acceleration", gravity),
+    }
+    problems = float_range_problems(
+        mesh, mu=material["mu"], rho=material["rho"], h=config["time"]["step"], gravity=gravity, gamma=m["gamma"]
+    )
+    for names, text in problems:
+        said = " and ".join(f"{keys[n][0]} = {_toml_value(keys[n][1])}" for n in names)
+        errors.append(f"{said}: {text} on this mesh")
 
 
 def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
@@ -952,6 +986,14 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
     up = None if ground is None else ground["up"]
     if up is not None and not 0 <= up < dim:
         errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {up}")
+    elif acc is not None and ground is not None and not any(acc):
+        axis = "xyz"[dim - 1 if up is None else up]
+        errors.append(
+            f"gravity.acceleration and ground.up: gravity {_toml_value(acc)} has no component along -{axis} "
+            f"(ground.up = {dim - 1 if up is None else up}{', the default' if up is None else ''}), so nothing "
+            f"pulls the body onto the ground: give a gravity along -{axis}, or remove [gravity] (a ground without "
+            "gravity is allowed)"
+        )
     else:
         try:
             up = up_axis(acc, dim, up)
@@ -990,8 +1032,21 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
             )
             if not usable:
                 errors.append(f"pinned.box: expected {{ min = [{dim} numbers], max = [{dim} numbers] }}, got {box!r}")
-        if usable and _pinned(pinned, mesh).size == 0:
+        selected = _pinned(pinned, mesh).size if usable else None
+        if selected == 0:
             errors.append("pinned: the conditions select no vertex")
+        elif selected == mesh.p.shape[1]:
+            errors.append(
+                f"pinned: the conditions select all {selected} vertices of the mesh: nothing is left free to move "
+                "(pin fewer)"
+            )
+        elif selected is not None:
+            free = mesh.p.size - dim * selected
+            m = config["muscles"]["count"]
+            if m and m > free:
+                errors.append(f"muscles.count: {m} is too many for the {free} degrees of freedom the pins leave free")
+    if not any(e.startswith(("material", "time.step", "gravity")) for e in errors):
+        _check_float_range(config, mesh, acc, errors)
     m = config["muscles"]["count"]
     n_rigid = 3 if dim == 2 else 6
     if m and m + n_rigid >= mesh.p.size:

@@ -47,6 +47,7 @@ from .checks import (
     _clear_of_ground,
     _contact_settings,
     _count,
+    _fits_float64,
     _flag,
     _fraction,
     _gravity_and_up,
@@ -329,6 +330,7 @@ class ModalMuscle:
         labels = _labels(labels, nT, "labels")
         active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
         h = _positive_scalar(h, "h")
+        _fits_float64(mesh, mu, gamma, rho, h, gravity)
         self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
         self._backend = _backend_name(backend)
         gravity, self._up = _gravity_and_up(gravity, up, dim)
@@ -336,7 +338,8 @@ class ModalMuscle:
         damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
-        ground, contact_vertices = _ground(ground, contact_vertices, n)
+        contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
+        ground, contact_vertices = _ground(ground, n, contact_vertices, **contact)
         _clear_of_ground(mesh, ground, self._up)
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
@@ -429,7 +432,9 @@ class ModalMuscle:
 
     @h.setter
     def h(self, value) -> None:
-        self._model.retime(_positive_scalar(value, "h"))
+        value = _positive_scalar(value, "h")
+        _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity)
+        self._model.retime(value)
         self._rebuild()
 
     @property
@@ -566,7 +571,7 @@ class ModalMuscle:
     def penetration(self, z) -> float:
         """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground)."""
         contact = self._model.contact
-        return 0.0 if contact is None else contact.penetration(z)
+        return 0.0 if contact is None else contact.penetration(self._state(z))
 
     @property
     def ground(self):
@@ -682,13 +687,21 @@ class ModalMuscle:
         """
         return self._space.coordinates(x, self.mass)
 
+    def _state(self, z, name: str = "z") -> np.ndarray:
+        """A state or velocity as a float array, checked to have shape (r,)."""
+        z = np.asarray(z, dtype=np.float64)
+        r = self._space.r
+        if z.shape != (r,):
+            raise ValueError(f"{name} must have shape ({r},), the subspace's coordinates, got {z.shape}")
+        return z
+
     def positions(self, z) -> np.ndarray:
-        """Vertex positions of a state, shape (n, dim)."""
-        return self._space.positions(z)
+        """Vertex positions of a state ``z``, shape (r,): returns shape (n, dim)."""
+        return self._space.positions(self._state(z))
 
     def com(self, z) -> np.ndarray:
-        """Centre of mass of a state, shape (dim,), read straight from ``z``."""
-        return self._com @ np.asarray(z, float)
+        """Centre of mass of a state ``z``, shape (r,), read straight from it: returns shape (dim,)."""
+        return self._com @ self._state(z)
 
     def muscle_amplitudes(self, z) -> np.ndarray:
         """Realised modal amplitudes: the mass-weighted projection of ``B z - X`` on each muscle.
@@ -698,12 +711,12 @@ class ModalMuscle:
         amplitudes : ndarray, shape (m,)
         """
         muscles = self._model.muscles
-        return np.zeros(0) if muscles is None else muscles.amplitudes(np.asarray(z, float))
+        return np.zeros(0) if muscles is None else muscles.amplitudes(self._state(z))
 
     def contact_positions(self, z) -> np.ndarray:
         """Positions of the contact vertices, shape (p, dim) (empty without a ground)."""
         contact = self._model.contact
-        return np.zeros((0, self.dim)) if contact is None else contact.positions(z)
+        return np.zeros((0, self.dim)) if contact is None else contact.positions(self._state(z))
 
     # ------------------------------------------------------------------ step
     def _activation(self, a) -> np.ndarray:
@@ -888,8 +901,15 @@ class ModalMuscle:
         _acceleration_name(acceleration)
         _flag(warm_start, "warm_start")
         _contact_settings(contact_model, friction, stickiness, push_out)
+        contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
+        _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
         say = progress or (lambda stage: None)
         with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
+            _fits_float64(mesh, mu, gamma, rho, h, gravity)
+            if ground is not None:
+                _clear_of_ground(
+                    mesh, float(_array(ground, (), "ground")), _gravity_and_up(gravity, up, mesh.p.shape[0])[1]
+                )
             made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
             say("simulator set-up")
             placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
@@ -983,6 +1003,8 @@ def simulate(sim, steps: int, activation=None, state=None):
 
     Raises
     ------
+    ValueError
+        At the call, if ``steps`` is not an integer >= 0.
     SimulationError
         With the step number, if the state becomes non-finite.
 
@@ -996,7 +1018,14 @@ def simulate(sim, steps: int, activation=None, state=None):
     >>> last.step, round(last.time, 12), last.z.shape == sim.rest_state()[0].shape
     (5, 0.1, True)
     """
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
     z, z_dot = (sim.rest_state()[:2]) if state is None else state
+    return _steps(sim, int(steps), activation, z, z_dot)
+
+
+def _steps(sim, steps: int, activation, z, z_dot):
+    """The generator behind :func:`simulate` (its arguments checked at the call, not at the first step)."""
     zero = np.zeros(sim.n_muscles)
     h = sim.h
     for i in range(steps):

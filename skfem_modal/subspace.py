@@ -185,11 +185,7 @@ def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
             # (numerically) dependent columns: a rank-revealing QR drops them
             Q, R, _ = sla.qr(Bm, mode="economic", pivoting=True)
             keep = np.abs(np.diag(R)) > 1e-10 * np.abs(R[0, 0])
-            warnings.warn(
-                f"mass_orthonormalize: dropped {int((~keep).sum())} linearly dependent columns",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            _warn_dropped(keep)
             Q = Q[:, keep]
         Q /= root[:, None]
         return Q
@@ -201,12 +197,20 @@ def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
     except np.linalg.LinAlgError:
         vals, vecs = np.linalg.eigh(G)
         keep = vals > 1e-10 * vals.max()
-        warnings.warn(
-            f"mass_orthonormalize: dropped {int((~keep).sum())} linearly dependent columns",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+        _warn_dropped(keep)
         return B @ (vecs[:, keep] / np.sqrt(vals[keep]))
+
+
+def _warn_dropped(keep: np.ndarray) -> None:
+    """Say how many columns were dropped as linear combinations of the others, and what is left (if any were)."""
+    dropped = int(np.count_nonzero(~keep))
+    if dropped:
+        warnings.warn(
+            f"mass_orthonormalize: dropped {dropped} of {keep.size} columns, linear combinations of the others "
+            f"(to 1e-10 relative): the basis has {keep.size - dropped}",
+            RuntimeWarning,
+            stacklevel=3,  # where mass_orthonormalize was called
+        )
 
 
 def _cholesky_qr2(A: np.ndarray, block: int = 1 << 15):
@@ -215,17 +219,25 @@ def _cholesky_qr2(A: np.ndarray, block: int = 1 << 15):
     Cholesky QR twice: two products with the small Gram matrix instead of a
     Householder QR of the tall matrix (several times faster for n >> r), and
     accurate to round-off for condition numbers up to ~1e7. Rows are updated
-    a block at a time, so no copy of ``A`` is made. Returns None, with ``A``
-    untouched, when the columns are (nearly) dependent.
+    a block at a time, so no copy of ``A`` is made. The columns are first
+    scaled to about unit norm by powers of two (exact; it changes no span and
+    no result), so columns of very different sizes (a body 1e-6 across: its
+    weights times positions beside the weights) are not taken for dependent
+    ones. Returns None, with ``A`` untouched, when the columns are (nearly)
+    dependent.
     """
-    for _ in range(2):
+    norms = np.sqrt(np.einsum("ij,ij->j", A, A))
+    exponents = np.round(np.log2(np.where(norms > 0, norms, 1.0))).astype(int)
+    A *= np.ldexp(1.0, -exponents)
+    for attempt in range(2):
         G = A.T @ A
         try:
             L = np.linalg.cholesky((G + G.T) / 2)
         except np.linalg.LinAlgError:
-            return None
-        d = np.diag(L)
-        if d.min() <= 1e-7 * d.max():
+            L = None
+        if L is None or np.diag(L).min() <= 1e-7 * np.diag(L).max():
+            if attempt == 0:
+                A *= np.ldexp(1.0, exponents)  # untouched again (the second pass works on orthonormal columns)
             return None
         # A L^-T, block by block, with the small inverse factor
         inv_t = sla.solve_triangular(L, np.eye(L.shape[0]), lower=True, check_finite=False).T

@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["up_axis", "ScaleWarning", "material_length_scales", "scale_mismatch", "warn_scale"]
+__all__ = ["up_axis", "ScaleWarning", "material_length_scales", "scale_mismatch", "warn_scale", "float_range_problems"]
 
 _AXES = "xyz"
 
@@ -182,3 +182,95 @@ def warn_scale(mesh, mu: float, rho: float, gravity=None, duration: float | None
     message = scale_mismatch(mesh, mu, rho, gravity, duration, what)
     if message:
         warnings.warn(message, ScaleWarning, stacklevel=2)
+
+
+def float_range_problems(mesh, *, mu, rho, h=None, gravity=None, gamma=None) -> list[tuple[tuple[str, ...], str]]:
+    """What the simulator's operators could not hold in float64, by the arguments that make it so.
+
+    The operators scale as: the time step's square ``h^2`` and its inverse;
+    the vertex masses ``rho |e|`` (``|e|`` an element's measure, ``l =
+    |e|^(1/dim)`` its size); the stiffness ``mu |e| / l^2`` (and ``gamma
+    |e| / l^2``, the muscles'); the modes' squared angular frequencies ``mu /
+    (rho l^2)``; the inertia operator ``rho |e| / h^2``; the weights ``rho
+    |e| |g|``. Each must be a normal float64, between the smallest normal
+    number (about 2.2e-308: below it, digits are lost and then everything
+    is 0) and the largest (about 1.8e308: above it, infinity), over the
+    mesh's smallest and largest elements.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    mu, rho : float or ndarray, shape (nT,)
+        Positive and finite (checked elsewhere).
+    h : float, optional
+    gravity : array_like, shape (dim,), optional
+    gamma : float or ndarray, shape (nT,), optional
+
+    Returns
+    -------
+    problems : list of (names, text)
+        ``names``: the arguments that set the quantity (``"mu"``, ``"rho"``,
+        ``"h"``, ``"gravity"``, ``"gamma"``); ``text``: which quantity, its
+        value and which way it leaves the range; the first for each set of
+        names. Empty when all fit.
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import caterpillar
+    >>> float_range_problems(caterpillar(nx=10, ny=5), mu=1e5, rho=1e3, h=0.01)
+    []
+    >>> float_range_problems(caterpillar(nx=10, ny=5), mu=1e5, rho=1e3, h=1e300)[0]
+    (('h',), 'the time step squared, h^2, would be 1e+600: beyond float64 (above 1.8e+308)')
+    """
+    from .mesh import _signed_measures
+
+    dim = mesh.p.shape[0]
+    # each quantity as the interval of its log10 over the mesh's elements: sums of intervals
+    measure = _log_span(np.abs(_signed_measures(mesh.p, mesh.t)))
+    size = measure / dim
+    mass = _log_span(rho) + measure
+    quantities = [
+        (("rho",), "the vertex masses, rho x element measure", mass),
+        (("mu",), "the stiffness, mu x element size^(dim - 2)", _log_span(mu) + (dim - 2) * size),
+        (
+            ("mu", "rho"),
+            "the modes' squared angular frequencies, mu / (rho x element size^2)",
+            _log_span(mu) - (_log_span(rho) + 2 * size)[::-1],
+        ),
+    ]
+    if gamma is not None and np.any(np.asarray(gamma) > 0):
+        positive = np.asarray(gamma)[np.asarray(gamma) > 0]
+        quantities.append(
+            (
+                ("gamma",),
+                "the muscles' stiffness, gamma x element size^(dim - 2)",
+                _log_span(positive) + (dim - 2) * size,
+            )
+        )
+    if h is not None:
+        step = _log_span(h)
+        quantities += [
+            (("h",), "the time step squared, h^2", 2 * step),
+            (("h",), "the inverse of the time step squared, 1 / h^2", -2 * step),
+            (("rho", "h"), "the inertia operator, vertex mass / h^2", mass - 2 * step),
+        ]
+    g = np.zeros(1) if gravity is None else np.abs(np.asarray(gravity, dtype=np.float64))
+    if g.max() > 0:
+        g_log = np.log10(g.max()) + 0.5 * np.log10(np.sum((g / g.max()) ** 2))  # |g| without squaring 1e308
+        quantities.append((("rho", "gravity"), "the weights, vertex mass x |gravity|", mass + g_log))
+    info = np.finfo(np.float64)
+    problems = []
+    for names, what, (lo, hi) in quantities:
+        if any(names == named for named, _ in problems):
+            continue  # one problem per set of arguments: the first says what to change
+        if hi > np.log10(info.max):
+            problems.append((names, f"{what}, would be 1e+{hi:.0f}: beyond float64 (above {info.max:.2g})"))
+        elif lo < np.log10(info.tiny):
+            problems.append((names, f"{what}, would be 1e{lo:.0f}: beyond float64 (below {info.tiny:.2g})"))
+    return problems
+
+
+def _log_span(values) -> np.ndarray:
+    """log10 of the smallest and the largest of some positive values, shape (2,)."""
+    values = np.log10(np.asarray(values, dtype=np.float64))
+    return np.array([values.min(), values.max()])

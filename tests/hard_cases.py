@@ -44,6 +44,7 @@ def build(mesh, *, mu=1e5, rho=1e3, h=0.01, muscles=3, gravity=False, ground=Non
     dim = mesh.p.shape[0]
     g = ([0.0] * (dim - 1) + [-9.8]) if gravity else None
     contact = dict(contact_model="coulomb") if coulomb else dict(n_contacts=20, contact_model="reference", push_out=1.0)
+    contact = {} if ground is None else contact  # contact settings without a ground are refused
     reduction = dict(n_muscles=muscles, n_weights=6, n_clusters=10)
     return ModalMuscle.from_mesh(mesh, **reduction, mu=mu, rho=rho, h=h, gravity=g, ground=ground, **contact, **kw)
 

@@ -153,3 +153,40 @@ def test_every_frame_has_the_same_scale_and_colours(creature_runs, backend):
     last = frames[-1][boxes[-1, 0] : boxes[-1, 1] + 1, boxes[-1, 2] : boxes[-1, 3] + 1].reshape(-1, 3)
     last = last[np.ptp(last, axis=1) > 12]
     assert (np.linalg.norm(last / last.max(axis=1, keepdims=True) - VIRIDIS_0 / 84, axis=1) > 0.3).mean() > 0.2
+
+
+@pytest.mark.parametrize("m, apart", [(4, 0.1), (12, 0.1), (30, 0.05)])
+def test_amplitudes_tell_many_muscles_apart_and_keep_the_legend_off_the_curves(m, apart):
+    pytest.importorskip("matplotlib")
+    from skfem_modal.plot import amplitudes_figure
+
+    t = np.linspace(0.0, 4.0, 200)
+    commanded = np.array([0.3 * np.sin(2 * np.pi * t / (0.5 + 0.1 * k)) for k in range(m)]).T
+    fig = amplitudes_figure({"amplitudes": (t, commanded, 0.8 * commanded)})
+    (ax,) = fig.axes
+    lines = ax.get_lines()
+    assert len(lines) == 2 * m
+    realised, dashed = lines[0::2], lines[1::2]
+    colours = np.array([line.get_color()[:3] for line in realised])
+    # every muscle its own colour: no two closer than a tenth of the RGB cube's side (a twentieth for 30)
+    distances = np.linalg.norm(colours[:, None] - colours[None], axis=2) + np.eye(m)
+    assert distances.min() > apart
+    # commanded and realised told apart by line style, in the muscle's colour
+    assert all(
+        a.get_color() is b.get_color() or np.allclose(a.get_color(), b.get_color()) for a, b in zip(realised, dashed)
+    )
+    assert {line.get_linestyle() for line in realised} == {"-"} and {line.get_linestyle() for line in dashed} == {"--"}
+    # one legend entry per muscle and one per line style, beside the axes, inside the picture
+    (legend,) = fig.legends
+    assert [text.get_text() for text in legend.get_texts()] == [f"muscle {k}" for k in range(m)] + [
+        "realised",
+        "commanded",
+    ]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box, axes_box, figure_box = legend.get_window_extent(renderer), ax.get_window_extent(renderer), fig.bbox
+    assert not box.overlaps(axes_box)
+    assert box.x0 >= figure_box.x0 and box.x1 <= figure_box.x1 and box.y0 >= figure_box.y0 and box.y1 <= figure_box.y1
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

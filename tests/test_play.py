@@ -512,3 +512,67 @@ def test_docs_play_python_example(display, tmp_path, monkeypatch, capsys):
     quoted = [float(v) for v in re.search(r"# \[([-0-9. ]+)\]", code).group(1).split()]
     shown = namespace["player"].amplitudes() / namespace["sim"].ceilings
     np.testing.assert_allclose(shown, quoted, atol=1e-2)
+
+
+SCREENSHOT_AFTER_FEW_FRAMES = """
+import json, sys
+import numpy as np
+from skfem_modal import play_view
+from skfem_modal.play import Player, _simulator
+from skfem_modal.play_view import PlayView
+
+# a machine fast enough that these frames all fall between two status updates: as fast as this gets
+play_view._STATUS_EVERY = play_view._GAIT_SLIDERS_EVERY = 1e9
+
+class Clock:
+    now = 0.0
+    def __call__(self):
+        return self.now
+
+clock = Clock()
+sim, gait, _ = _simulator(None, None)
+player = Player(sim, gait, clock=clock)
+view = PlayView(player, window_size=(960, 600))
+view.plotter.show(interactive_update=True, auto_close=False)
+frames = []
+for _ in range(3):  # 1/40 s a frame: the status line last changed at the first
+    clock.now += 1 / 40
+    player.frame()
+    view.draw()
+    view.render()
+    frames.append(view.status.GetInput())
+view.save_screenshot(sys.argv[1])
+saved = view.status.GetInput()
+sliders = [w.GetRepresentation().GetValue() for w in view.sliders]
+# the status line as the last drawn frame showed it: what the picture held before
+view.status.SetInput(frames[-1])
+view.render()
+np.save(sys.argv[2], np.asarray(view.plotter.screenshot(return_img=True))[:, :, :3])
+print(json.dumps({"frames": frames, "saved": saved, "t": player.t, "steps": player.n_steps,
+                  "expected": view._status_text(), "sliders": sliders,
+                  "activation": player.activation().tolist()}))
+"""
+
+
+def test_the_screenshot_shows_the_last_frames_own_status(display, tmp_path):
+    """After 3 frames the saved picture's status line and sliders are the last frame's, not the first's."""
+    from PIL import Image
+
+    shot, stale = tmp_path / "shot.png", tmp_path / "stale.npy"
+    result = subprocess.run(
+        [sys.executable, "-c", SCREENSHOT_AFTER_FEW_FRAMES, str(shot), str(stale)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["steps"] >= 2 and report["t"] > 0  # the frames stepped
+    assert report["frames"][-1].startswith("t =    0.00")  # what the window showed, throttled
+    assert report["saved"] == report["expected"]  # the picture's status: the state it shows
+    assert report["saved"].startswith(f"t = {report['t']:7.2f}    40.0 frames/s")  # the fake clock: 1/40 s a frame
+    np.testing.assert_allclose(report["sliders"], report["activation"], atol=1e-12)
+    assert np.abs(report["activation"]).max() > 0  # the gait's sliders moved off +0
+    picture = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    status_rows = picture[:40] != np.load(stale)[:40]  # the top of the window: the status line
+    assert status_rows.any(axis=2).mean() > 0.001  # the saved status line is not the stale one

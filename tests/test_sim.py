@@ -285,7 +285,7 @@ def test_bad_inputs_are_named(tutorial):
         ModalMuscle(mesh, B, D, labels, **{**kw, "rho": -1.0})
     with pytest.raises(ValueError, match=r"gravity must have shape \(2,\)"):
         ModalMuscle(mesh, B, D, labels, gravity=[0, 0, -9.8], **kw)
-    with pytest.raises(ValueError, match="contact_vertices need a ground"):
+    with pytest.raises(ValueError, match="contact_vertices: a contact setting, but there is no ground"):
         ModalMuscle(mesh, B, D, labels, contact_vertices=[0, 1], **kw)
     sim = ModalMuscle(mesh, B, D, labels, **kw)
     z, z_dot, a = sim.rest_state()
