@@ -77,6 +77,8 @@ _TURN = float(np.cos(np.radians(1.0)))
 _KEEP = 10
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
+# solves that may take back the way the compliance lets the ground give (see _forces)
+_REFINE = 16
 
 
 class _Operator(NamedTuple):
@@ -160,8 +162,8 @@ class ReferenceContact(_Ground):
         self.n_points = vertices.size
         self.active_count = 0
 
-    def bind(self, system, h) -> None:
-        """Take the factored system of time step ``h`` (a new one clears the cached corrections)."""
+    def bind(self, system, h, gravity=None) -> None:
+        """Take the factored system of time step ``h`` (a new one clears the cached corrections; gravity: unused)."""
         JeT = self.Je.T.toarray() if sps.issparse(self.Je) else self.Je.T
         self.HinvJeT = system.solve(JeT)  # (r, p dim): H^-1 Je^T
         self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
@@ -381,9 +383,13 @@ class CoulombContact(_Ground):
         self._keep = 0  # steps that may keep them before the vertices are picked anew
         self.active_count = 0
 
-    def bind(self, system, h) -> None:
-        """Take the factored system of time step ``h`` (a new one clears the pushes made so far)."""
+    def bind(self, system, h, gravity=None) -> None:
+        """Take the factored system of time step ``h`` (a new one clears the pushes made so far).
+
+        ``gravity`` (dim,), or None: how far a vertex below the ground may climb in a step.
+        """
         self.system, self.h = system, float(h)
+        self.climb = 0.0 if gravity is None else max(0.0, -float(gravity[self.up])) * self.h**2
         self.picked = np.zeros(0, np.int64)
         self._keep = 0
         # each candidate row's push on z, H^-1 B_row^T, made when first needed: memory
@@ -395,6 +401,7 @@ class CoulombContact(_Ground):
         sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
         self.compliance = 1e-3 * float(reach.mean())
+        self._quiet = (0.1 * self.allowance / self.compliance) ** 2  # forces whose give needs no second solve
 
     def _rows_of(self, candidate_rows) -> np.ndarray:
         """Rows of ``B`` for candidate rows (vertex ``k``'s coordinate ``a`` is row ``k dim + a``), dense."""
@@ -496,7 +503,13 @@ class CoulombContact(_Ground):
         if start is not None:
             self.start[: start.shape[0]] = start
         self.target = self.start.ravel().copy()
-        self.target[self.up :: dim] = self.ground
+        # a vertex that starts the step a little below the ground (within the allowance, less a
+        # margin: left there by an earlier step's end) climbs out by at most what gravity moves
+        # a body in a step: lifted onto the ground at once, a tiny step would kick it up, adding
+        # energy; a deeper one (the end of a step holding one that sagged) comes into that band
+        band = self.ground - 0.9 * self.allowance
+        self.target[self.up :: dim] = np.clip(self.start[:, self.up] + self.climb, band, self.ground)
+        self.floor = self.target[self.up :: dim] - self.tol  # a vertex below it joins the pushed ones
         self.rows_of_picked = (picked[:, None] * dim + np.arange(dim)).ravel()  # candidate rows, picked order
 
     def project(self, z, watched=None) -> bool:
@@ -556,15 +569,18 @@ class CoulombContact(_Ground):
             heights = checked[1] if same else self.heights_of(z)
             checked = None
             below = np.flatnonzero(heights < self.ground - self.allowance)
-            missed = self._unpicked(below)
-            if not missed.size:  # the picked ones were held by the last projection
+            if not below.size:
                 self._turn(z)
                 self._end = z.copy()
                 return
-            start = self.start if self.picked.size else np.zeros((0, self.dim))
-            self._pick(np.concatenate([self.picked, missed]), z, start)
+            missed = self._unpicked(below)
+            if missed.size:
+                start = self.start if self.picked.size else np.zeros((0, self.dim))
+                self._pick(np.concatenate([self.picked, missed]), z, start)
+                self._keep = 0  # the vertices are picked anew next step
+            # (a picked one below: the last projection's fallback, a least-distance solve over
+            # the rows it saw, left it there)
             self._constrain(z)
-            self._keep = 0  # the vertices are picked anew next step
         raise SimulationError(f"ground contact: {below.size} vertices stay below the ground after {_FINISH} tries")
 
     # ---------------------------------------------------------- the solve
@@ -573,8 +589,9 @@ class CoulombContact(_Ground):
         picked, dim, up, mu = self.picked, self.dim, self.up, self.friction
         x_t = np.asarray(self.J @ z)
         # the exact projection (no slack: a vertex let a little below, then pushed out in a later
-        # step, would be kicked; each global step then lowers the step's energy)
-        joining = self.ground - self.tol
+        # step, would be kicked; each global step then lowers the step's energy); a vertex joins
+        # below its own target height (the ground, or where it starts a little below it)
+        joining = self.floor
         if self._last is not None and self._again(self._last, z, x_t, joining):
             return True
         self._last = None
@@ -622,7 +639,8 @@ class CoulombContact(_Ground):
                     sliding = (sliding | slips) & ~stops & active
             elif np.count_nonzero(below):
                 # going round in circles: one change at a time, the deepest vertex first
-                active = active | (below & (x[up::dim] <= x[up::dim][below].min()))
+                depth = x[up::dim] - joining
+                active = active | (below & (depth <= depth[below].min()))
             elif np.count_nonzero(release):
                 active = active.copy()
                 active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
@@ -651,13 +669,13 @@ class CoulombContact(_Ground):
         set, at a fraction of its cost.
         """
         up, dim = self.up, self.dim
-        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        lam = self._forces(op, x_t)
         normal = lam[: op.pushed.size]
         if normal.min() < -1e-9 * max(normal.max(), 1e-300):
             return False
         z_new = z + lam @ op.pushes
         x = self.J @ z_new
-        if op.free.size and x[up::dim][op.free].min() < joining:
+        if op.free.size and np.count_nonzero(np.less(x[up::dim], joining)[op.free]):
             return False
         if op.stuck.size:
             held = lam[op.pushed.size :].reshape(-1, dim - 1)
@@ -672,9 +690,9 @@ class CoulombContact(_Ground):
         return True
 
     def _deepest(self, below, x) -> np.ndarray:
-        """The few deepest of the vertices ``below`` (indices into the picked ones)."""
-        heights = np.where(below, x[self.up :: self.dim], np.inf)
-        return np.argsort(heights)[: min(_JOIN, np.count_nonzero(below))]
+        """The few deepest (below their target heights) of the vertices ``below`` (indices into the picked ones)."""
+        depths = np.where(below, x[self.up :: self.dim] - self.target[self.up :: self.dim], np.inf)
+        return np.argsort(depths)[: min(_JOIN, np.count_nonzero(below))]
 
     def _least_distance(self, near, stick, z_t, x_t, z):
         """The projection as a least-distance problem over some rows, solved by NNLS (Lawson and Hanson).
@@ -690,16 +708,22 @@ class CoulombContact(_Ground):
         signs = np.concatenate([np.ones(normal_rows.size + tangent_rows.size), -np.ones(tangent_rows.size)])
         HA = self._push_of(self.rows_of_picked[rows])  # (k, r): each row's push on z
         K = (self._rows_of(self.rows_of_picked[rows]) @ HA.T) * np.outer(signs, signs)
-        G = np.linalg.cholesky((K + K.T) / 2 + self.compliance * np.eye(rows.size))
-        gap = signs * (self.target[rows] - x_t[rows])
-        E = np.vstack([G.T, gap])
-        f = np.zeros(E.shape[0])
-        f[-1] = 1.0
-        u, _ = nnls(E, f, maxiter=50 * E.shape[1])
-        scale = 1.0 - float(gap @ u)
-        lam = u / scale if scale > 0.0 else np.zeros_like(u)
-        np.add(z_t, HA.T @ (signs * lam), out=z)
-        x = np.asarray(self.J @ z)
+        # NNLS decides by comparing its rows: K is brought near 1 by an even power of two before
+        # the factoring (exact, the square root too), so that the forces are the same in any units
+        K = (K + K.T) / 2 + self.compliance * np.eye(rows.size)
+        half = np.frexp(K.diagonal().max())[1] // 2
+        G = np.linalg.cholesky(np.ldexp(K, -2 * half))  # the factor of K times 2^-half
+        goal = self.target[rows].copy()
+        held = np.ones(rows.size, bool)
+        held[: normal_rows.size] = False  # a height is held where it is pushed
+        for _ in range(_REFINE + 1):
+            lam, x = self._least_distance_solve(G, half, HA, signs, goal - x_t[rows], z_t, z)
+            held[: normal_rows.size] = lam[: normal_rows.size] > 0.0
+            # the way the compliance let the ground give: taken back by aiming that much further (see _forces)
+            give = np.where(held, self.target[rows] - x[rows], 0.0)
+            if np.abs(give).max(initial=0.0) <= 0.1 * self.allowance:
+                break
+            goal += give
         normal = np.zeros(picked.size)
         normal[near] = lam[: normal_rows.size]
         k = tangent_rows.size
@@ -707,6 +731,25 @@ class CoulombContact(_Ground):
         both = lam[normal_rows.size : normal_rows.size + k] - lam[normal_rows.size + k :]
         tangential[np.ix_(stick & near, self.tangents)] = both.reshape(-1, dim - 1)
         return normal, tangential, x
+
+    def _least_distance_solve(self, G, half, HA, signs, gap, z_t, z):
+        """One least-distance solve (:meth:`_least_distance`) for the rows' gaps ``gap`` (k,); z in place.
+
+        ``G`` is the factor of the rows' compliance matrix times ``2^-half``. Returns the rows'
+        non-negative forces (k,) and the picked vertices' coordinates after (picked dim,).
+        """
+        # the gaps brought to [0.5, 1) by a power of two b (exact): the forces of (2^-half G, b gap)
+        # are b 4^half times those of (G, gap)
+        b = np.ldexp(1.0, -np.frexp(np.abs(gap).max(initial=1.0))[1])
+        gap = b * signs * gap
+        E = np.vstack([G.T, gap])
+        f = np.zeros(E.shape[0])
+        f[-1] = 1.0
+        u, _ = nnls(E, f, maxiter=50 * E.shape[1])
+        scale = 1.0 - float(gap @ u)
+        lam = np.ldexp(u / (b * scale), -2 * half) if scale > 0.0 else np.zeros_like(u)
+        np.add(z_t, HA.T @ (signs * lam), out=z)
+        return lam, np.asarray(self.J @ z)
 
     def _solve(self, active, stick, sliding, direction, z_t, x_t, z):
         """One pass: the active vertices onto the ground, the sticking ones held; z in place.
@@ -718,7 +761,7 @@ class CoulombContact(_Ground):
         Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
         """
         op = self._used = self._operator(active, stick, sliding, direction)
-        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        lam = self._forces(op, x_t)
         np.add(z_t, lam @ op.pushes, out=z)
         x = self.J @ z
         normal = np.zeros(self.picked.size)
@@ -728,6 +771,23 @@ class CoulombContact(_Ground):
         if op.slid.size:
             tangential[op.slid] = (self.friction * normal[op.slid])[:, None] * direction[op.slid]
         return normal, tangential, x
+
+    def _forces(self, op, x_t) -> np.ndarray:
+        """The rows' forces ``(A H^-1 F^T + c I)^-1 (targets - A z_t)``, shape (k,), for the rows ``A`` of ``op``.
+
+        The compliance lets each row give way by ``c`` times its force: at large time steps
+        (forces of a whole step's fall) that is more than the allowance (1e-3 of the size at
+        h = 0.3). Then once more with the targets moved by that much: what is left is ``c^2``
+        times the force over a row's compliance, along rows that depend on each other at most
+        twice the force (the compliance's bound).
+        """
+        lam = step = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        for _ in range(_REFINE):
+            if step @ step <= self._quiet:  # the rows give by c |step| at most: a tenth of the allowance
+                break
+            step = op.inverse @ (self.compliance * step)
+            lam = lam + step
+        return lam
 
     def _operator(self, active, stick, sliding, direction) -> _Operator:
         """The solve's operator for sets of pushed, sticking and sliding vertices (and the slides' ways).

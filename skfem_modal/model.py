@@ -123,7 +123,8 @@ class Model:
             if self.A is not None:
                 self.WA = np.stack([self.system.solve(Ak.T) for Ak in self.A])
         if self.contact is not None:
-            self.contact.bind(self.system, h)
+            gravity = self.named.get("gravity")
+            self.contact.bind(self.system, h, None if gravity is None else gravity.acceleration)
 
     def retime(self, h: float) -> None:
         """Reassemble at a new time step; if its system is singular, the old step stays and the error is raised."""
