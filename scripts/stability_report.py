@@ -46,13 +46,17 @@ def main():
             f"| {fmt(out['identical_rerun'])} | {'; '.join(notes)} |"
         )
         sys.stdout.flush()
-    base = H.scaled_motion(1.0)
-    for scale in (1e-3, 1e3):
-        diff = np.abs(H.scaled_motion(scale) - base).max() / np.abs(base).max()
-        print(
-            f"\nCoordinates x {scale:g} (stiffness x {scale**2:g}, gravity x {scale:g}): "
-            f"largest difference of the motion (divided by the scale) {diff:.1e} of the body size."
-        )
+    for contact_model, scales in (("reference", (1e-3, 1e3)), ("coulomb", (2.0**-10, 2.0**10))):
+        base, iterations = H.scaled_motion(1.0, contact_model)
+        for scale in scales:
+            scaled, scaled_iterations = H.scaled_motion(scale, contact_model)
+            diff = np.abs(scaled - base).max() / np.abs(base).max()
+            same = "the same" if scaled_iterations == iterations else "other"
+            print(
+                f"\nCoordinates x {scale:g} (stiffness x {scale**2:g}, gravity x {scale:g}), {contact_model} contact: "
+                f"largest difference of the motion (divided by the scale) {diff:.1e} of the body size, {same} "
+                "iterations step for step."
+            )
 
 
 if __name__ == "__main__":
