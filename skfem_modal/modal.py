@@ -375,9 +375,17 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     -------
     D : ndarray, shape (n * dim, n_muscles)
     """
+    if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 0:
+        raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
     if not n_muscles:
         return np.zeros((mesh.p.size, 0))
     n_rigid = rigid_mode_count(mesh, pinned)
+    free = mesh.p.size - (0 if pinned is None else mesh.p.shape[0] * np.unique(pinned).size)
+    if n_rigid + n_muscles > free:
+        raise ValueError(
+            f"n_muscles = {n_muscles} is too many: this mesh has {free} free degrees of freedom and "
+            f"{n_rigid} rigid motions, so at most {free - n_rigid} muscles"
+        )
     _, found = linear_modal_analysis(
         mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
     )

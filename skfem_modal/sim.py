@@ -57,6 +57,8 @@ from .checks import (
     _nonnegative,
     _pins,
     _positive_scalar,
+    _pulled_to_ground,
+    _reduction_sizes,
 )
 from .contact import CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
@@ -258,7 +260,10 @@ class ModalMuscle:
         (docs/accuracy.md has the measurements).
     backend : {"auto", "numpy", "numba", "plain"}
         Who does the iterations' arithmetic (:func:`~skfem_modal.solver.make_backends`;
-        the same results to round-off). ``auto`` uses numba when it is installed.
+        the same step to round-off; over a run with ground contact, whose touch, stick and
+        slip decisions amplify round-off as any contact simulation's do, the paths can drift
+        apart: a creature started touching the ground, 1e-2 of its size after 50 steps).
+        ``auto`` uses numba when it is installed.
     max_s : float
         The muscles' amplitude ceilings: a mode scaled by its ceiling changes
         some element's deformation gradient by ``max_s`` (Frobenius norm).
@@ -286,6 +291,9 @@ class ModalMuscle:
     gamma = _fixed("gamma", "Muscle stiffness.")
     rho = _fixed("rho", "Density.")
     pinned = _fixed("pinned", "Pinned vertices (empty without pins).")
+    n_muscles = _fixed("n_muscles", "The number of muscles.")
+    n_clusters = _fixed("n_clusters", "The number of passive rotation clusters.")
+    n_active_clusters = _fixed("n_active_clusters", "The number of muscle rotation clusters (0 without muscles).")
     contact_vertices = _fixed("contact_vertices", "Contact vertices (empty without a ground).")
 
     def __init__(
@@ -340,6 +348,7 @@ class ModalMuscle:
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
         contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
         ground, contact_vertices = _ground(ground, n, contact_vertices, **contact)
+        _pulled_to_ground(gravity, ground, self._up)
         _clear_of_ground(mesh, ground, self._up)
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
@@ -348,9 +357,9 @@ class ModalMuscle:
         self._space = Subspace(mesh, B) if B is not None else FullSpace(mesh)
         self.timings = {"validate": time.perf_counter() - clock}
         self._build(h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices)
-        self.n_muscles = self._D.shape[1]
-        self.n_clusters = self._model.elasticity.n_clusters
-        self.n_active_clusters = int(active_labels.max()) + 1 if self.n_muscles else 0
+        self._n_muscles = self._D.shape[1]
+        self._n_clusters = self._model.elasticity.n_clusters
+        self._n_active_clusters = int(active_labels.max()) + 1 if self._n_muscles else 0
         self.iterations = 0
         self._warn_if_acceleration_idle()
 
@@ -410,10 +419,12 @@ class ModalMuscle:
     def reset(self) -> None:
         """Forget what earlier steps leave for the next (the iteration count to batch, the rotations' warm starts).
 
-        Results do not depend on it beyond round-off; but contact-rich runs
-        are chaotic, so a run that must repeat bit for bit (a gait search's
-        rollout, replayed from its scene file) starts from here, as a new
-        simulator does.
+        Without ground contact results do not depend on it beyond round-off. The Coulomb
+        contact keeps the vertices it looked at for the next steps, and another choice holds
+        the body up as well but not identically (within its allowance: a step differed by up
+        to 9e-4 of the size); contact-rich runs are chaotic besides. So a run that must repeat
+        bit for bit (a gait search's rollout, replayed from its scene file) starts from here,
+        as a new simulator does.
         """
         self._solver.predicted = self._solver.max_iter
         if self._model.contact is not None:
@@ -720,13 +731,18 @@ class ModalMuscle:
 
     # ------------------------------------------------------------------ step
     def _activation(self, a) -> np.ndarray:
+        """The muscles' activation checked, shape (m,); None: zero (the muscles at rest)."""
+        if a is None:
+            return np.zeros(self.n_muscles)
         if self.n_muscles == 0:
-            if a is not None and np.size(a):
+            if np.size(a):
                 raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
             return np.zeros(0)
         a = np.asarray(a, dtype=np.float64).ravel()
         if a.shape != (self.n_muscles,):
             raise ValueError(f"activation must have one value per muscle ({self.n_muscles}), got {a.size}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"activation must be finite, got {a.tolist()}")
         return a
 
     def step(self, z, z_dot, a=None, *, velocity: bool = False):
@@ -736,8 +752,8 @@ class ModalMuscle:
         ----------
         z, z_dot : ndarray, shape (r,)
             Position and velocity at the start of the step.
-        a : ndarray, shape (m,)
-            Muscle activations during the step.
+        a : ndarray, shape (m,), optional
+            Muscle activations during the step (None: zero, the muscles at rest).
         velocity : bool
             Also return the new velocity ``(z_next - z) / h``.
 
@@ -788,8 +804,8 @@ class ModalMuscle:
             Only with ``gradient=True``.
         """
         a = self._activation(a)
-        as_array = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
-        return self._model.energy(as_array(z_next), as_array(z), as_array(z_dot), a, gradient)
+        z_next, z, z_dot = self._state(z_next, "z_next"), self._state(z), self._state(z_dot, "z_dot")
+        return self._model.energy(z_next, z, z_dot, a, gradient)
 
     def mechanical_energy(self, z, z_dot) -> float:
         """Kinetic plus potential energy of a state, the muscles at rest.
@@ -797,8 +813,12 @@ class ModalMuscle:
         ``1/2 z_dot^T BMB z_dot`` plus the elastic energy (passive, and the
         muscles' with zero activation, rotations optimal), the pins' and the
         gravitational potential. Without input (zero activation) implicit
-        Euler, damping and contact only remove energy, so this does not grow
-        over a run: the stability tests check it.
+        Euler, damping and the Coulomb contact only remove energy, so this does
+        not grow over a run: the stability tests check it. The reference
+        contact can add energy (it constrains velocities at sampled points;
+        with ``push_out`` it moves them onto the ground by least squares): a
+        caterpillar dropped at h = 0.1 with ``push_out = 1`` ended with 173
+        times the energy it started with.
 
         Parameters
         ----------
@@ -808,12 +828,12 @@ class ModalMuscle:
         -------
         E : float
         """
-        z = np.asarray(z, float)
+        z = self._state(z)
         return self.kinetic_energy(z_dot) + self.energy(z, z, np.zeros_like(z), np.zeros(self.n_muscles))
 
     def kinetic_energy(self, z_dot) -> float:
         """``1/2 z_dot^T B^T M B z_dot``, the kinetic energy of a velocity, shape (r,)."""
-        v = np.asarray(z_dot, float)
+        v = self._state(z_dot, "z_dot")
         return 0.5 * float(v @ (self._model.inertia.mass_matrix @ v))
 
     # ----------------------------------------------------------- convenience
@@ -897,6 +917,7 @@ class ModalMuscle:
         arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
         arguments["gamma"] = mu if gamma is None else gamma
         # settings used late are checked before any work
+        _reduction_sizes(mesh, n_muscles, n_weights, cluster_weights, n_clusters, n_active_clusters, n_contacts, seed)
         _backend_name(backend)
         _acceleration_name(acceleration)
         _flag(warm_start, "warm_start")
@@ -907,9 +928,9 @@ class ModalMuscle:
         with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
             _fits_float64(mesh, mu, gamma, rho, h, gravity)
             if ground is not None:
-                _clear_of_ground(
-                    mesh, float(_array(ground, (), "ground")), _gravity_and_up(gravity, up, mesh.p.shape[0])[1]
-                )
+                g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
+                _pulled_to_ground(g, ground, axis)
+                _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis)
             made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
             say("simulator set-up")
             placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
@@ -994,7 +1015,8 @@ def simulate(sim, steps: int, activation=None, state=None):
         ``activation(t)`` gives the muscles' activation during the step that
         starts at time ``t``, shape (m,); None: zero.
     state : tuple, optional
-        ``(z, z_dot)`` to start from; default the rest state.
+        ``(z, z_dot)`` to start from (``sim.rest_state()``'s three values do too: its zero
+        activation is not used); default the rest state.
 
     Yields
     ------
@@ -1020,7 +1042,11 @@ def simulate(sim, steps: int, activation=None, state=None):
     """
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
-    z, z_dot = (sim.rest_state()[:2]) if state is None else state
+    if state is None:
+        state = sim.rest_state()
+    if not isinstance(state, (tuple, list)) or len(state) not in (2, 3):
+        raise ValueError("state must be (z, z_dot), e.g. sim.rest_state()[:2]")
+    z, z_dot = sim._state(state[0]), sim._state(state[1], "z_dot")
     return _steps(sim, int(steps), activation, z, z_dot)
 
 

@@ -1,0 +1,73 @@
+"""The Python API at its edges: omitted activations, read-only sizes, states and sizes named (an audit, 2026-11-23)."""
+
+import numpy as np
+import pytest
+
+import skfem_modal as sm
+from skfem_modal.mesh import make_mesh
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return sm.ModalMuscle.from_mesh(sm.caterpillar(nx=20, ny=10), n_muscles=2, n_weights=4, n_clusters=6)
+
+
+def test_an_omitted_activation_is_the_muscles_at_rest(sim):
+    z, z_dot, a = sim.rest_state()
+    z_dot = z_dot + 0.1 * sim.coordinates(np.tile([1.0, 0.5], sim.mesh.p.shape[1]))
+    np.testing.assert_array_equal(sim.step(z, z_dot), sim.step(z, z_dot, np.zeros(2)))
+    assert sim.energy(z, z, z_dot) == sim.energy(z, z, z_dot, np.zeros(2))
+
+
+@pytest.mark.parametrize("name", ["n_muscles", "n_clusters", "n_active_clusters"])
+def test_the_sizes_are_read_only(sim, name):
+    before = getattr(sim, name)
+    with pytest.raises(AttributeError, match=f"{name} is fixed when a simulator is built"):
+        setattr(sim, name, 0)
+    assert getattr(sim, name) == before > 0
+
+
+def test_states_and_activations_are_named(sim):
+    z, z_dot, a = sim.rest_state()
+    records = list(sm.simulate(sim, 2, state=sim.rest_state()))  # its three values do
+    assert len(records) == 2 and records[-1].z.shape == z.shape
+    with pytest.raises(ValueError, match=r"state must be \(z, z_dot\)"):
+        sm.simulate(sim, 2, state=z)
+    with pytest.raises(ValueError, match=r"z_dot must have shape \(24,\), the subspace's coordinates, got \(3,\)"):
+        sim.mechanical_energy(z, z_dot[:3])
+    with pytest.raises(ValueError, match=r"z must have shape \(24,\)"):
+        sim.energy(z, z[:3], z_dot)
+    with pytest.raises(ValueError, match=r"activation must be finite, got \[nan, 0.0\]"):
+        sim.step(z, z_dot, [np.nan, 0.0])
+
+
+TRIANGLE = make_mesh(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]), np.array([[0, 1, 2]]))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (
+            dict(n_muscles=4, n_weights=2, n_clusters=1),
+            r"n_muscles = 4 is too many: this mesh has 6 free degrees of "
+            r"freedom and 3 rigid motions, so at most 3 muscles",
+        ),  # fmt: skip
+        (dict(n_muscles=-1, n_weights=2, n_clusters=1), r"n_muscles must be an integer >= 0, got -1"),
+        (dict(n_muscles=1), r"n_weights = 8 is too many for this mesh: expected fewer than the mesh's vertices \(2\)"),
+        (dict(n_muscles=1, n_weights=2, n_clusters=2), r"n_clusters = 2 is too many for this mesh"),
+        (dict(n_muscles=1, n_weights=2, n_clusters=1, seed=-1), r"seed must be an integer in 0..2\*\*32 - 1, got -1"),
+        (dict(n_muscles=1, n_weights=2, n_clusters=1, n_contacts=0, ground=-1.0), "n_contacts must be a positive"),
+        (
+            dict(n_muscles=1, n_weights=2, n_clusters=1, gravity=[0.0, 0.0], ground=0.0),
+            r"gravity \[0.0, 0.0\] has no component along -y \(up = 1\), so nothing pulls the body onto the ground",
+        ),
+    ],
+)
+def test_from_mesh_names_the_argument(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        sm.ModalMuscle.from_mesh(TRIANGLE, **kwargs)
+
+
+def test_a_ground_without_gravity_is_allowed():
+    sim = sm.ModalMuscle.from_mesh(TRIANGLE, n_muscles=1, n_weights=2, n_clusters=1, ground=0.0)
+    assert sim.ground == 0.0 and sim.gravity is None
