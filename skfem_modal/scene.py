@@ -658,7 +658,7 @@ class Scene:
         g = self.config["ground"]
         if g is None or g["contacts_where"] is None:
             return None
-        return np.unique(np.concatenate([vertices_where(self.mesh, cond) for cond in g["contacts_where"]]))
+        return _candidates(g["contacts_where"], self.mesh)
 
     def contact_vertices(self) -> np.ndarray | None:
         """The contact vertices the simulator will use (as :meth:`build` samples them), or None without a ground.
@@ -907,6 +907,11 @@ def _pinned(spec: dict, mesh) -> np.ndarray:
     return np.nonzero(inside)[0]
 
 
+def _candidates(conditions: list[str], mesh) -> np.ndarray:
+    """The vertices where any of ``ground.contacts_where``'s conditions holds."""
+    return np.unique(np.concatenate([vertices_where(mesh, cond) for cond in conditions]))
+
+
 def _bad_condition(cond: str, dim: int) -> bool:
     match = _CONDITION.match(cond)
     return match is None or "xyz".index(match.group(1)) >= dim
@@ -1040,23 +1045,46 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
                 f"pinned: the conditions select all {selected} vertices of the mesh: nothing is left free to move "
                 "(pin fewer)"
             )
-        elif selected is not None:
-            free = mesh.p.size - dim * selected
-            m = config["muscles"]["count"]
-            if m and m > free:
-                errors.append(f"muscles.count: {m} is too many for the {free} degrees of freedom the pins leave free")
     if not any(e.startswith(("material", "time.step", "gravity")) for e in errors):
         _check_float_range(config, mesh, acc, errors)
-    m = config["muscles"]["count"]
-    n_rigid = 3 if dim == 2 else 6
-    if m and m + n_rigid >= mesh.p.size:
-        errors.append(f"muscles.count: {m} is too many for a mesh with {mesh.p.size} degrees of freedom")
-    weights = config["subspace"]["weights"]
-    if weights is not None and weights >= mesh.p.shape[1]:
-        errors.append(f"subspace.weights: expected fewer than the {mesh.p.shape[1]} vertices, got {weights}")
-    clusters = config["subspace"]["clusters"]
-    if clusters is not None and clusters > mesh.t.shape[1]:
-        errors.append(f"subspace.clusters: expected at most the {mesh.t.shape[1]} elements, got {clusters}")
+    _check_counts(config, mesh, errors, valid)
+
+
+def _check_counts(config: dict, mesh, errors: list[str], valid) -> None:
+    """The counts the mesh cannot take, by key: the simulator's own rule (:func:`~.ingredients.count_problems`)."""
+    from .ingredients import count_problems
+
+    sub, ground, pinned = config["subspace"], config["ground"], config["pinned"]
+    keys = {
+        "n_muscles": ("muscles.count", config["muscles"]["count"]),
+        "n_weights": ("subspace.weights", sub["weights"]),
+        "cluster_weights": ("subspace.cluster_weights", sub["cluster_weights"]),
+        "n_clusters": ("subspace.clusters", sub["clusters"]),
+        "n_active_clusters": ("subspace.active_clusters", sub["active_clusters"]),
+        "seed": ("subspace.seed", sub["seed"]),
+    }
+    pins_usable = (
+        pinned is not None
+        and valid("pinned", "pinned.where", "pinned.box")
+        and not any(e.startswith("pinned") for e in errors)
+    )
+    where_usable = ground is not None and ground["contacts_where"] is not None and valid("ground.contacts_where")
+    where_usable = where_usable and not any(e.startswith("ground.contacts_where") for e in errors)
+    if pinned is not None and not pins_usable:
+        del keys["n_muscles"]  # the pins decide how many fit: wait for them to be right
+    arguments = {name: value if valid(key) else None for name, (key, value) in keys.items()}
+    problems = count_problems(
+        mesh,
+        pinned=_pinned(pinned, mesh) if pins_usable else None,
+        contact_candidates=_candidates(ground["contacts_where"], mesh) if where_usable else None,
+        **{"n_muscles": None, **arguments},
+    )
+    for name, clause in problems:
+        if name == "contact_candidates":
+            errors.append(f"ground.contacts_where: {_toml_value(ground['contacts_where'])} {clause}")
+        else:
+            key, value = keys[name]
+            errors.append(f"{key}: {value} {clause}")
 
 
 def schema_markdown() -> str:
