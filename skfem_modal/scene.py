@@ -209,12 +209,20 @@ SCHEMA: dict[str, Any] = {
             "str",
             None,
             "CSV file of activations over time (instead of gait): a header, then "
-            "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling; "
-            "linearly interpolated, held after the last row.",
+            "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling (beyond 1: a warning, as for "
+            "the gait); linearly interpolated, held after the last row.",
         ),
         "gait": {
             "_optional": True,
-            "amplitude": Key("floats", None, "Per muscle: amplitude as a fraction of its ceiling.", "", required=True),
+            "amplitude": Key(
+                "floats",
+                None,
+                "Per muscle: amplitude as a fraction of its ceiling. Beyond 1 (or -1) the muscle asks an element to "
+                "deform by more than max_s: the run warns (CeilingWarning, in the terminal and summary.json's "
+                "motion.warnings) and the motion monitor blames the muscles for what follows.",
+                "",
+                required=True,
+            ),
             "period": Key("floats", None, "Per muscle: period.", "time", _positive_list, required=True),
             "phase": Key("floats", None, "Per muscle: phase, as a fraction of the period (default 0).", "periods"),
         },
