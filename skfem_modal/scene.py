@@ -229,7 +229,14 @@ SCHEMA: dict[str, Any] = {
     },
     "time": {
         "step": Key("float", 0.01, "Time step h.", "time", _positive),
-        "duration": Key("float", None, "Simulated time (default 4.5, or from steps).", "time", _positive),
+        "duration": Key(
+            "float",
+            None,
+            "Simulated time (default 4.5, or from steps); not a whole number of steps, it is rounded up to the "
+            "next whole step, with a warning naming both keys.",
+            "time",
+            _positive,
+        ),
         "steps": Key("int", None, "Number of steps (instead of duration).", check=_at_least_one),
         "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
         "tol": Key(
@@ -397,6 +404,20 @@ DEFAULT_SCENE: dict[str, Any] = {
     "ground": {"offset": 0.15, "model": "reference", "stickiness": 1.0, "contacts": 30},
     "output": {"every": 5},
 }
+
+#: The simulated time of a scene that gives neither time.duration nor time.steps.
+DEFAULT_DURATION = 4.5
+#: A duration within this fraction of a whole number of steps is that number (0.1 / 0.01 is 10.000000000000002).
+_WHOLE = 1e-9
+
+
+def _steps_covering(duration: float, step: float) -> int:
+    """The fewest steps of ``step`` that reach ``duration`` (a whole number up to round-off is kept)."""
+    nearest = round(duration / step)
+    if abs(nearest * step - duration) <= _WHOLE * duration:
+        return max(1, int(nearest))
+    return max(1, math.ceil(duration / step))
+
 
 _DIM_OF_SHAPE = {"caterpillar": 2, "beam2d": 2, "beam3d": 3, "box3d": 3, "creature": 3}
 
@@ -595,6 +616,9 @@ class Scene:
         message = scene.scale_warning()
         if message:
             warnings.warn(message, ScaleWarning, stacklevel=2)
+        message = scene.duration_warning()
+        if message:
+            warnings.warn(message, UserWarning, stacklevel=2)
         return scene
 
     # ---------------------------------------------------------- properties
@@ -608,10 +632,25 @@ class Scene:
 
     @property
     def n_steps(self) -> int:
+        """``time.steps``, or enough steps of ``time.step`` to cover ``time.duration`` (rounded up)."""
         t = self.config["time"]
         if t["steps"] is not None:
             return t["steps"]
-        return max(1, int(round((4.5 if t["duration"] is None else t["duration"]) / t["step"])))
+        return _steps_covering(DEFAULT_DURATION if t["duration"] is None else t["duration"], t["step"])
+
+    def duration_warning(self) -> str | None:
+        """Why the run is longer than ``time.duration`` (not a whole number of steps), or None."""
+        t = self.config["time"]
+        if t["steps"] is not None or t["duration"] is None:
+            return None
+        n = self.n_steps
+        if n * t["step"] - t["duration"] <= _WHOLE * t["duration"]:
+            return None
+        return (
+            f"time.duration = {t['duration']!r} is not a whole number of time.step = {t['step']!r}: running "
+            f"{n} steps, to t = {n * t['step']:g} (the duration rounded up to a whole step; give time.steps "
+            "for an exact count)"
+        )
 
     @property
     def effects(self) -> tuple:
