@@ -119,6 +119,13 @@ SCHEMA: dict[str, Any] = {
             'Mirror the mesh along these axes first, e.g. ["y"] for an outline traced in image coordinates (y down).',
             check=lambda v: None if all(a in ("x", "y", "z") for a in v) else 'a list of "x", "y", "z"',
         ),
+        "merge": Key(
+            "bool",
+            False,
+            "Merge the file's coincident vertices (closer than 1e-9 of the mesh's size) into one: a triangle soup "
+            "(OBJ and STL exports repeat each vertex for every element using it) becomes one connected body. "
+            "Without it, loading such a file warns how many vertices coincide.",
+        ),
         "normalize": Key(
             "bool",
             False,
@@ -922,8 +929,11 @@ def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
             if not os.path.isfile(path):
                 errors.append(f"mesh.file: no such file {path!r}")
                 return None
-            mesh = load_mesh(path)
+            mesh = load_mesh(path, merge=spec["merge"])
         else:
+            if spec["merge"]:
+                errors.append("mesh.merge: only for mesh files, not built-in shapes (they share their vertices)")
+                return None
             shape = spec["shape"] or "caterpillar"
             problems = shape_parameter_problems(shape, spec["params"])
             if problems:

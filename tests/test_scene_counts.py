@@ -108,3 +108,22 @@ def test_count_problems_of_a_soup_name_its_parts():
     assert "at least the mesh's 32 separate parts" in problems["n_weights"]
     assert "at least the mesh's 32 separate parts" in problems["n_clusters"]
     assert set(problems) == {"n_weights", "n_clusters"}
+
+
+def test_a_triangle_soup_is_said_and_merged(tmp_path):
+    import meshio
+
+    loose = soup()  # 32 triangles, 96 vertices, 25 distinct positions
+    path = tmp_path / "soup.obj"
+    meshio.write_points_cells(str(path), np.vstack([loose.p, np.zeros(loose.p.shape[1])]).T, [("triangle", loose.t.T)])
+    with pytest.warns(UserWarning, match=r"71 of its 96 vertices coincide .*only 25 distinct.* 32 separate part"):
+        as_is = sm.load_mesh(path)
+    assert as_is.p.shape[1] == 96
+    merged = sm.load_mesh(path, merge=True)
+    assert merged.p.shape == (2, 25) and merged.t.shape == (3, 32)
+    assert sm.rigid_mode_count(merged) == 3
+    np.testing.assert_allclose(np.sort(merged.p[0]), np.sort(sm.beam2d(1.0, 1.0, 4, 4).p[0]))
+    data = {"mesh": {"file": str(path), "merge": True}, "muscles": {"count": 2}}
+    assert Scene.from_dict(data).mesh.p.shape[1] == 25
+    with pytest.raises(SceneError, match="mesh.merge: only for mesh files"):
+        Scene.from_dict({"mesh": {"shape": "beam2d", "merge": True}})
