@@ -98,7 +98,7 @@ def weight_count_problem(n_vertices: int, n_parts: int, k: int) -> str | None:
     >>> weight_count_problem(64, 1, 8) is None
     True
     >>> weight_count_problem(64, 1, 100)
-    'in 1..63 (fewer than the mesh's 64 vertices)'
+    "in 1..63 (fewer than the mesh's 64 vertices)"
     """
     if not 1 <= k < n_vertices:
         return f"in 1..{n_vertices - 1} (fewer than the mesh's {n_vertices} vertices)"

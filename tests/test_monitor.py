@@ -79,7 +79,7 @@ def test_muscles_beyond_their_ceilings_are_blamed_not_the_time_step(beam_sim):
 
 
 AMPLITUDE = (
-    "[mesh]\nshape = 'box3d'\nparams = {{ nx = 2, ny = 2, nz = 2 }}\n[subspace]\nweights = 4\nclusters = 4\n"
+    "[mesh]\nshape = 'box3d'\nparams = {{ nx = 3, ny = 3, nz = 3 }}\n[subspace]\nweights = 4\nclusters = 4\n"
     "[muscles]\ncount = 2\n"
     "[muscles.gait]\namplitude = [{a}, 0.5]\nperiod = [0.1, 0.1]\n[time]\nstep = 0.001\nsteps = 40\n"
 )
