@@ -94,7 +94,7 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
         Cluster of each element, every value in ``0..k-1`` used.
     """
     check_mesh(mesh)
-    _check_count(k, mesh.t.shape[1])
+    _check_count(k, mesh.t.shape[1], seed)
     W = np.asarray(weights, dtype=np.float64)
     if W.ndim == 1:
         W = W[:, None]
@@ -144,7 +144,7 @@ def rotation_clusters(mesh, B, k: int, *, mass, stiffness, modes: int = 8, seed:
     check_mesh(mesh)
     dim, n = mesh.p.shape
     nT = mesh.t.shape[1]
-    _check_count(k, nT)
+    _check_count(k, nT, seed)
     B = np.asarray(B, dtype=np.float64)
     if B.ndim != 2 or B.shape[0] != n * dim or not np.all(np.isfinite(B)):
         raise ValueError(f"B must be finite with shape ({n * dim}, r) for this mesh, got {B.shape}")
@@ -176,11 +176,45 @@ def rotation_clusters(mesh, B, k: int, *, mass, stiffness, modes: int = 8, seed:
     return _per_part(mesh, np.arange(nT), k, cluster)
 
 
-def _check_count(k, nT) -> None:
+def cluster_count_problem(n_elements: int, n_parts: int, k: int) -> str | None:
+    """What ``k`` rotation clusters must be on a mesh (a phrase after "must be"), or None when they fit.
+
+    At most one per element, and at least one per connected part (a cluster
+    shares one rotation, so it cannot span two parts): the rule of
+    :func:`spectral_clusters` and :func:`rotation_clusters` and a scene's
+    ``subspace.clusters`` and ``subspace.active_clusters`` checks.
+
+    Examples
+    --------
+    >>> cluster_count_problem(100, 1, 20) is None
+    True
+    >>> cluster_count_problem(100, 1, 1000)
+    'in 1..100 (the number of elements)'
+    """
+    if not 1 <= k <= n_elements:
+        return f"in 1..{n_elements} (the number of elements)"
+    if k < n_parts:
+        return (
+            f"at least the mesh's {n_parts} separate parts (a cluster shares one rotation, so it cannot span two parts)"
+        )
+    return None
+
+
+def seed_problem(seed) -> str | None:
+    """What a k-means seed must be (a phrase after "must be"), or None: scipy's ``kmeans2`` takes 0..2**32 - 1."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
+        return "an integer in 0..4294967295 (2**32 - 1)"
+    return None
+
+
+def _check_count(k, nT, seed) -> None:
+    problem = seed_problem(seed)
+    if problem:
+        raise ValueError(f"seed must be {problem}, got {seed!r}")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise TypeError(f"k (the number of clusters) must be an integer, got {type(k).__name__}")
     if not 1 <= k <= nT:
-        raise ValueError(f"k (the number of clusters) must be in 1..{nT} (the number of elements), got {k}")
+        raise ValueError(f"k (the number of clusters) must be {cluster_count_problem(nT, 1, k)}, got {k}")
 
 
 def _per_part(mesh, items, k: int, cluster) -> np.ndarray:
@@ -193,11 +227,9 @@ def _per_part(mesh, items, k: int, cluster) -> np.ndarray:
     # a rotation cluster never spans two separate parts: each part gets its
     # share of the clusters (by element count, at least one) and its own k-means
     sizes = np.bincount(parts, minlength=n_parts)
-    if k < n_parts:
-        raise ValueError(
-            f"k (the number of clusters) must be at least the mesh's {n_parts} separate parts "
-            f"(a cluster shares one rotation, so it cannot span two parts), got {k}"
-        )
+    problem = cluster_count_problem(nT, n_parts, k)
+    if problem:
+        raise ValueError(f"k (the number of clusters) must be {problem}, got {k}")
     shares = _shares(sizes, k)
     labels = np.empty(nT, dtype=np.int64)
     offset = 0

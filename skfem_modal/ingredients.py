@@ -12,13 +12,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .clusters import CLUSTER_BY, rotation_clusters, spectral_clusters
+from .clusters import CLUSTER_BY, cluster_count_problem, rotation_clusters, seed_problem, spectral_clusters
 from .fem import _lumped_p1, _mass, _positive, scalar_basis
 from .mesh import connected_parts, sample_boundary
-from .modal import muscle_modes
-from .subspace import mass_orthonormalize, skinning_eigenmodes
+from .modal import muscle_count_problem, muscle_modes
+from .subspace import mass_orthonormalize, skinning_eigenmodes, weight_count_problem
 
-__all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters"]
+__all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters", "count_problems"]
 
 
 def timed(timings: dict, stage: str, make):
@@ -104,6 +104,51 @@ def element_clusters(
     return labels, active
 
 
+def count_problems(
+    mesh, *, n_muscles, pinned, n_weights, cluster_weights, n_clusters, n_active_clusters, seed, contact_candidates
+) -> list[tuple[str, str]]:
+    """The counts this mesh cannot take, before any work: the one rule :func:`ingredients` and scenes share.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    n_muscles, pinned, n_weights, cluster_weights, n_clusters, n_active_clusters, seed, contact_candidates :
+        As for :meth:`~skfem_modal.sim.ModalMuscle.from_mesh` (None: not given).
+
+    Returns
+    -------
+    problems : list of (str, str)
+        The argument's name and what is wrong, a clause after its value
+        (``f"{name}: {value} {clause}"``), e.g. ``("n_clusters", "must be in 1..100 (the number of elements)")``.
+    """
+    n_vertices, n_elements = mesh.p.shape[1], mesh.t.shape[1]
+    n_parts = int(connected_parts(mesh).max()) + 1
+    problems = []
+    if n_muscles:
+        problem = muscle_count_problem(mesh, n_muscles, pinned)
+        if problem:
+            problems.append(("n_muscles", problem))
+    checks = (
+        ("n_weights", n_weights, lambda k: weight_count_problem(n_vertices, n_parts, k)),
+        ("cluster_weights", cluster_weights, lambda k: weight_count_problem(n_vertices, n_parts, k)),
+        ("n_clusters", n_clusters, lambda k: cluster_count_problem(n_elements, n_parts, k)),
+        # the active clusters are raised to one per part, so only the elements bound them
+        ("n_active_clusters", n_active_clusters, lambda k: cluster_count_problem(n_elements, 1, k)),
+        ("seed", seed, seed_problem),
+    )
+    for name, value, rule in checks:
+        problem = None if value is None else rule(value)
+        if problem:
+            problems.append((name, f"must be {problem}"))
+    if contact_candidates is not None:
+        try:
+            sample_boundary(mesh, None, contact_candidates)
+        except ValueError:
+            nothing = "select no boundary vertex of the mesh: nothing could touch the ground"
+            problems.append(("contact_candidates", nothing))
+    return problems
+
+
 class Ingredients(NamedTuple):
     """What :func:`ingredients` makes: the simulator's inputs and the stages' timings.
 
@@ -173,6 +218,21 @@ def ingredients(
     if cluster_by not in CLUSTER_BY:
         raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")
     signs = _muscle_signs(muscle_signs, n_muscles)
+    counts = dict(n_weights=n_weights, cluster_weights=cluster_weights, n_clusters=n_clusters)
+    problems = count_problems(
+        mesh,
+        n_muscles=n_muscles,
+        pinned=pinned,
+        **counts,
+        n_active_clusters=n_active_clusters,
+        seed=seed,
+        contact_candidates=contact_candidates if ground is not None else None,
+    )
+    if problems:
+        values = {**counts, "n_muscles": n_muscles, "n_active_clusters": n_active_clusters, "seed": seed}
+        values["contact_candidates"] = f"{np.size(contact_candidates)} vertices"
+        said = [f"{name}: {values[name]} {clause}" for name, clause in problems]
+        raise ValueError("; ".join(said))
     say = say or (lambda stage: None)
     timings = {}
     # scikit-fem caches mesh data on first use; build it here, before the two threads read it

@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from contextlib import contextmanager
 
@@ -24,6 +25,8 @@ __all__ = [
     "check_mesh",
     "validated",
     "load_mesh",
+    "coincident_vertices",
+    "MERGE_TOLERANCE",
     "mirror",
     "tangled_elements",
     "caterpillar",
@@ -364,7 +367,50 @@ def _read_meshio(path: str):
         raise MeshError(f"cannot read mesh file {path!r}: {detail}") from None
 
 
-def load_mesh(path: str | os.PathLike):
+#: Vertices closer than this fraction of the mesh's largest extent are the same vertex (:func:`coincident_vertices`).
+MERGE_TOLERANCE = 1e-9
+
+
+def coincident_vertices(points, tolerance: float = MERGE_TOLERANCE) -> np.ndarray:
+    """The vertex each vertex is the same as: groups of vertices closer than ``tolerance`` of the size.
+
+    Triangle soups (OBJ and STL exports that repeat a vertex for each element
+    using it) hold such vertices: their elements share no vertex, so each is
+    a separate part.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, dim)
+    tolerance : float
+        Relative to the largest extent of the points.
+
+    Returns
+    -------
+    representative : ndarray of int, shape (n,)
+        The lowest index of each vertex's group (``representative[i] == i``
+        for a vertex that coincides with no earlier one).
+
+    Examples
+    --------
+    >>> coincident_vertices([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0]]).tolist()
+    [0, 1, 0]
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    n = pts.shape[0]
+    size = float(np.ptp(pts, axis=0).max()) if n else 0.0
+    pairs = cKDTree(pts).query_pairs(tolerance * size, output_type="ndarray") if size > 0 else np.zeros((0, 2), int)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    first = np.full(labels.max() + 1 if n else 0, n, dtype=np.int64)
+    np.minimum.at(first, labels, np.arange(n))
+    return first[labels]
+
+
+def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
 
     Tetrahedra make a 3D ``MeshTet``. Otherwise triangles make a 2D ``MeshTri``;
@@ -381,6 +427,12 @@ def load_mesh(path: str | os.PathLike):
     path : str or path-like
         The mesh file: Medit ``.mesh``, Gmsh ``.msh``, ``.vtu``, ``.vtk``,
         ``.obj``, ``.off``, ``.xdmf``, ``.stl`` and everything else meshio reads.
+    merge : bool
+        Merge coincident vertices (closer than :data:`MERGE_TOLERANCE` of the
+        mesh's size; :func:`coincident_vertices`) into one, so a triangle
+        soup becomes one connected body. Without it, a file holding such
+        vertices loads as it is, with a ``UserWarning`` saying how many
+        coincide and into how many parts they split the mesh.
 
     Returns
     -------
@@ -435,7 +487,23 @@ def load_mesh(path: str | os.PathLike):
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
         raise MeshError(f"mesh file {path!r}: cells reference vertices outside 0..{len(points) - 1}")
     p, t = _compact(points.T, cells.T.astype(np.int64))
-    return make_mesh(p.T, t.T, what=f"mesh file {path!r}")
+    same = coincident_vertices(p.T)
+    repeated = int(np.sum(same != np.arange(same.size)))
+    if repeated and merge:
+        p, t = _compact(p, same[t])
+    mesh = make_mesh(p.T, t.T, what=f"mesh file {path!r}" + (" (coincident vertices merged)" if merge else ""))
+    if repeated and not merge:
+        parts = int(connected_parts(mesh).max()) + 1
+        warnings.warn(
+            f"mesh file {path!r}: {repeated} of its {same.size} vertices coincide with an earlier one (only "
+            f"{same.size - repeated} distinct positions, within {MERGE_TOLERANCE:g} of the mesh's size), so "
+            "elements that touch there share no vertex and the mesh "
+            f"falls into {parts} separate part(s) (a triangle soup, as OBJ and STL exports write); merge them "
+            "with mesh.merge = true in a scene, or load_mesh(..., merge=True)",
+            UserWarning,
+            stacklevel=2,
+        )
+    return mesh
 
 
 def mirror(mesh, axes):

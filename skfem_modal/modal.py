@@ -34,6 +34,7 @@ __all__ = [
     "linear_modal_analysis",
     "rigid_motions",
     "rigid_mode_count",
+    "muscle_count_problem",
     "fixed_nodes",
     "natural_frequencies",
     "actuation_limits",
@@ -171,6 +172,40 @@ def rigid_mode_count(mesh, fixed=None) -> int:
     3
     """
     return rigid_motions(mesh, fixed).shape[1]
+
+
+def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
+    """Why ``n_muscles`` muscles do not fit this mesh (a phrase after the count), or None when they do.
+
+    The muscles are the modes after the rigid ones, so at most the free
+    degrees of freedom less the rigid motions (:func:`rigid_mode_count`, per
+    part and respecting the pins) fit: the rule :func:`muscle_modes` and a
+    scene's ``muscles.count`` check share.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    n_muscles : int
+    pinned : array_like of int, optional
+        Clamped vertices.
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import beam2d
+    >>> muscle_count_problem(beam2d(nx=2, ny=1), 4) is None
+    True
+    >>> muscle_count_problem(beam2d(nx=2, ny=1), 10)
+    'is too many for the 12 degrees of freedom of the mesh less its 3 rigid motions: at most 9'
+    """
+    dim = mesh.p.shape[0]
+    n_pinned = 0 if pinned is None else fixed_nodes(mesh, pinned).size
+    free = dim * (mesh.p.shape[1] - n_pinned)
+    n_rigid = rigid_mode_count(mesh, pinned)
+    if n_muscles <= free - n_rigid:
+        return None
+    where = "the pins leave free" if n_pinned else "of the mesh"
+    fits = free - n_rigid
+    return f"is too many for the {free} degrees of freedom {where} less its {n_rigid} rigid motions: at most {fits}"
 
 
 def _m_orthonormalize(V: np.ndarray, M) -> np.ndarray:
@@ -379,6 +414,9 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
         raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
     if not n_muscles:
         return np.zeros((mesh.p.size, 0))
+    problem = muscle_count_problem(mesh, n_muscles, pinned)
+    if problem:
+        raise ValueError(f"n_muscles: {n_muscles} {problem}")
     n_rigid = rigid_mode_count(mesh, pinned)
     free = mesh.p.size - (0 if pinned is None else mesh.p.shape[0] * np.unique(pinned).size)
     if n_rigid + n_muscles > free:

@@ -20,6 +20,13 @@ physical ones:
 Measured on the examples and the default crawl: spread
 ratios 0.74-1.33, pushes below 0.04 body sizes; with ``time.step = 1e6`` the
 crawl's spread ratio reaches 5.9e6.
+
+A third measure says when the muscles themselves are the cause: the largest
+commanded activation as a fraction of its muscle's ceiling. Beyond 1 the
+muscles ask for more deformation than ``max_s`` (a gait amplitude of 20
+swells the body by itself at any time step); the monitor warns
+(:class:`CeilingWarning`) and blames the muscles, not the time step, for a
+spread or push it reports.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["MotionMonitor", "MotionWarning", "SPREAD_LIMIT", "PUSH_LIMIT"]
+__all__ = ["MotionMonitor", "MotionWarning", "CeilingWarning", "SPREAD_LIMIT", "PUSH_LIMIT"]
 
 #: A spread this many times the rest spread (or this many times smaller) is not physical.
 SPREAD_LIMIT = 3.0
@@ -39,6 +46,10 @@ PUSH_LIMIT = 1.0
 
 class MotionWarning(RuntimeWarning):
     """A run completed, but its motion is not physical for its scene."""
+
+
+class CeilingWarning(MotionWarning):
+    """A run drove its muscles beyond their ceilings (activations of more than 1 of the ceiling)."""
 
 
 class MotionMonitor:
@@ -61,7 +72,7 @@ class MotionMonitor:
     >>> sim = ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01)
     >>> monitor = MotionMonitor(sim)
     >>> z, z_dot, a = sim.rest_state()
-    >>> monitor.update(1, z + 0.0)
+    >>> monitor.update(1, z + 0.0, a)
     >>> monitor.finish()["physical"]
     True
     """
@@ -85,19 +96,28 @@ class MotionMonitor:
         self.spread_ratio = [1.0, 1.0]  # least and largest
         self.push = 0.0  # largest, in body sizes
         self.first_problem_step = {}
+        self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
+        self.ceiling_fraction = 0.0  # the largest |activation| / ceiling commanded
 
     def _spread(self, z) -> float:
         mean = self._mean @ z
         return math.sqrt(max(float(z @ (self._gram @ z) - mean @ mean), 0.0))
 
-    def update(self, step: int, z) -> None:
+    def update(self, step: int, z, a=None) -> None:
         """Take the state after ``step`` steps.
 
         Parameters
         ----------
         step : int
         z : ndarray, shape (r,)
+        a : ndarray, shape (m,), optional
+            The step's muscle activations (mode amplitudes), to compare with the ceilings.
         """
+        if a is not None and self._ceilings is not None:
+            fraction = float(np.max(np.abs(a) / self._ceilings))
+            self.ceiling_fraction = max(self.ceiling_fraction, fraction)
+            if fraction > 1.0 + 1e-12:  # a gait at exactly its ceiling rounds to a hair above
+                self.first_problem_step.setdefault("ceilings", step)
         com = self._com(z)
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
@@ -121,18 +141,20 @@ class MotionMonitor:
         Returns
         -------
         report : dict
-            ``physical``, ``warnings`` (sentences), ``body_size`` (largest
+            ``physical``, ``warnings`` (sentences), ``largest_ceiling_fraction``
+            (the largest activation over its ceiling), ``body_size`` (largest
             rest extent), ``spread_ratio`` (least and largest),
             ``largest_push_body_sizes`` and ``first_problem_step``.
         """
         texts = []
         low, high = self.spread_ratio
+        overdriven = "ceilings" in self.first_problem_step
         if "spread" in self.first_problem_step:
             step = self.first_problem_step["spread"]
             size = f"grew to {high:.3g} times" if high > SPREAD_LIMIT else f"shrank to {low:.3g} times"
             texts.append(
-                f"from step {step} (t = {step * self.h:g}) the body {size} its rest size: "
-                "no force in this scene deforms it so far"
+                f"from step {step} (t = {step * self.h:g}) the body {size} its rest size"
+                + ("" if overdriven else ": no force in this scene deforms it so far")
             )
         if "push" in self.first_problem_step:
             step = self.first_problem_step["push"]
@@ -140,14 +162,30 @@ class MotionMonitor:
                 f"from step {step} (t = {step * self.h:g}) forces other than gravity moved the centre of mass up to "
                 f"{self.push:.3g} body sizes in one step: the motion is not resolved"
             )
+        physical = not texts
         if texts:
-            texts.append(f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step")
-            if warn:
-                for text in texts:
-                    warnings.warn(text, MotionWarning, stacklevel=2)
+            texts.append(
+                "the muscles, driven beyond their ceilings, cause it: keep the activations (muscles.gait.amplitude, "
+                "muscles.table) within [-1, 1] of the ceilings, or raise muscles.max_s"
+                if overdriven
+                else f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step"
+            )
+        categories = [MotionWarning] * len(texts)
+        if overdriven:
+            step = self.first_problem_step["ceilings"]
+            texts.insert(
+                0,
+                f"from step {step} (t = {step * self.h:g}) the muscles were driven up to {self.ceiling_fraction:.3g} "
+                "times their ceilings (an activation beyond 1 asks an element to deform by more than muscles.max_s)",
+            )
+            categories.insert(0, CeilingWarning)
+        if warn:
+            for text, category in zip(texts, categories):
+                warnings.warn(text, category, stacklevel=2)
         return {
-            "physical": not texts,
+            "physical": physical,
             "warnings": texts,
+            "largest_ceiling_fraction": self.ceiling_fraction,
             "body_size": self.size,
             "spread_ratio": [low, high],
             "largest_push_body_sizes": self.push,

@@ -234,7 +234,8 @@ def run_search(
     out_dir : str or path-like
         Checkpoint, history, best gait scene and plot go here.
     generations, popsize : int
-        Generations (in all: a resumed search runs the rest) and candidates per generation.
+        Generations (in all: a resumed search runs the rest; fewer than its checkpoint holds is an error,
+        and as many runs none, rewriting its files) and candidates per generation.
     seed : int
         The same seed gives the same search.
     steps : int, optional
@@ -317,6 +318,11 @@ def run_search(
     gait = scene.config["muscles"]["gait"]
     x0 = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
     state = _first_state(out_dir, paths["checkpoint"], settings, x0, resume=resume, overwrite=overwrite)
+    if state["generation"] > generations:
+        raise ValueError(
+            f"the search in {out_dir} already has {state['generation']} generations, more than the {generations} "
+            f"asked (--generations, generations): ask for more than {state['generation']} to extend it"
+        )
     if state["history"]:
         _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
 

@@ -50,6 +50,18 @@ def earlier_run(directory) -> list[str]:
     return sorted(p for p in found if os.path.isfile(p))
 
 
+def _file_in_the_way(directory: str) -> str | None:
+    """The path itself or the nearest folder on its path that exists as something other than a folder, or None."""
+    path = os.path.abspath(directory)
+    while True:
+        if os.path.exists(path):
+            return None if os.path.isdir(path) else (directory if path == os.path.abspath(directory) else path)
+        parent = os.path.dirname(path)
+        if parent == path:
+            return None
+        path = parent
+
+
 def clear_earlier_run(directory, overwrite: bool, *, how: str = "overwrite=True") -> int:
     """Make ``directory`` ready for a new run: refuse, or remove the earlier run's files.
 
@@ -72,9 +84,16 @@ def clear_earlier_run(directory, overwrite: bool, *, how: str = "overwrite=True"
     ------
     FileExistsError
         The directory holds an earlier run and ``overwrite`` is false; the
-        message says what it holds.
+        message says what it holds. Also when ``directory`` (or a folder on
+        its path) is a file, not a folder, whatever ``overwrite``: it is never removed.
     """
     directory = os.fspath(directory)
+    blocking = _file_in_the_way(directory)
+    if blocking is not None:
+        what = "is" if blocking == directory else f"cannot be made: {blocking!r} is"
+        raise FileExistsError(
+            f"the output folder {directory!r} {what} a file, not a folder: choose another output folder"
+        )
     found = earlier_run(directory)
     if not found:
         return 0

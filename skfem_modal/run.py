@@ -267,7 +267,7 @@ def _run_steps(scene, sim, log: dict, files, bar: Progress) -> None:
             # every boundary vertex, every step: the deepest any went below the ground
             log["penetration"] = max(log["penetration"], sim.penetration(done.z))
         log["com"].append(_record(sim, files, done.step, done.z, done.a))
-        log["monitor"].update(done.step, done.z)
+        log["monitor"].update(done.step, done.z, done.a)
         bar.update()
 
 

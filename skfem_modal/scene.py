@@ -119,6 +119,13 @@ SCHEMA: dict[str, Any] = {
             'Mirror the mesh along these axes first, e.g. ["y"] for an outline traced in image coordinates (y down).',
             check=lambda v: None if all(a in ("x", "y", "z") for a in v) else 'a list of "x", "y", "z"',
         ),
+        "merge": Key(
+            "bool",
+            False,
+            "Merge the file's coincident vertices (closer than 1e-9 of the mesh's size) into one: a triangle soup "
+            "(OBJ and STL exports repeat each vertex for every element using it) becomes one connected body. "
+            "Without it, loading such a file warns how many vertices coincide.",
+        ),
         "normalize": Key(
             "bool",
             False,
@@ -209,19 +216,34 @@ SCHEMA: dict[str, Any] = {
             "str",
             None,
             "CSV file of activations over time (instead of gait): a header, then "
-            "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling; "
-            "linearly interpolated, held after the last row.",
+            "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling (beyond 1: a warning, as for "
+            "the gait); linearly interpolated, held after the last row.",
         ),
         "gait": {
             "_optional": True,
-            "amplitude": Key("floats", None, "Per muscle: amplitude as a fraction of its ceiling.", "", required=True),
+            "amplitude": Key(
+                "floats",
+                None,
+                "Per muscle: amplitude as a fraction of its ceiling. Beyond 1 (or -1) the muscle asks an element to "
+                "deform by more than max_s: the run warns (CeilingWarning, in the terminal and summary.json's "
+                "motion.warnings) and the motion monitor blames the muscles for what follows.",
+                "",
+                required=True,
+            ),
             "period": Key("floats", None, "Per muscle: period.", "time", _positive_list, required=True),
             "phase": Key("floats", None, "Per muscle: phase, as a fraction of the period (default 0).", "periods"),
         },
     },
     "time": {
         "step": Key("float", 0.01, "Time step h.", "time", _positive),
-        "duration": Key("float", None, "Simulated time (default 4.5, or from steps).", "time", _positive),
+        "duration": Key(
+            "float",
+            None,
+            "Simulated time (default 4.5, or from steps); not a whole number of steps, it is rounded up to the "
+            "next whole step, with a warning naming both keys.",
+            "time",
+            _positive,
+        ),
         "steps": Key("int", None, "Number of steps (instead of duration).", check=_at_least_one),
         "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
         "tol": Key(
@@ -389,6 +411,20 @@ DEFAULT_SCENE: dict[str, Any] = {
     "ground": {"offset": 0.15, "model": "reference", "stickiness": 1.0, "contacts": 30},
     "output": {"every": 5},
 }
+
+#: The simulated time of a scene that gives neither time.duration nor time.steps.
+DEFAULT_DURATION = 4.5
+#: A duration within this fraction of a whole number of steps is that number (0.1 / 0.01 is 10.000000000000002).
+_WHOLE = 1e-9
+
+
+def _steps_covering(duration: float, step: float) -> int:
+    """The fewest steps of ``step`` that reach ``duration`` (a whole number up to round-off is kept)."""
+    nearest = round(duration / step)
+    if abs(nearest * step - duration) <= _WHOLE * duration:
+        return max(1, int(nearest))
+    return max(1, math.ceil(duration / step))
+
 
 _DIM_OF_SHAPE = {"caterpillar": 2, "beam2d": 2, "beam3d": 3, "box3d": 3, "creature": 3}
 
@@ -587,6 +623,9 @@ class Scene:
         message = scene.scale_warning()
         if message:
             warnings.warn(message, ScaleWarning, stacklevel=2)
+        message = scene.duration_warning()
+        if message:
+            warnings.warn(message, UserWarning, stacklevel=2)
         return scene
 
     # ---------------------------------------------------------- properties
@@ -600,10 +639,25 @@ class Scene:
 
     @property
     def n_steps(self) -> int:
+        """``time.steps``, or enough steps of ``time.step`` to cover ``time.duration`` (rounded up)."""
         t = self.config["time"]
         if t["steps"] is not None:
             return t["steps"]
-        return max(1, int(round((4.5 if t["duration"] is None else t["duration"]) / t["step"])))
+        return _steps_covering(DEFAULT_DURATION if t["duration"] is None else t["duration"], t["step"])
+
+    def duration_warning(self) -> str | None:
+        """Why the run is longer than ``time.duration`` (not a whole number of steps), or None."""
+        t = self.config["time"]
+        if t["steps"] is not None or t["duration"] is None:
+            return None
+        n = self.n_steps
+        if n * t["step"] - t["duration"] <= _WHOLE * t["duration"]:
+            return None
+        return (
+            f"time.duration = {t['duration']!r} is not a whole number of time.step = {t['step']!r}: running "
+            f"{n} steps, to t = {n * t['step']:g} (the duration rounded up to a whole step; give time.steps "
+            "for an exact count)"
+        )
 
     @property
     def effects(self) -> tuple:
@@ -658,7 +712,7 @@ class Scene:
         g = self.config["ground"]
         if g is None or g["contacts_where"] is None:
             return None
-        return np.unique(np.concatenate([vertices_where(self.mesh, cond) for cond in g["contacts_where"]]))
+        return _candidates(g["contacts_where"], self.mesh)
 
     def contact_vertices(self) -> np.ndarray | None:
         """The contact vertices the simulator will use (as :meth:`build` samples them), or None without a ground.
@@ -875,8 +929,11 @@ def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
             if not os.path.isfile(path):
                 errors.append(f"mesh.file: no such file {path!r}")
                 return None
-            mesh = load_mesh(path)
+            mesh = load_mesh(path, merge=spec["merge"])
         else:
+            if spec["merge"]:
+                errors.append("mesh.merge: only for mesh files, not built-in shapes (they share their vertices)")
+                return None
             shape = spec["shape"] or "caterpillar"
             problems = shape_parameter_problems(shape, spec["params"])
             if problems:
@@ -905,6 +962,11 @@ def _pinned(spec: dict, mesh) -> np.ndarray:
     lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
     inside = np.all((mesh.p.T >= lo) & (mesh.p.T <= hi), axis=1)
     return np.nonzero(inside)[0]
+
+
+def _candidates(conditions: list[str], mesh) -> np.ndarray:
+    """The vertices where any of ``ground.contacts_where``'s conditions holds."""
+    return np.unique(np.concatenate([vertices_where(mesh, cond) for cond in conditions]))
 
 
 def _bad_condition(cond: str, dim: int) -> bool:
@@ -1040,23 +1102,46 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
                 f"pinned: the conditions select all {selected} vertices of the mesh: nothing is left free to move "
                 "(pin fewer)"
             )
-        elif selected is not None:
-            free = mesh.p.size - dim * selected
-            m = config["muscles"]["count"]
-            if m and m > free:
-                errors.append(f"muscles.count: {m} is too many for the {free} degrees of freedom the pins leave free")
     if not any(e.startswith(("material", "time.step", "gravity")) for e in errors):
         _check_float_range(config, mesh, acc, errors)
-    m = config["muscles"]["count"]
-    n_rigid = 3 if dim == 2 else 6
-    if m and m + n_rigid >= mesh.p.size:
-        errors.append(f"muscles.count: {m} is too many for a mesh with {mesh.p.size} degrees of freedom")
-    weights = config["subspace"]["weights"]
-    if weights is not None and weights >= mesh.p.shape[1]:
-        errors.append(f"subspace.weights: expected fewer than the {mesh.p.shape[1]} vertices, got {weights}")
-    clusters = config["subspace"]["clusters"]
-    if clusters is not None and clusters > mesh.t.shape[1]:
-        errors.append(f"subspace.clusters: expected at most the {mesh.t.shape[1]} elements, got {clusters}")
+    _check_counts(config, mesh, errors, valid)
+
+
+def _check_counts(config: dict, mesh, errors: list[str], valid) -> None:
+    """The counts the mesh cannot take, by key: the simulator's own rule (:func:`~.ingredients.count_problems`)."""
+    from .ingredients import count_problems
+
+    sub, ground, pinned = config["subspace"], config["ground"], config["pinned"]
+    keys = {
+        "n_muscles": ("muscles.count", config["muscles"]["count"]),
+        "n_weights": ("subspace.weights", sub["weights"]),
+        "cluster_weights": ("subspace.cluster_weights", sub["cluster_weights"]),
+        "n_clusters": ("subspace.clusters", sub["clusters"]),
+        "n_active_clusters": ("subspace.active_clusters", sub["active_clusters"]),
+        "seed": ("subspace.seed", sub["seed"]),
+    }
+    pins_usable = (
+        pinned is not None
+        and valid("pinned", "pinned.where", "pinned.box")
+        and not any(e.startswith("pinned") for e in errors)
+    )
+    where_usable = ground is not None and ground["contacts_where"] is not None and valid("ground.contacts_where")
+    where_usable = where_usable and not any(e.startswith("ground.contacts_where") for e in errors)
+    if pinned is not None and not pins_usable:
+        del keys["n_muscles"]  # the pins decide how many fit: wait for them to be right
+    arguments = {name: value if valid(key) else None for name, (key, value) in keys.items()}
+    problems = count_problems(
+        mesh,
+        pinned=_pinned(pinned, mesh) if pins_usable else None,
+        contact_candidates=_candidates(ground["contacts_where"], mesh) if where_usable else None,
+        **{"n_muscles": None, **arguments},
+    )
+    for name, clause in problems:
+        if name == "contact_candidates":
+            errors.append(f"ground.contacts_where: {_toml_value(ground['contacts_where'])} {clause}")
+        else:
+            key, value = keys[name]
+            errors.append(f"{key}: {value} {clause}")
 
 
 def schema_markdown() -> str:

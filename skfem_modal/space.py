@@ -273,9 +273,21 @@ class SparseSystem:
 
     def __init__(self, H):
         self.matrix = sps.csc_matrix(H)
+        self._factor()
+
+    def _factor(self) -> None:
         self._lu = spla.splu(
-            sps.csc_matrix(H), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+            self.matrix.copy(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
         )
+
+    # SuperLU objects cannot be pickled: a copy keeps the matrix and factors it again (the same factors:
+    # the same matrix, ordering and pivoting), so simulators holding one can be pickled and deep-copied
+    def __getstate__(self) -> dict:
+        return {"matrix": self.matrix}
+
+    def __setstate__(self, state: dict) -> None:
+        self.matrix = state["matrix"]
+        self._factor()
 
     def solve(self, X) -> np.ndarray:
         X = X.toarray() if sps.issparse(X) else np.asarray(X, dtype=np.float64)

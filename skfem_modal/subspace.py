@@ -85,6 +85,31 @@ def lbs_basis(positions, weights) -> np.ndarray:
     return B.reshape(n * dim, -1)
 
 
+def weight_count_problem(n_vertices: int, n_parts: int, k: int) -> str | None:
+    """What ``k`` skinning weights must be on a mesh (a phrase after "must be"), or None when they fit.
+
+    Fewer than the vertices, and at least one per connected part (each part
+    needs its own constant weight to move on its own): the rule of
+    :func:`skinning_eigenmodes` and a scene's ``subspace.weights`` and
+    ``subspace.cluster_weights`` checks.
+
+    Examples
+    --------
+    >>> weight_count_problem(64, 1, 8) is None
+    True
+    >>> weight_count_problem(64, 1, 100)
+    "in 1..63 (fewer than the mesh's 64 vertices)"
+    """
+    if not 1 <= k < n_vertices:
+        return f"in 1..{n_vertices - 1} (fewer than the mesh's {n_vertices} vertices)"
+    if k < n_parts:
+        return (
+            f"at least the mesh's {n_parts} separate parts (one constant weight each, so every part can move on "
+            "its own)"
+        )
+    return None
+
+
 def skinning_eigenmodes(mesh, k: int, rho=1.0):
     """Skinning eigenmodes: Laplacian eigenfunctions as weights, and their LBS basis.
 
@@ -123,15 +148,11 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     n = mesh.p.shape[1]
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise TypeError(f"k (the number of skinning weights) must be an integer, got {type(k).__name__}")
-    if not 1 <= k < n:
-        raise ValueError(f"k (the number of skinning weights) must be in 1..{n - 1}, got {k}")
     parts = connected_parts(mesh)
     n_parts = int(parts.max()) + 1
-    if k < n_parts:
-        raise ValueError(
-            f"k (the number of skinning weights) must be at least the mesh's {n_parts} separate parts "
-            f"(one constant weight each, so every part can move on its own), got {k}"
-        )
+    problem = weight_count_problem(n, n_parts, k)
+    if problem:
+        raise ValueError(f"k (the number of skinning weights) must be {problem}, got {k}")
     L = laplacian(mesh)
     M = _mass(mesh, rho, True, "P1", False)
     # the first eigenfunctions are known exactly: the constant on each

@@ -9,7 +9,7 @@ import pytest
 
 from skfem_modal.cli import main
 from skfem_modal.mesh import beam2d
-from skfem_modal.monitor import PUSH_LIMIT, MotionMonitor, MotionWarning
+from skfem_modal.monitor import PUSH_LIMIT, CeilingWarning, MotionMonitor, MotionWarning
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
 from skfem_modal.sim import ModalMuscle
@@ -53,6 +53,59 @@ def test_spread_and_push_of_made_up_states(beam_sim):
         "the time step h = 0.01 is too large for this scene; try a smaller time.step",
     ]
     assert not report["physical"] and report["first_problem_step"] == {"spread": 4}
+
+
+def test_muscles_beyond_their_ceilings_are_blamed_not_the_time_step(beam_sim):
+    sim = beam_sim
+    rest = sim.mesh.p.T
+    monitor = MotionMonitor(sim)
+    monitor.update(1, state_of(sim, rest), sim.ceilings * 1.0)  # at the ceiling: not beyond
+    assert "ceilings" not in monitor.first_problem_step
+    monitor.update(2, state_of(sim, rest), -20.0 * sim.ceilings)
+    centre = rest.mean(axis=0)
+    monitor.update(3, state_of(sim, centre + 4 * (rest - centre)), 20.0 * sim.ceilings)
+    with pytest.warns(MotionWarning) as record:
+        report = monitor.finish()
+    assert [w.category for w in record] == [CeilingWarning, MotionWarning, MotionWarning]
+    assert [str(w.message) for w in record] == [
+        "from step 2 (t = 0.02) the muscles were driven up to 20 times their ceilings (an activation beyond 1 asks "
+        "an element to deform by more than muscles.max_s)",
+        "from step 3 (t = 0.03) the body grew to 4 times its rest size",
+        "the muscles, driven beyond their ceilings, cause it: keep the activations (muscles.gait.amplitude, "
+        "muscles.table) within [-1, 1] of the ceilings, or raise muscles.max_s",
+    ]
+    assert report["largest_ceiling_fraction"] == pytest.approx(20.0)
+    assert not report["physical"] and report["first_problem_step"] == {"ceilings": 2, "spread": 3}
+
+
+AMPLITUDE = (
+    "[mesh]\nshape = 'box3d'\nparams = {{ nx = 3, ny = 3, nz = 3 }}\n[subspace]\nweights = 4\nclusters = 4\n"
+    "[muscles]\ncount = 2\n"
+    "[muscles.gait]\namplitude = [{a}, 0.5]\nperiod = [0.1, 0.1]\n[time]\nstep = 0.001\nsteps = 40\n"
+)
+
+
+@pytest.mark.parametrize("amplitude", [20.0, -5.0, 1.5])
+def test_a_gait_beyond_the_ceilings_is_said_once_in_the_terminal_and_the_summary(tmp_path, capsys, amplitude):
+    path = tmp_path / "amp.toml"
+    path.write_text(AMPLITUDE.format(a=amplitude))
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    said = [line for line in err if "times their ceilings" in line]
+    assert len(said) == 1 and said[0].startswith("skfem-modal run: warning: from step ")
+    assert not any("time.step" in line for line in err)  # the muscles cause it, not the step
+    motion = json.loads((tmp_path / "out" / "summary.json").read_text())["motion"]
+    assert motion["largest_ceiling_fraction"] == pytest.approx(abs(amplitude), rel=1e-3)
+    assert sum("times their ceilings" in text for text in motion["warnings"]) == 1
+
+
+def test_a_gait_within_the_ceilings_says_nothing_of_them(tmp_path, capsys):
+    path = tmp_path / "amp.toml"
+    path.write_text(AMPLITUDE.format(a=1.0))
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
+    assert "ceilings" not in capsys.readouterr().err
+    motion = json.loads((tmp_path / "out" / "summary.json").read_text())["motion"]
+    assert motion["physical"] and motion["warnings"] == [] and 0.99 < motion["largest_ceiling_fraction"] <= 1.0 + 1e-12
 
 
 HUGE_STEP = (

@@ -105,6 +105,25 @@ def test_killed_and_resumed_ends_where_an_uninterrupted_search_ends(local, tmp_p
     assert "1/2" in err and "0/2" not in err
 
 
+def test_resuming_with_fewer_generations_than_done_says_how_many_it_has(tmp_path, capsys, monkeypatch):
+    search(tmp_path, workers=1)
+    before = {name: (tmp_path / name).read_bytes() for name in ("checkpoint.pkl", "history.csv", "best_gait.toml")}
+    assert before["best_gait.toml"].endswith(b"\n") and not before["best_gait.toml"].endswith(b"\n\n")
+    from skfem_modal import optimize
+
+    monkeypatch.setattr(optimize.Trial, "from_scene", lambda *a, **k: pytest.fail("the precompute started"))
+    with pytest.raises(ValueError, match=r"already has 2 generations, more than the 1 asked .*more than 2 to extend"):
+        run_search(TINY, tmp_path, generations=1, popsize=4, seed=3, steps=60, resume=True)
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before  # nothing touched
+    monkeypatch.undo()
+    scene, out = tmp_path / "tiny.toml", tmp_path / "cli"
+    scene.write_text(optimize.scene_to_toml(TINY))
+    args = ["optimize", str(scene), "--popsize", "4", "--seed", "3", "--steps", "60", "--out", str(out), "-q"]
+    assert main([*args, "--generations", "2"]) == 0
+    assert main([*args, "--generations", "1", "--resume"]) == 2
+    assert f"the search in {out} already has 2 generations, more than the 1 asked" in capsys.readouterr().err
+
+
 def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
     search(tmp_path, workers=1, stop_after=1)
     before = open(tmp_path / "checkpoint.pkl", "rb").read()
