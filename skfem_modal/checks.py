@@ -266,23 +266,3 @@ def _clear_of_ground(mesh, ground, up: int) -> None:
             f"({100 * depth / size:.3g} % of its size) below the ground at {ground:.6g}; the contact would fling it "
             "out. Put the ground at most 1 % of the size above the body's lowest point (a scene's [ground] offset >= 0)"
         )
-
-
-def _reduction_sizes(
-    mesh, n_muscles, n_weights, cluster_weights, n_clusters, n_active_clusters, n_contacts, seed
-) -> None:
-    """``from_mesh``'s sizes checked against the mesh before any work, each error naming its argument."""
-    n, nT = mesh.p.shape[1], mesh.t.shape[1]
-    if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 0:
-        raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
-    for name, value, most, what in (
-        ("n_weights", n_weights, n - 1, "fewer than the mesh's vertices"),
-        ("cluster_weights", cluster_weights, n - 1, "fewer than the mesh's vertices"),
-        ("n_clusters", n_clusters, nT, "at most the mesh's elements"),
-        ("n_active_clusters", n_active_clusters, nT, "at most the mesh's elements"),
-        ("n_contacts", n_contacts, np.inf, ""),  # more than the boundary has: all of them
-    ):
-        if value is not None and _count(value, name) > most:
-            raise ValueError(f"{name} = {value} is too many for this mesh: expected {what} ({most})")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
-        raise ValueError(f"seed must be an integer in 0..2**32 - 1, got {seed!r}")

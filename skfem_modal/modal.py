@@ -418,12 +418,6 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     if problem:
         raise ValueError(f"n_muscles: {n_muscles} {problem}")
     n_rigid = rigid_mode_count(mesh, pinned)
-    free = mesh.p.size - (0 if pinned is None else mesh.p.shape[0] * np.unique(pinned).size)
-    if n_rigid + n_muscles > free:
-        raise ValueError(
-            f"n_muscles = {n_muscles} is too many: this mesh has {free} free degrees of freedom and "
-            f"{n_rigid} rigid motions, so at most {free - n_rigid} muscles"
-        )
     _, found = linear_modal_analysis(
         mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
     )

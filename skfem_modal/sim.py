@@ -58,7 +58,6 @@ from .checks import (
     _pins,
     _positive_scalar,
     _pulled_to_ground,
-    _reduction_sizes,
 )
 from .contact import CoulombContact, ReferenceContact
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
@@ -917,7 +916,8 @@ class ModalMuscle:
         arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
         arguments["gamma"] = mu if gamma is None else gamma
         # settings used late are checked before any work
-        _reduction_sizes(mesh, n_muscles, n_weights, cluster_weights, n_clusters, n_active_clusters, n_contacts, seed)
+        if n_contacts is not None:
+            _count(n_contacts, "n_contacts")
         _backend_name(backend)
         _acceleration_name(acceleration)
         _flag(warm_start, "warm_start")
