@@ -402,6 +402,7 @@ class CoulombContact(_Ground):
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
         self.compliance = 1e-3 * float(reach.mean())
         self._quiet = (0.1 * self.allowance / self.compliance) ** 2  # forces whose give needs no second solve
+        self._refine = 0  # solves that take the give back: at the end of a step only
 
     def _rows_of(self, candidate_rows) -> np.ndarray:
         """Rows of ``B`` for candidate rows (vertex ``k``'s coordinate ``a`` is row ``k dim + a``), dense."""
@@ -578,9 +579,13 @@ class CoulombContact(_Ground):
                 start = self.start if self.picked.size else np.zeros((0, self.dim))
                 self._pick(np.concatenate([self.picked, missed]), z, start)
                 self._keep = 0  # the vertices are picked anew next step
-            # (a picked one below: the last projection's fallback, a least-distance solve over
-            # the rows it saw, left it there)
-            self._constrain(z)
+            # (a picked one below: the compliance let it give, at a large step, or the last
+            # projection's fallback, a least-distance solve over the rows it saw, left it there)
+            self._refine = _REFINE
+            try:
+                self._constrain(z)
+            finally:
+                self._refine = 0
         raise SimulationError(f"ground contact: {below.size} vertices stay below the ground after {_FINISH} tries")
 
     # ---------------------------------------------------------- the solve
@@ -716,7 +721,7 @@ class CoulombContact(_Ground):
         goal = self.target[rows].copy()
         held = np.ones(rows.size, bool)
         held[: normal_rows.size] = False  # a height is held where it is pushed
-        for _ in range(_REFINE + 1):
+        for _ in range(self._refine + 1):
             lam, x = self._least_distance_solve(G, half, HA, signs, goal - x_t[rows], z_t, z)
             held[: normal_rows.size] = lam[: normal_rows.size] > 0.0
             # the way the compliance let the ground give: taken back by aiming that much further (see _forces)
@@ -775,18 +780,22 @@ class CoulombContact(_Ground):
     def _forces(self, op, x_t) -> np.ndarray:
         """The rows' forces ``(A H^-1 F^T + c I)^-1 (targets - A z_t)``, shape (k,), for the rows ``A`` of ``op``.
 
-        The compliance lets each row give way by ``c`` times its force: at large time steps
-        (forces of a whole step's fall) that is more than the allowance (1e-3 of the size at
-        h = 0.3). Then once more with the targets moved by that much: what is left is ``c^2``
-        times the force over a row's compliance, along rows that depend on each other at most
-        twice the force (the compliance's bound).
+        The compliance lets each pushed vertex give way by ``c`` times its force: at large time
+        steps (forces of a whole step's fall) that is more than the allowance (1e-3 of the size
+        at h = 0.3). At the end of a step (``_refine`` solves, see :meth:`finish_step`) the
+        solve is repeated with the targets moved by that much: what is left is ``c^2`` times
+        the force over a row's compliance. Within the iterations the compliant solve stays: an
+        exact one there (no give) made a body dropped under tilted gravity with friction at
+        h = 0.3 bounce, one step gaining energy.
         """
-        lam = step = op.inverse @ (self.target[op.rows] - x_t[op.rows])
-        for _ in range(_REFINE):
-            if step @ step <= self._quiet:  # the rows give by c |step| at most: a tenth of the allowance
+        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
+        give = lam[: op.pushed.size]  # over c: how far each pushed vertex ends below its target
+        for _ in range(self._refine):
+            if give @ give <= self._quiet:  # a tenth of the allowance at most
                 break
-            step = op.inverse @ (self.compliance * step)
+            step = op.inverse[:, : op.pushed.size] @ (self.compliance * give)
             lam = lam + step
+            give = step[: op.pushed.size]
         return lam
 
     def _operator(self, active, stick, sliding, direction) -> _Operator:

@@ -123,7 +123,15 @@ def count_problems(
     """
     n_vertices, n_elements = mesh.p.shape[1], mesh.t.shape[1]
     n_parts = int(connected_parts(mesh).max()) + 1
-    problems = []
+    counts = dict(n_muscles=n_muscles, n_weights=n_weights, cluster_weights=cluster_weights, n_clusters=n_clusters,
+                  n_active_clusters=n_active_clusters)  # fmt: skip
+    problems = [
+        (name, f"(a {type(value).__name__}) must be an integer")
+        for name, value in counts.items()
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)))
+    ]
+    if problems:  # the rules below compare numbers
+        return problems
     if n_muscles:
         problem = muscle_count_problem(mesh, n_muscles, pinned)
         if problem:

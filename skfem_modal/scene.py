@@ -294,7 +294,7 @@ SCHEMA: dict[str, Any] = {
         "height": Key(
             "float",
             None,
-            "Height of the ground plane along the up axis (at most 1 % of the body's size above its lowest point: "
+            "Height of the ground plane along the up axis (at most 2e-4 of the body's size above its lowest point: "
             "a body starting deeper would be flung out).",
             "length",
         ),

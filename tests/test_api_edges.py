@@ -70,3 +70,23 @@ def test_from_mesh_names_the_argument(kwargs, message):
 def test_a_ground_without_gravity_is_allowed():
     sim = sm.ModalMuscle.from_mesh(TRIANGLE, n_muscles=1, n_weights=2, n_clusters=1, ground=0.0)
     assert sim.ground == 0.0 and sim.gravity is None
+
+
+def test_assigning_a_gravity_that_does_not_pull_onto_the_ground_is_refused():
+    mesh = sm.caterpillar(nx=12, ny=6)
+    sim = sm.ModalMuscle.from_mesh(
+        mesh, n_muscles=1, n_weights=3, n_clusters=3, gravity=[0.0, -9.8], ground=float(mesh.p[1].min())
+    )
+    with pytest.raises(ValueError, match=r"gravity \[0.0, 0.0\] has no component along -y"):
+        sim.gravity = [0.0, 0.0]
+    assert sim.gravity.tolist() == [0.0, -9.8]
+    sim.gravity = None  # none at all is allowed, as at construction
+    assert sim.gravity is None and sim.ground is not None
+
+
+@pytest.mark.parametrize("name, value", [("n_weights", "3"), ("n_clusters", 4.0), ("cluster_weights", 2.5)])
+def test_counts_of_the_wrong_type_are_named(name, value):
+    with pytest.raises(ValueError, match=rf"{name}: {value} \(a {type(value).__name__}\) must be an integer"):
+        sm.ModalMuscle.from_mesh(
+            sm.beam2d(2.0, 0.5, 8, 2), **{"n_muscles": 1, "n_weights": 3, "n_clusters": 4, name: value}
+        )

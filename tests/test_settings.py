@@ -67,7 +67,7 @@ LIVE = [
     ("backend", "plain", {}),
     ("gravity", [0.5, -3.0], {}),
     ("gravity", None, {}),
-    ("ground", -0.55, {}),
+    ("ground", -0.56, {}),  # just below the body
     ("ground", None, {}),
     ("stickiness", 0.2, {"contact_model": "reference"}),
     ("push_out", 1.0, {"contact_model": "reference"}),
