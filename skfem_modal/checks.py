@@ -12,6 +12,7 @@ import numpy as np
 from .acceleration import ACCELERATIONS
 from .contact import ALLOWANCE, MODELS
 from .fem import _positive
+from .mesh import body_size
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
 
@@ -240,7 +241,8 @@ def _pulled_to_ground(gravity, ground, up: int) -> None:
     if ground is not None and gravity is not None and not np.asarray(gravity, float)[up] < 0.0:
         raise ValueError(
             f"gravity {np.asarray(gravity, float).tolist()} has no component along -{'xyz'[up]} (up = {up}), so "
-            "nothing pulls the body onto the ground: give a gravity along -up, or none (gravity=None)"
+            f"nothing pulls the body onto the ground: give a gravity along -{'xyz'[up]}, or none at all (a ground "
+            "without gravity is allowed)"
         )
 
 
@@ -255,7 +257,7 @@ def _clear_of_ground(mesh, ground, up: int) -> None:
     if ground is None:
         return
     lowest = float(mesh.p[up].min())
-    size = float(np.ptp(mesh.p, axis=1).max())
+    size = body_size(mesh)
     depth = ground - lowest
     if depth > ALLOWANCE * size:
         raise ValueError(

@@ -49,7 +49,7 @@ from scipy.optimize import nnls
 
 from ._fast import dot
 from .effects import Effect
-from .mesh import boundary_vertices
+from .mesh import body_size, boundary_vertices
 from .solver import SimulationError
 
 __all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE"]
@@ -362,7 +362,7 @@ class CoulombContact(_Ground):
         self.space, self.vertices = space, np.asarray(vertices)
         self.friction = float(friction)
         self.heights_of = space.heights(self.vertices, up)
-        self.size = float(np.ptp(space.mesh.p, axis=1).max())
+        self.size = body_size(space.mesh)
         self.tol = 1e-9 * self.size
         self.allowance = ALLOWANCE * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)

@@ -21,6 +21,7 @@ from skfem.element import ElementTetP1, ElementTriP1
 
 __all__ = [
     "MeshError",
+    "body_size",
     "make_mesh",
     "check_mesh",
     "validated",
@@ -289,6 +290,15 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     if not isinstance(mesh, (MeshTri, MeshTet)) or mesh.elem not in (ElementTriP1, ElementTetP1):
         raise TypeError(f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}")
     _check_arrays(mesh.p, mesh.t, what=what)
+
+
+def body_size(mesh) -> float:
+    """The body's size: its largest extent along an axis, what relative lengths refer to.
+
+    >>> body_size(beam2d(2.0, 0.5, 4, 2))
+    2.0
+    """
+    return float(np.ptp(mesh.p, axis=1).max())
 
 
 def make_mesh(points, elements, *, what: str = "mesh"):
@@ -1084,7 +1094,7 @@ def vertices_where(mesh, condition: str) -> np.ndarray:
     coord = mesh.p[axis]
     value = match.group(3)
     value = coord.min() if value == "min" else coord.max() if value == "max" else float(value)
-    tol = 1e-9 * float(np.ptp(mesh.p, axis=1).max())
+    tol = 1e-9 * body_size(mesh)
     op = match.group(2)
     chosen = {
         "<": coord < value - tol,

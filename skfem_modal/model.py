@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .effects import ORDER
+from .mesh import body_size
 
 __all__ = ["Model", "motion_scale"]
 
@@ -44,7 +45,7 @@ def motion_scale(space, mass, mass_matrix) -> float:
     -------
     float
     """
-    size = float(np.ptp(space.mesh.p, axis=1).max())
+    size = body_size(space.mesh)
     body = float(np.sum(mass)) / space.dim
     return size * float(np.sqrt(body / np.mean(mass_matrix.diagonal())))
 

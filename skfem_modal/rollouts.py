@@ -49,6 +49,7 @@ import uuid
 
 import numpy as np
 
+from .mesh import body_size
 from .muscles import sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
@@ -126,7 +127,7 @@ class Trial:
         self.direction = direction / np.linalg.norm(direction)
         self.objective = objective
         self.tip_limit, self.tip_weight = float(tip_limit), float(tip_weight)
-        self.size = float(np.ptp(sim.mesh.p, axis=1).max())
+        self.size = body_size(sim.mesh)
         self.rotation_rows = body_rotation_rows(sim)
         self._lock = threading.Lock()
 

@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from .export import FrameWriter, atomic_path
-from .mesh import mesh_summary
+from .mesh import body_size, mesh_summary
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
 from .sim import SimulationError, simulate
@@ -290,7 +290,7 @@ def _measured(sim, log: dict) -> dict:
             "height": sim.ground,
             "model": sim.contact_model,
             "worst_penetration": worst,
-            "worst_penetration_relative": worst / float(np.ptp(sim.mesh.p, axis=1).max()),
+            "worst_penetration_relative": worst / body_size(sim.mesh),
         }
     return {
         "iterations": {

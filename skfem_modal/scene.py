@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .checks import _clear_of_ground
+from .checks import _clear_of_ground, _pulled_to_ground
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -1048,17 +1048,11 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
     up = None if ground is None else ground["up"]
     if up is not None and not 0 <= up < dim:
         errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {up}")
-    elif acc is not None and ground is not None and not any(acc):
-        axis = "xyz"[dim - 1 if up is None else up]
-        errors.append(
-            f"gravity.acceleration and ground.up: gravity {_toml_value(acc)} has no component along -{axis} "
-            f"(ground.up = {dim - 1 if up is None else up}{', the default' if up is None else ''}), so nothing "
-            f"pulls the body onto the ground: give a gravity along -{axis}, or remove [gravity] (a ground without "
-            "gravity is allowed)"
-        )
     else:
         try:
             up = up_axis(acc, dim, up)
+            if ground is not None:
+                _pulled_to_ground(acc, ground, up)
         except ValueError as err:
             errors.append(f"gravity.acceleration and ground.up: {err}")
             up = None

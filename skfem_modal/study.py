@@ -42,6 +42,7 @@ from concurrent.futures import Executor, ProcessPoolExecutor
 
 import numpy as np
 
+from .mesh import body_size
 from .sim import simulate
 
 __all__ = [
@@ -297,7 +298,7 @@ def run_reduced(task: dict) -> dict:
     if task.get("reference") is not None:
         x = np.array(zs) @ sim.B.T
         mass = sim.mass
-        size = float(np.ptp(sim.mesh.p, axis=1).max())
+        size = body_size(sim.mesh)
         row.update(trajectory_errors(x, task["reference"], mass, sim.mesh.p.T.ravel(), size, sim.dim, B=sim.B))
     return row
 

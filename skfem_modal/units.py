@@ -12,6 +12,8 @@ import warnings
 
 import numpy as np
 
+from .mesh import body_size
+
 __all__ = ["up_axis", "ScaleWarning", "material_length_scales", "scale_mismatch", "warn_scale", "float_range_problems"]
 
 _AXES = "xyz"
@@ -159,7 +161,7 @@ def scale_mismatch(mesh, mu: float, rho: float, gravity=None, duration: float | 
     >>> scale_mismatch(pixels, 1e5, 1e3) is None  # no gravity, no duration: nothing to compare
     True
     """
-    size = float(np.ptp(mesh.p, axis=1).max())
+    size = body_size(mesh)
     scales = material_length_scales(mu, rho, gravity, duration)
     meaning = {
         "weight": ("mu / (rho |g|), the size its own weight strains by 100 %", "collapse under its own weight"),

@@ -22,8 +22,7 @@ THETA = np.radians(20.0)
 STEPS, H = 100, 0.01  # one second
 
 
-def size_of(mesh):
-    return float(np.ptp(mesh.p, axis=1).max())
+size_of = sm.body_size
 
 
 def incline_gravity(dim, along):

@@ -176,7 +176,7 @@ def test_info_counts_contacts_among_the_candidates(tmp_path, capsys):
 
 
 # ------------------------------------------------------ ground.up and gravity
-@pytest.mark.parametrize("up, said", [(0, "along -x (ground.up = 0)"), (None, "along -y (ground.up = 1, the default)")])
+@pytest.mark.parametrize("up, said", [(0, "along -x (up = 0)"), (None, "along -y (up = 1)")])
 def test_a_zero_gravity_under_a_ground_is_an_error_naming_both_keys(up, said):
     ground = {} if up is None else {"up": up}
     with pytest.raises(SceneError, match=r"gravity.acceleration and ground.up: gravity \[0.0, 0.0\] has no component"):
