@@ -164,6 +164,109 @@ def _damping_setting(name: str, coefficient: str, doc: str):
     return property(get, put, doc=doc)
 
 
+def _from_mesh(
+    cls,
+    mesh,
+    *,
+    n_muscles: int = 4,
+    muscle_signs=None,
+    n_weights: int = 8,
+    cluster_weights: int | None = None,
+    n_clusters: int = 20,
+    mu=1e5,
+    gamma=None,
+    lam=None,
+    rho=1e3,
+    h=0.02,
+    gravity=None,
+    ground=None,
+    n_contacts: int | None = None,
+    contact_candidates=None,
+    up=None,
+    contact_model="coulomb",
+    friction=None,
+    stickiness=None,
+    push_out=None,
+    pinned=None,
+    pin_stiffness=None,
+    damping_mass=0.0,
+    damping_stiffness=0.0,
+    n_active_clusters: int = 1,
+    max_iter=10,
+    tol=TOL,
+    rtol=0.0,
+    etol=0.0,
+    warm_start=False,
+    acceleration="none",
+    cluster_by="weights",
+    max_s=2.0,
+    seed: int = 0,
+    progress=None,
+    backend="auto",
+    parallel: bool = True,
+    blas_threads: int | None = 1,
+):
+    """Build every ingredient from a mesh and a few numbers.
+
+    Muscles are the lowest linear modes without the rigid ones (material
+    ``mu``, ``lam`` (default ``mu``), ``rho``), in the deterministic sign
+    convention of :func:`~skfem_modal.linear_modal_analysis`, each
+    multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
+    ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
+    clusters are spectral clusters of the weights (``seed``); one active
+    cluster (or ``n_active_clusters`` spectral clusters; at least one per
+    connected part of the mesh, so separate bodies turn apart), clustering
+    on the first ``cluster_weights`` weights (default ``n_weights``); with a
+    ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
+    (default: every boundary vertex with the ``coulomb`` contact, 30 with
+    the ``reference`` one, as its tutorial), among ``contact_candidates``
+    if given. With ``pinned``
+    vertices the muscles are the modes of the body clamped there.
+    ``progress(stage)``, if given, is called before each stage. With
+    ``parallel`` the modal analysis runs in a second thread beside the
+    subspace and clusters (the results do not change). ``cluster_by``:
+    ``"weights"`` (spectral clusters of the skinning weights) or
+    ``"rotations"`` (by how the subspace's lowest modes rotate the
+    elements, :func:`~skfem_modal.clusters.rotation_clusters`: more
+    accuracy per cluster where few are used). ``etol``, ``warm_start``
+    and ``acceleration``: as for the constructor. Each BLAS call
+    uses at most ``blas_threads`` threads meanwhile (``None``: as the
+    BLAS library is set), so the two threads do not oversubscribe the
+    cores (:mod:`skfem_modal.threads`).
+
+    Returns
+    -------
+    sim : ModalMuscle
+        With ``sim.timings`` covering these stages too.
+    """
+    # each argument goes by name to the stage that takes it: ingredients, then the constructor (the settings)
+    arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
+    arguments["gamma"] = mu if gamma is None else gamma
+    # settings used late are checked before any work
+    if n_contacts is not None:
+        _count(n_contacts, "n_contacts")
+    _backend_name(backend)
+    _acceleration_name(acceleration)
+    _flag(warm_start, "warm_start")
+    _contact_settings(contact_model, friction, stickiness, push_out)
+    contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
+    _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
+    say = progress or (lambda stage: None)
+    with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
+        _fits_float64(mesh, mu, gamma, rho, h, gravity)
+        if ground is not None:
+            g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
+            _pulled_to_ground(g, ground, axis)
+            _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis)
+        made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
+        say("simulator set-up")
+        placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
+        sim = cls(mesh, made.B, made.muscles, made.labels, **placed, **_taken_by(ModalMuscle.__init__, arguments))
+    sim.timings = {**made.timings, **sim.timings}
+    sim.weights = made.weights
+    return sim
+
+
 class ModalMuscle:
     """Reduced modal-muscle dynamics in a subspace (or on every DOF), in 2D or 3D.
 
@@ -838,108 +941,11 @@ class ModalMuscle:
         return 0.5 * float(v @ (self._model.inertia.mass_matrix @ v))
 
     # ----------------------------------------------------------- convenience
-    @classmethod
-    def from_mesh(
-        cls,
-        mesh,
-        *,
-        n_muscles: int = 4,
-        muscle_signs=None,
-        n_weights: int = 8,
-        cluster_weights: int | None = None,
-        n_clusters: int = 20,
-        mu=1e5,
-        gamma=None,
-        lam=None,
-        rho=1e3,
-        h=0.02,
-        gravity=None,
-        ground=None,
-        n_contacts: int | None = None,
-        contact_candidates=None,
-        up=None,
-        contact_model="coulomb",
-        friction=None,
-        stickiness=None,
-        push_out=None,
-        pinned=None,
-        pin_stiffness=None,
-        damping_mass=0.0,
-        damping_stiffness=0.0,
-        n_active_clusters: int = 1,
-        max_iter=10,
-        tol=TOL,
-        rtol=0.0,
-        etol=0.0,
-        warm_start=False,
-        acceleration="none",
-        cluster_by="weights",
-        max_s=2.0,
-        seed: int = 0,
-        progress=None,
-        backend="auto",
-        parallel: bool = True,
-        blas_threads: int | None = 1,
-    ):
-        """Build every ingredient from a mesh and a few numbers.
+    # the set-up pipeline (ingredients, then the constructor) lives beside the class
+    from_mesh = classmethod(_from_mesh)
 
-        Muscles are the lowest linear modes without the rigid ones (material
-        ``mu``, ``lam`` (default ``mu``), ``rho``), in the deterministic sign
-        convention of :func:`~skfem_modal.linear_modal_analysis`, each
-        multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
-        ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
-        clusters are spectral clusters of the weights (``seed``); one active
-        cluster (or ``n_active_clusters`` spectral clusters; at least one per
-        connected part of the mesh, so separate bodies turn apart), clustering
-        on the first ``cluster_weights`` weights (default ``n_weights``); with a
-        ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
-        (default: every boundary vertex with the ``coulomb`` contact, 30 with
-        the ``reference`` one, as its tutorial), among ``contact_candidates``
-        if given. With ``pinned``
-        vertices the muscles are the modes of the body clamped there.
-        ``progress(stage)``, if given, is called before each stage. With
-        ``parallel`` the modal analysis runs in a second thread beside the
-        subspace and clusters (the results do not change). ``cluster_by``:
-        ``"weights"`` (spectral clusters of the skinning weights) or
-        ``"rotations"`` (by how the subspace's lowest modes rotate the
-        elements, :func:`~skfem_modal.clusters.rotation_clusters`: more
-        accuracy per cluster where few are used). ``etol``, ``warm_start``
-        and ``acceleration``: as for the constructor. Each BLAS call
-        uses at most ``blas_threads`` threads meanwhile (``None``: as the
-        BLAS library is set), so the two threads do not oversubscribe the
-        cores (:mod:`skfem_modal.threads`).
 
-        Returns
-        -------
-        sim : ModalMuscle
-            With ``sim.timings`` covering these stages too.
-        """
-        # each argument goes by name to the stage that takes it: ingredients, then the constructor (the settings)
-        arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
-        arguments["gamma"] = mu if gamma is None else gamma
-        # settings used late are checked before any work
-        if n_contacts is not None:
-            _count(n_contacts, "n_contacts")
-        _backend_name(backend)
-        _acceleration_name(acceleration)
-        _flag(warm_start, "warm_start")
-        _contact_settings(contact_model, friction, stickiness, push_out)
-        contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
-        _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
-        say = progress or (lambda stage: None)
-        with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
-            _fits_float64(mesh, mu, gamma, rho, h, gravity)
-            if ground is not None:
-                g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
-                _pulled_to_ground(g, ground, axis)
-                _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis)
-            made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
-            say("simulator set-up")
-            placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
-            sim = cls(mesh, made.B, made.muscles, made.labels, **placed, **_taken_by(ModalMuscle.__init__, arguments))
-        sim.timings = {**made.timings, **sim.timings}
-        sim.weights = made.weights
-        return sim
+_from_mesh.__name__, _from_mesh.__qualname__ = "from_mesh", "ModalMuscle.from_mesh"
 
 
 def _taken_by(function, arguments: dict) -> dict:

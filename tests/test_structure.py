@@ -1,0 +1,64 @@
+"""The package's shape: functions and classes small enough to read (the core's own rule).
+
+Lines of code: lines with code on them, docstrings, comments and blank lines
+not counted. At most two functions over 80 such lines, no class over 400.
+"""
+
+import ast
+import pathlib
+
+import skfem_modal
+
+PACKAGE = pathlib.Path(skfem_modal.__file__).parent
+LONGEST_FUNCTION, LONG_FUNCTIONS_ALLOWED, LONGEST_CLASS = 80, 2, 400
+
+
+def _docstring_lines(node) -> set:
+    """Line numbers of the docstrings of ``node`` and of everything defined inside it."""
+    lines = set()
+    for inner in ast.walk(node):
+        if isinstance(inner, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and ast.get_docstring(inner):
+            first = inner.body[0]
+            lines.update(range(first.lineno, first.end_lineno + 1))
+    return lines
+
+
+def code_lines(node, source_lines) -> int:
+    """Lines of code of a function or class (docstrings, comments and blank lines excluded)."""
+    skipped = _docstring_lines(node)
+    first = min([node.lineno] + [d.lineno for d in getattr(node, "decorator_list", [])])
+    texts = (source_lines[number - 1].strip() for number in range(first, node.end_lineno + 1) if number not in skipped)
+    return sum(1 for text in texts if text and not text.startswith("#"))
+
+
+def definitions():
+    """``(kind, "module.name", lines of code)`` of every function and class of the package."""
+    found = []
+    for path in sorted(PACKAGE.glob("*.py")):
+        source = path.read_text()
+        lines = source.splitlines()
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                kind = "class" if isinstance(node, ast.ClassDef) else "function"
+                found.append((kind, f"{path.stem}.{node.name}", code_lines(node, lines)))
+    return found
+
+
+def test_counting_skips_docstrings_comments_and_blank_lines():
+    source = 'def f(x):\n    """Doc.\n\n    More.\n    """\n    # why\n\n    y = x\n    return y\n'
+    (node,) = ast.parse(source).body
+    assert code_lines(node, source.splitlines()) == 3
+
+
+def test_at_most_two_functions_over_80_lines_of_code():
+    found = definitions()
+    assert sum(kind == "function" for kind, _, _ in found) > 300  # the whole package was read
+    long = sorted((n, name) for kind, name, n in found if kind == "function" and n > LONGEST_FUNCTION)
+    assert len(long) <= LONG_FUNCTIONS_ALLOWED, f"functions over {LONGEST_FUNCTION} lines of code: {long}"
+
+
+def test_no_class_over_400_lines_of_code():
+    found = definitions()
+    assert sum(kind == "class" for kind, _, _ in found) > 20
+    long = sorted((n, name) for kind, name, n in found if kind == "class" and n > LONGEST_CLASS)
+    assert not long, f"classes over {LONGEST_CLASS} lines of code: {long}"
