@@ -918,7 +918,7 @@ class ModalMuscle:
         gravitational potential. Without input (zero activation) implicit
         Euler and damping only remove energy, and the Coulomb contact does in
         the stability tests (a 3D beam settling on the ground at h = 0.01 has
-        steps that gain up to 0.4 % of what its fall released). The reference
+        steps that gain up to 0.03 % of what its fall released). The reference
         contact can add energy (it constrains velocities at sampled points;
         with ``push_out`` it moves them onto the ground by least squares): a
         caterpillar dropped at h = 0.1 with ``push_out = 1`` ended with 173
