@@ -182,8 +182,8 @@ class ReferenceContact(_Ground):
         """Contact point positions, shape (p, dim)."""
         return (self.Je @ np.asarray(z, float)).reshape(-1, self.dim)
 
-    def start_step(self, z_start, z_dot=None) -> None:
-        """Remember the contact positions at the start of the step."""
+    def start_step(self, z_start, z_dot=None, again=False) -> None:
+        """Remember the contact positions at the start of the step (``again``: the same step once more)."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
         if self.push_out:
@@ -419,6 +419,7 @@ class CoulombContact(_Ground):
 
     def __getstate__(self):
         state = self.__dict__.copy()
+        state.pop("_saved", None)  # a step's start: a new step takes its own
         if "_pushes" in state:  # made again where needed
             state["_pushes"] = np.zeros_like(self._pushes)
             state["_made"] = np.zeros_like(self._made)
@@ -432,8 +433,21 @@ class CoulombContact(_Ground):
         return self.space.positions(np.asarray(z, float))[self.vertices]
 
     # ------------------------------------------------------------ a step
-    def start_step(self, z_start, z_dot=None) -> None:
-        """Remember where the step starts; the step's first global solution picks the vertices."""
+    def start_step(self, z_start, z_dot=None, again=False) -> None:
+        """Remember where the step starts; the step's first global solution picks the vertices.
+
+        ``again``: the same step run again by another backend (the first refused it): from what
+        the step started with, not from what the refused run left (who touched, slid, which way).
+        """
+        if again:
+            saved, arrays = self._saved
+            self.__dict__.update(saved)
+            for name, values in arrays.items():
+                np.copyto(getattr(self, name), values)
+        else:
+            # the arrays changed in place; the rest is replaced, not changed (caches aside)
+            arrays = {name: getattr(self, name).copy() for name in ("touching", "sliding", "direction")}
+            self._saved = ({k: v for k, v in self.__dict__.items() if k != "_saved"}, arrays)
         self.z_start, self.z_dot = z_start, z_dot
         self._previous = self.picked
         if self._end is None or not np.array_equal(self._end, z_start):

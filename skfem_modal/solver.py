@@ -300,9 +300,9 @@ class LocalGlobal:
 
     def _attempt(self, backends, z, z_dot, a, contact):
         """The step's iterations, by each backend in turn until one accepts them."""
-        for backend in backends:
+        for tried, backend in enumerate(backends):
             if contact is not None:
-                contact.start_step(z, z_dot)
+                contact.start_step(z, z_dot, again=tried > 0)
             backend.start(z, z_dot, a)
             start = backend.start_row()
             if self.warm_start and not (contact is not None and contact.reads_iterates):
