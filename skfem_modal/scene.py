@@ -691,6 +691,7 @@ class Scene:
             None if gravity is None else gravity["acceleration"],
             self.n_steps * self.h,
             what=f"mesh {name!r}",
+            h=self.h,
         )
 
     def ground_height(self) -> float | None:
@@ -793,29 +794,31 @@ class Scene:
         from .sim import ModalMuscle
 
         c = self.config
-        return ModalMuscle.from_mesh(
-            self.mesh,
-            n_muscles=c["muscles"]["count"],
-            muscle_signs=c["muscles"]["signs"],
-            n_weights=c["subspace"]["weights"],
-            cluster_weights=c["subspace"]["cluster_weights"],
-            n_clusters=c["subspace"]["clusters"],
-            n_active_clusters=c["subspace"]["active_clusters"],
-            seed=c["subspace"]["seed"],
-            lam=self.material()["lam"],
-            n_contacts=self.contact_count(),
-            contact_candidates=self.contact_candidates(),
-            max_iter=c["time"]["iterations"],
-            tol=c["time"]["tol"],
-            rtol=c["time"]["rtol"],
-            etol=c["time"]["etol"],
-            warm_start=c["time"]["warm_start"],
-            acceleration=c["time"]["acceleration"],
-            cluster_by=c["subspace"]["cluster_by"],
-            progress=progress,
-            backend=backend,
-            **self.effect_settings(),
-        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ScaleWarning)  # said when the scene was loaded
+            return ModalMuscle.from_mesh(
+                self.mesh,
+                n_muscles=c["muscles"]["count"],
+                muscle_signs=c["muscles"]["signs"],
+                n_weights=c["subspace"]["weights"],
+                cluster_weights=c["subspace"]["cluster_weights"],
+                n_clusters=c["subspace"]["clusters"],
+                n_active_clusters=c["subspace"]["active_clusters"],
+                seed=c["subspace"]["seed"],
+                lam=self.material()["lam"],
+                n_contacts=self.contact_count(),
+                contact_candidates=self.contact_candidates(),
+                max_iter=c["time"]["iterations"],
+                tol=c["time"]["tol"],
+                rtol=c["time"]["rtol"],
+                etol=c["time"]["etol"],
+                warm_start=c["time"]["warm_start"],
+                acceleration=c["time"]["acceleration"],
+                cluster_by=c["subspace"]["cluster_by"],
+                progress=progress,
+                backend=backend,
+                **self.effect_settings(),
+            )
 
     def build_reference(self, rtol: float = 1e-10, max_iter: int = 5000):
         """The full-space simulator of this scene: every DOF, one rotation per element.

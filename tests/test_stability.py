@@ -1,5 +1,7 @@
 """Hard cases stay numerically stable (the cases are in hard_cases.py)."""
 
+import warnings
+
 import hard_cases as H
 import numpy as np
 import pytest
@@ -83,3 +85,50 @@ def test_real_blow_up_is_reported_with_its_step():
         for _ in range(5):
             z_next = sim.step(z, z_dot, np.full(sim.n_muscles, 1e300))
             z_dot, z = (z_next - z) / sim.h, z_next
+
+
+def _spin_kept(h, mu):
+    """A floating unit square given a spin of 1 rad/s: the fraction of its angular momentum left after 0.5 s."""
+    import skfem
+
+    mesh = skfem.MeshTri.init_symmetric().refined(3)
+    sim = sm.ModalMuscle.from_mesh(mesh, n_muscles=1, n_weights=4, n_clusters=4, mu=mu, rho=1e3, h=h)
+    X = mesh.p.T - mesh.p.T.mean(axis=0)
+    z, _, rest = sim.rest_state()
+    z_dot = sim.coordinates(np.stack([-X[:, 1], X[:, 0]], axis=1))
+    m = sim.mass[::2]
+
+    def spin(z, z_dot):
+        x, v = sim.positions(z) - sim.com(z), (sim.B @ z_dot).reshape(-1, 2)
+        return float((m * (x[:, 0] * v[:, 1] - x[:, 1] * v[:, 0])).sum())
+
+    start = spin(z, z_dot)
+    for _ in range(round(0.5 / h)):
+        z, z_dot = sim.step(z, z_dot, rest, velocity=True)
+    return spin(z, z_dot) / start
+
+
+def test_a_body_too_small_for_its_material_at_the_step_is_warned_and_does_lose_its_spin():
+    # an elastic wave crossing 0.63 of the body in a step: the iterations turn it too slowly
+    with pytest.warns(sm.ScaleWarning, match=r"crosses 0.63 of it in one time step .*\(h <= 0.0063 here\)"):
+        kept = _spin_kept(0.02, 1e6)
+    assert kept < 0.05  # what the warning says: all its spin gone in half a second
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sm.ScaleWarning)
+        assert _spin_kept(0.0063, 1e6) > 0.85  # at the step it advises: not warned, and turning
+
+
+def test_the_step_warning_comes_from_the_time_step_setter_and_a_soft_body_is_warned_it_collapses():
+    import skfem
+
+    mesh = skfem.MeshTri.init_symmetric().refined(2)
+    kw = dict(n_muscles=1, n_weights=3, n_clusters=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sm.ScaleWarning)
+        sim = sm.ModalMuscle.from_mesh(mesh, mu=1e5, h=0.01, **kw)  # 0.1 of the body: quiet
+    with pytest.warns(sm.ScaleWarning, match=r"crosses 0.5 of it in one time step .*\(h <= 0.02 here\)"):
+        sim.h = 0.05
+    # a jelly (mu = 10 Pa) under gravity: its weight strains it 980 times over (it fell through
+    # the ground inside out, silently, before)
+    with pytest.warns(sm.ScaleWarning, match=r"980x the material's length scale .* collapse under its own weight"):
+        sm.ModalMuscle.from_mesh(mesh, mu=10.0, gravity=[0.0, -9.8], ground=-0.1, **kw)
