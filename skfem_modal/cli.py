@@ -2,7 +2,8 @@
 
 Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
 file, an output folder holding an earlier run, a missing extra); 3 numerical
-failure (a simulation that went non-finite); 130 interrupted; 141 the reader
+failure (a simulation that went non-finite); 130 interrupted (Ctrl-C, or SIGTERM: the
+same clean stop); 141 the reader
 of the output went away (e.g. ``| head``).
 """
 
@@ -12,8 +13,11 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
+
+from .interrupts import Terminated, terminate_as_interrupt
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -124,8 +128,6 @@ def _load_scene(path):
 
 
 def cmd_run(args) -> int:
-    import warnings
-
     from .monitor import MotionWarning
     from .outputs import clear_earlier_run
     from .run import run_scene
@@ -674,7 +676,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        code = args.func(args)
+        with warnings.catch_warnings(), terminate_as_interrupt():
+            warnings.showwarning = _warning_printer(args.command)
+            code = args.func(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's last flush
         return code
     except BrokenPipeError:
@@ -683,9 +687,25 @@ def main(argv=None) -> int:
         # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"skfem-modal {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as stop:
+        # Ctrl-C, or SIGTERM (e.g. from timeout): the command has stopped as it does on Ctrl-C
+        said = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
+        print(f"skfem-modal {args.command}: {said}", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _warning_printer(command: str):
+    """``warnings.showwarning`` for the command line: every warning as ``skfem-modal COMMAND: warning: ...``.
+
+    The library's warnings (scales, rounded durations, settings without effect,
+    numpy's overflows) name the problem in their message; the file and source
+    line that raised them mean nothing to a user of the command.
+    """
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"skfem-modal {command}: warning: {message}", file=sys.stderr, flush=True)
+
+    return show
 
 
 def _reader_gone() -> int:

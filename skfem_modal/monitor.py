@@ -113,11 +113,7 @@ class MotionMonitor:
         a : ndarray, shape (m,), optional
             The step's muscle activations (mode amplitudes), to compare with the ceilings.
         """
-        if a is not None and self._ceilings is not None:
-            fraction = float(np.max(np.abs(a) / self._ceilings))
-            self.ceiling_fraction = max(self.ceiling_fraction, fraction)
-            if fraction > 1.0 + 1e-12:  # a gait at exactly its ceiling rounds to a hair above
-                self.first_problem_step.setdefault("ceilings", step)
+        self._commanded(step, a)
         com = self._com(z)
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
@@ -134,6 +130,27 @@ class MotionMonitor:
             self.first_problem_step.setdefault("push", step)
         if not 1.0 / SPREAD_LIMIT <= ratio <= SPREAD_LIMIT:
             self.first_problem_step.setdefault("spread", step)
+
+    def _commanded(self, step: int, a) -> None:
+        """The step's activations against the ceilings."""
+        if a is not None and self._ceilings is not None:
+            fraction = float(np.max(np.abs(a) / self._ceilings))
+            if not fraction <= self.ceiling_fraction:  # larger, or NaN (a NaN activation is beyond any ceiling)
+                self.ceiling_fraction = fraction
+            if not fraction <= 1.0 + 1e-12:  # a gait at exactly its ceiling rounds to a hair above
+                self.first_problem_step.setdefault("ceilings", step)
+
+    def failed(self, step: int, a=None) -> None:
+        """The step ``step`` failed (its state became non-finite): what it was commanded, for :meth:`finish`.
+
+        Parameters
+        ----------
+        step : int
+        a : ndarray, shape (m,), optional
+            The failing step's muscle activations.
+        """
+        self._commanded(step, a)
+        self.first_problem_step.setdefault("non_finite", step)
 
     def finish(self, warn: bool = True) -> dict:
         """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
@@ -162,8 +179,11 @@ class MotionMonitor:
                 f"from step {step} (t = {step * self.h:g}) forces other than gravity moved the centre of mass up to "
                 f"{self.push:.3g} body sizes in one step: the motion is not resolved"
             )
+        if "non_finite" in self.first_problem_step:
+            step = self.first_problem_step["non_finite"]
+            texts.append(f"at step {step} (t = {step * self.h:g}) the state became non-finite")
         physical = not texts
-        if texts:
+        if texts and (overdriven or {"spread", "push"} & set(self.first_problem_step)):
             texts.append(
                 "the muscles, driven beyond their ceilings, cause it: keep the activations (muscles.gait.amplitude, "
                 "muscles.table) within [-1, 1] of the ceilings, or raise muscles.max_s"

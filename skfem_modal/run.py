@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from .export import FrameWriter, atomic_path
+from .interrupts import HeldSignals
 from .mesh import body_size, mesh_summary
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
@@ -202,29 +203,46 @@ def run_scene(
     log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0}
     log["monitor"] = MotionMonitor(sim, None if gravity is None else gravity["acceleration"])
     bar = Progress(scene.n_steps, "steps", enabled=progress)
-    status, error = "completed", None
-    try:
-        _run_steps(scene, sim, log, files, bar)
-    except SimulationError as err:
-        step = err.step or len(log["seconds"]) + 1
-        status, error = "failed", {"step": step, "time": step * sim.h, "message": str(err)}
-        raise SimulationError(f"{err.message} (t = {step * sim.h:g}; outputs so far kept)", step=step) from None
-    except KeyboardInterrupt:
-        status, error = "interrupted", {"step": len(log["seconds"]), "time": len(log["seconds"]) * sim.h}
-        raise
-    finally:
-        bar.close()
-        summary.update(status=status, error=error, steps_completed=len(log["seconds"]), motion=log["monitor"].finish())
-        summary["timings"].update(
-            steps_total_s=float(np.sum(log["seconds"])),
-            step_ms=_stats_ms(log["seconds"]),
-            wall_s=time.perf_counter() - started,
-        )
-        summary.update(_measured(sim, log))
-        if files is None:
-            summary.update(pinned=None, frames=None)
-        else:
-            files.close(summary)
+    status, error, failure = "completed", None, None
+    with HeldSignals() as held:
+        try:
+            _run_steps(scene, sim, log, files, bar, held)
+        except SimulationError as err:
+            step = err.step or len(log["seconds"]) + 1
+            # the monitor never saw the failing step: what it was commanded may say why it failed
+            failing = scene.activation((step - 1) * sim.h, sim.ceilings) if sim.n_muscles else None
+            log["monitor"].failed(step, failing)
+            status, error = "failed", {"step": step, "time": step * sim.h, "message": err.message}
+        except KeyboardInterrupt:
+            status, error = "interrupted", {"step": len(log["seconds"]), "time": len(log["seconds"]) * sim.h}
+            raise
+        except BaseException as err:
+            step = len(log["seconds"]) + 1
+            status, error = "failed", {"step": step, "time": step * sim.h, "message": f"{type(err).__name__}: {err}"}
+            raise
+        finally:
+            with held.hold():  # the summary is written whole, whatever arrives meanwhile
+                bar.close()
+                motion = log["monitor"].finish(warn=status != "failed")
+                if "non_finite" in motion["first_problem_step"]:
+                    # the error names the cause the monitor sees (the non-finite state it says already)
+                    causes = "".join(f"; {text}" for text in motion["warnings"] if "non-finite" not in text)
+                    error["message"] = f"{error['message']} (t = {error['time']:g}; outputs so far kept){causes}"
+                    failure = SimulationError(error["message"], step=error["step"])
+                    error["message"] = str(failure)
+                summary.update(status=status, error=error, steps_completed=len(log["seconds"]), motion=motion)
+                summary["timings"].update(
+                    steps_total_s=float(np.sum(log["seconds"])),
+                    step_ms=_stats_ms(log["seconds"]),
+                    wall_s=time.perf_counter() - started,
+                )
+                summary.update(_measured(sim, log))
+                if files is None:
+                    summary.update(pinned=None, frames=None)
+                else:
+                    files.close(summary)
+    if failure is not None:
+        raise failure
     return summary
 
 
@@ -253,30 +271,39 @@ def _summary_start(scene, sim, precompute: float) -> dict:
     }
 
 
-def _run_steps(scene, sim, log: dict, files, bar: Progress) -> None:
-    """The step loop: the scene's steps from rest, each recorded in ``log`` (and ``files``) as it ends."""
+def _run_steps(scene, sim, log: dict, files, bar: Progress, held: HeldSignals) -> None:
+    """The step loop: the scene's steps from rest, each recorded in ``files`` and ``log`` as it ends.
+
+    A step's records are written whole: a signal meanwhile waits for them (``held``).
+    """
     ceilings = sim.ceilings
     activation = (lambda t: scene.activation(t, ceilings)) if sim.n_muscles else None
     z, _, a = sim.rest_state()
-    log["com"].append(_record(sim, files, 0, z, a))
+    with held.hold():
+        _record(sim, log, files, 0, z, a)
     for done in simulate(sim, scene.n_steps, activation):
-        log["seconds"].append(done.seconds)
-        log["iterations"].append(done.iterations)
-        log["residuals"].append(done.residual)
-        if sim.ground is not None:
-            # every boundary vertex, every step: the deepest any went below the ground
-            log["penetration"] = max(log["penetration"], sim.penetration(done.z))
-        log["com"].append(_record(sim, files, done.step, done.z, done.a))
-        log["monitor"].update(done.step, done.z, done.a)
+        with held.hold():
+            _record(sim, log, files, done.step, done.z, done.a, done)
         bar.update()
 
 
-def _record(sim, files, step: int, z, a) -> np.ndarray:
-    """The centre of mass after ``step`` steps, also written to ``files`` when there are files."""
+def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
+    """The state after ``step`` steps: into ``files`` first (its frame, its rows), then into ``log``.
+
+    An error while writing the files leaves the log, and so the summary, at the step before.
+    """
     com = sim.com(z)
+    depth = sim.penetration(z) if done is not None and sim.ground is not None else 0.0
     if files is not None:
         files.write(step, z, a, com)
-    return com
+    log["com"].append(com)
+    if done is not None:
+        log["seconds"].append(done.seconds)
+        log["iterations"].append(done.iterations)
+        log["residuals"].append(done.residual)
+        # every boundary vertex, every step: the deepest any went below the ground
+        log["penetration"] = max(log["penetration"], depth)
+        log["monitor"].update(step, z, a)
 
 
 def _measured(sim, log: dict) -> dict:
@@ -326,25 +353,41 @@ class _RunFiles:
         self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
         self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
         self.worst_pin = 0.0
+        self._last = None  # (step, z, a) of the last step written
+        self._framed = None  # the step of the last frame written
 
     def write(self, step: int, z, a, com) -> None:
-        """One step's rows, and its frame every ``every`` steps."""
+        """One step's frame (every ``every`` steps), then its rows."""
         sim = self.sim
+        if step % self.every == 0:
+            self._frame(step, z, a)
         t = step * sim.h
         self.com.writerow([repr(t)] + [repr(float(c)) for c in com])
         if sim.n_muscles:
             realised = sim.muscle_amplitudes(z)
             self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
         if step % self.every == 0:
-            # full positions only for frames that are written out
-            x = sim.positions(z)
-            if sim.pinned.size:
-                rest = sim.mesh.p.T[sim.pinned]
-                self.worst_pin = max(self.worst_pin, float(np.abs(x[sim.pinned] - rest).max()))
-            self.frames.write(t, x, field_data={"activation": a} if sim.n_muscles else None)
+            for f in self._files:  # the tables on disk reach at least the last frame
+                f.flush()
+        self._last = (step, z, a)
+
+    def _frame(self, step: int, z, a) -> None:
+        """The frame of the state after ``step`` steps (full positions only for frames written)."""
+        sim = self.sim
+        x = sim.positions(z)
+        if sim.pinned.size:
+            drift = np.linalg.norm(x[sim.pinned] - sim.mesh.p.T[sim.pinned], axis=1)
+            self.worst_pin = max(self.worst_pin, float(drift.max()))
+        self.frames.write(step * sim.h, x, field_data={"activation": a} if sim.n_muscles else None)
+        self._framed = step
 
     def close(self, summary: dict) -> None:
-        """Close the files and write ``summary.json``, with the frames' and pinned vertices' entries added."""
+        """The last step's frame if ``every`` skipped it; close the files; write ``summary.json``.
+
+        The frames, the tables and the summary then all end at the last step done.
+        """
+        if self._last is not None and self._last[0] != self._framed:
+            self._frame(*self._last)
         frames = self.frames
         pinned = {"worst_drift_written_frames": self.worst_pin} if self.sim.pinned.size else None
         times = [frames.times[0], frames.times[-1]]
