@@ -287,9 +287,11 @@ def _scene_data(path, default):
 
 
 def cmd_study(args) -> int:
+    from .outputs import clear_earlier_study
     from .study import FLOATING_CATERPILLAR, run_study
 
     data, base_dir = _scene_data(args.scene, FLOATING_CATERPILLAR)
+    clear_earlier_study(args.out, args.overwrite, how="--overwrite")  # refused before anything is said
     say = _say(args)
     say(f"study ({'quick' if args.quick else 'full'}) of {data.get('name', args.scene)}; writing to {args.out}")
     report = run_study(
@@ -300,10 +302,15 @@ def cmd_study(args) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         progress=not args.quiet,
+        overwrite=args.overwrite,
+        how="--overwrite",
     )
+    for reason in report["left_out"].values():
+        say(f"not run for this scene: {reason}")
     for line in report["recommendation"]:
         say(line)
-    say(f"wrote {report['markdown']}, {report['csv']}" + (f", {report['png']}" if "png" in report else ""))
+    written = [report[key] for key in ("markdown", "csv", "modal_csv", "json", "png") if key in report]
+    say("wrote " + ", ".join(written))
     return EXIT_OK
 
 
@@ -528,6 +535,9 @@ def _pool_options(p, workers: int, workers_help: str, what: str) -> None:
 def _study_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml (default: the floating caterpillar)")
     p.add_argument("--out", default="study", help="output directory")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an earlier study in --out (only its files are removed)"
+    )
     p.add_argument("--quick", action="store_true", help="the short preset (under two minutes on 2 cores)")
     _pool_options(p, 1, "processes of the local pool (1: clean timings)", "sweep")
 

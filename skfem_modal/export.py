@@ -8,6 +8,7 @@ so an interrupted write never leaves a half-written file behind.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 
@@ -16,7 +17,7 @@ import numpy as np
 from .fem import scalar_basis
 from .mesh import check_mesh
 
-__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path", "FrameWriter"]
+__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path", "written_whole", "FrameWriter"]
 
 
 def pad3(x: np.ndarray) -> np.ndarray:
@@ -99,6 +100,29 @@ def atomic_path(path: str | os.PathLike):
         return tmp
 
 
+@contextlib.contextmanager
+def written_whole(path):
+    """A temporary path beside ``path`` to write; renamed onto ``path`` when the block ends, removed if it fails.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     with written_whole(os.path.join(tmp, "notes.txt")) as partial, open(partial, "w") as f:
+    ...         _ = f.write("done")
+    ...     os.listdir(tmp)
+    ['notes.txt']
+    """
+    tmp = atomic_path(path)
+    try:
+        yield tmp
+        os.replace(tmp, os.fspath(path))
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=None, field_data=None):
     """Write one ``.vtu`` file atomically.
 
@@ -125,16 +149,10 @@ def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=No
     mesh = meshio.Mesh(
         pad3(points), [(cell_type, np.asarray(cells, dtype=np.int64))], point_data=pdata, cell_data=cdata
     )
-    tmp = atomic_path(path)
-    try:
+    with written_whole(path) as tmp:
         meshio.write(tmp, mesh, file_format="vtu")
         if field_data:
             _insert_field_data(tmp, field_data)
-        os.replace(tmp, os.fspath(path))
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _insert_field_data(path: str, field_data: dict) -> None:

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from .export import FrameWriter, atomic_path
+from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
 from .mesh import body_size, mesh_summary
 from .monitor import MotionMonitor
@@ -112,11 +112,9 @@ def _stage_printer(enabled: bool):
 
 
 def _write_json(path: str, data: dict) -> None:
-    tmp = atomic_path(path)
-    with open(tmp, "w") as f:
+    with written_whole(path) as tmp, open(tmp, "w") as f:
         json.dump(data, f, indent=2, default=_jsonable)
         f.write("\n")
-    os.replace(tmp, path)
 
 
 def _jsonable(value):

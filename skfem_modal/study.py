@@ -42,7 +42,9 @@ from concurrent.futures import Executor, ProcessPoolExecutor
 
 import numpy as np
 
+from .export import written_whole
 from .mesh import body_size
+from .outputs import clear_earlier_study
 from .sim import simulate
 
 __all__ = [
@@ -336,10 +338,35 @@ def time_steps(tasks: list[dict], *, rounds: int = 3, steps: int = 60) -> list[f
     return best
 
 
-def _sweeps(cfg: dict, base: dict, resolutions) -> list:
-    """The runs of a study: ``(sweep, label, overrides, resolution)`` each."""
+def _left_out(ground: dict | None) -> dict:
+    """The settings a study leaves out for a scene with this ground (validated ``[ground]``), and why.
+
+    Under ground contact no accelerated iterate is taken (a projection, not an
+    energy, holds the body up); under the reference contact no warm start
+    either (its rule reads where each iterate came from). A row with them
+    would be a plain run under another label.
+    """
+    if ground is None:
+        return {}
+    left = {"acceleration": "Anderson and Newton iterations have no effect under ground contact"}
+    if ground["model"] == "reference":
+        left["warm_start"] = "a warm start has no effect under the reference contact"
+    return left
+
+
+def _sweeps(cfg: dict, base: dict, resolutions, left_out=()) -> list:
+    """The runs of a study: ``(sweep, label, overrides, resolution)`` each, without the settings ``left_out``.
+
+    Without a warm start the sweeps that add one to others run without it
+    (labels without ``warm,``), and the sweep of iteration counts with a warm
+    start, the same runs as without, is dropped.
+    """
     base_weights, base_clusters = base.get("weights", 8), base.get("clusters", 20)
-    warm = {"warm_start": True}
+    warm = {} if "warm_start" in left_out else {"warm_start": True}
+    if not warm:
+        cfg = {**cfg, "warm": [], "acceleration": []}
+    if "acceleration" in left_out:
+        cfg = {**cfg, "acceleration": []}
     tasks = [("base", "base", {}, 1.0)]
     tasks += [("weights", f"weights={w}", {"weights": w}, 1.0) for w in cfg["weights"] if w != base_weights]
     tasks += [("clusters", f"clusters={c}", {"clusters": c}, 1.0) for c in cfg["clusters"] if c != base_clusters]
@@ -364,10 +391,12 @@ def _sweeps(cfg: dict, base: dict, resolutions) -> list:
         tasks.append(("warm grid", label, {**warm, **stop, "weights": w, "clusters": c, "cluster_by": by}, 1.0))
     tasks += [("grid", f"weights={w},clusters={c}", {"weights": w, "clusters": c}, 1.0) for w, c in cfg["grid"]]
     tasks += [("resolution", f"resolution={f:g}", {}, f) for f in resolutions if f != 1.0]
+    if not warm:
+        tasks = [(sweep, label.replace("warm,", ""), over, f) for sweep, label, over, f in tasks]
     return tasks
 
 
-def _tasks(cfg: dict, data: dict, scenes: dict, base_dir) -> list[dict]:
+def _tasks(cfg: dict, data: dict, scenes: dict, base_dir, left_out=()) -> list[dict]:
     """The runs of a study as tasks for :func:`run_reduced` (the reference is added as they go out)."""
     return [
         {
@@ -379,7 +408,7 @@ def _tasks(cfg: dict, data: dict, scenes: dict, base_dir) -> list[dict]:
             "label": label,
             "resolution": f,
         }
-        for sweep, label, over, f in _sweeps(cfg, data.get("subspace", {}), list(scenes))
+        for sweep, label, over, f in _sweeps(cfg, data.get("subspace", {}), list(scenes), left_out)
     ]
 
 
@@ -579,6 +608,8 @@ def run_study(
     workers: int = 1,
     scheduler: str | None = None,
     progress: bool = False,
+    overwrite: bool = False,
+    how: str = "overwrite=True",
 ) -> dict:
     """Run an accuracy/cost study of a scene and write its report.
 
@@ -594,22 +625,37 @@ def run_study(
         Default: :func:`make_executor` with ``workers`` / ``scheduler``.
     progress : bool
         Print a line per finished run.
+    overwrite : bool
+        Replace an earlier study in ``out_dir`` (only its files,
+        :data:`~skfem_modal.outputs.STUDY_FILES`, are removed); without it an
+        earlier study there is an error.
+    how : str
+        How the caller asks to overwrite, for that error (e.g. ``--overwrite``).
 
     Returns
     -------
     report : dict
-        ``rows``, ``modal``, ``pareto`` (indices), ``recommendation`` (sentences)
-        and the paths written (``study.csv``, ``modal.csv``, ``study.md``,
-        ``pareto.png`` when matplotlib is there).
+        ``rows``, ``modal``, ``pareto`` (indices), ``recommendation`` (sentences),
+        ``left_out`` (settings not run, and why) and the paths written
+        (``csv``, ``modal_csv``, ``json``, ``markdown``, and ``png`` when
+        matplotlib is there), each file written whole or not at all.
+
+    Raises
+    ------
+    FileExistsError
+        Before any work: ``out_dir`` holds an earlier study and ``overwrite``
+        is false, or it holds a run (whatever ``overwrite``).
     """
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
     from .scene import Scene
 
-    Scene.from_dict(data, base_dir=base_dir)  # every error before any work
+    scene = Scene.from_dict(data, base_dir=base_dir)  # every error before any work
     cfg = PRESETS[preset]
     out_dir = os.fspath(out_dir)
+    clear_earlier_study(out_dir, overwrite, how=how)
     os.makedirs(out_dir, exist_ok=True)
+    left_out = _left_out(scene.config["ground"])
     say = print if progress else (lambda *a, **k: None)
     close = None
     if executor is None:
@@ -619,7 +665,7 @@ def run_study(
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
         scenes = {f: resolution_scene(data, f) for f in resolutions}
         references = _run_references(executor, scenes, base_dir, cfg["steps"], say)
-        tasks = _tasks(cfg, data, scenes, base_dir)
+        tasks = _tasks(cfg, data, scenes, base_dir, left_out)
         rows = _run_reduced_all(executor, tasks, references, say)
         # the step times, here and fairly against each other (the runs above
         # may have shared the machine, or run on other machines)
@@ -639,12 +685,21 @@ def run_study(
         "seconds": time.perf_counter() - started,
         "timing_rounds": cfg["timing_rounds"],
         "references": {str(f): {k: v for k, v in r.items() if k != "x"} for f, r in references.items()},
+        "left_out": left_out,
     }
     same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
     front = [same[i] for i in pareto_front([rows[i] for i in same])]
     lines = recommend(rows)
     paths = _write_report(out_dir, rows, modal_rows, front, lines, meta)
-    return {"rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines, "meta": meta, **paths}
+    return {
+        "rows": rows,
+        "modal": modal_rows,
+        "pareto": front,
+        "recommendation": lines,
+        "left_out": left_out,
+        "meta": meta,
+        **paths,
+    }
 
 
 def _run_references(executor, scenes: dict, base_dir, steps: int, say) -> dict:
@@ -678,23 +733,31 @@ _COLUMNS = [
 ]  # fmt: skip
 
 
+def _write_whole(path: str, write) -> str:
+    """``write(f)`` into a temporary file beside ``path``, renamed onto it when complete; returns ``path``."""
+    with written_whole(path) as tmp, open(tmp, "w", newline="") as f:
+        write(f)
+    return path
+
+
+def _table(rows, columns):
+    """A writer of ``rows`` (dicts) as a CSV table with these columns."""
+
+    def write(f):
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows({k: r.get(k) for k in columns} for r in rows)
+
+    return write
+
+
 def _write_report(out_dir, rows, modal_rows, front, lines, meta) -> dict:
+    """The study's files, each written whole: ``csv``, ``modal_csv``, ``json``, ``markdown``, ``png``."""
     paths = {}
-    paths["csv"] = os.path.join(out_dir, "study.csv")
-    with open(paths["csv"], "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=_COLUMNS)
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: r.get(k) for k in _COLUMNS})
-    paths["modal_csv"] = os.path.join(out_dir, "modal.csv")
-    with open(paths["modal_csv"], "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(modal_rows[0]))
-        writer.writeheader()
-        writer.writerows(modal_rows)
-    with open(os.path.join(out_dir, "study.json"), "w") as f:
-        json.dump(
-            {"meta": meta, "rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines}, f, indent=2
-        )
+    paths["csv"] = _write_whole(os.path.join(out_dir, "study.csv"), _table(rows, _COLUMNS))
+    paths["modal_csv"] = _write_whole(os.path.join(out_dir, "modal.csv"), _table(modal_rows, list(modal_rows[0])))
+    report = {"meta": meta, "rows": rows, "modal": modal_rows, "pareto": front, "recommendation": lines}
+    paths["json"] = _write_whole(os.path.join(out_dir, "study.json"), lambda f: json.dump(report, f, indent=2))
     md = [f"# Accuracy and cost: {meta['scene']}", ""]
     md.append(
         f"{meta['preset']} study, {meta['steps']} steps, {meta['machine']}, {meta['date']}; "
@@ -706,6 +769,9 @@ def _write_report(out_dir, rows, modal_rows, front, lines, meta) -> dict:
             f"- full-space reference at resolution {f}: {ref['vertices']} vertices, "
             f"{ref['iterations']:.0f} iterations a step, {1e3 * ref['seconds_per_step']:.1f} ms a step"
         )
+    if meta["left_out"]:
+        md += ["", "Not run for this scene: " + "; ".join(meta["left_out"].values()) + " (rows with them would be "
+               "plain runs under another label)."]  # fmt: skip
     md += ["", "## Recommendation", ""] + [f"- {line}" for line in lines]
     md += ["", "## Error against milliseconds per step", ""]
     md.append(
@@ -736,9 +802,7 @@ def _write_report(out_dir, rows, modal_rows, front, lines, meta) -> dict:
             f"| {r['element']} | {r['cells']} | {r['dofs']} | {r['seconds']:.3f} "
             f"| {100 * r['error_vs_euler_bernoulli']:.3g} % | {100 * r['error_vs_refined_p2']:.3g} % |"
         )
-    paths["markdown"] = os.path.join(out_dir, "study.md")
-    with open(paths["markdown"], "w") as f:
-        f.write("\n".join(md) + "\n")
+    paths["markdown"] = _write_whole(os.path.join(out_dir, "study.md"), lambda f: f.write("\n".join(md) + "\n"))
     try:
         paths["png"] = _plot(out_dir, rows, front, meta)
     except ImportError:
@@ -803,6 +867,9 @@ def _plot(out_dir, rows, front, meta) -> str:
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = os.path.join(out_dir, "pareto.png")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        with written_whole(path) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
+    finally:
+        plt.close(fig)
     return path

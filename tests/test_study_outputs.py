@@ -1,0 +1,117 @@
+"""A study's folder is its own (refused, replaced or kept apart from a run), and its rows are settings that applied."""
+
+import json
+import os
+
+import pytest
+
+from skfem_modal import study
+from skfem_modal.cli import main
+
+TINY = dict(
+    steps=10,
+    weights=[4],
+    clusters=[8],
+    iterations=[3],
+    rtol=[],
+    warm=[3],
+    etol=[],
+    warm_clusters=[],
+    acceleration=[("anderson", 3)],
+    warm_grid=[(4, 8, "weights", 3)],
+    resolution=[1.0],
+    grid=[],
+    modal=[(20, 1)],
+    timing_rounds=1,
+)
+SMALL = {"shape": "caterpillar", "params": {"nx": 16, "ny": 8}}
+FLOATING = dict(study.FLOATING_CATERPILLAR, mesh=SMALL)
+GROUND = {"gravity": {"acceleration": [0.0, -9.8]}, "ground": {"offset": 0.05}}
+
+
+@pytest.fixture
+def tiny(monkeypatch):
+    monkeypatch.setitem(study.PRESETS, "tiny", TINY)
+    monkeypatch.setitem(study.PRESETS, "quick", TINY)  # the command's --quick, made fast
+
+
+@pytest.mark.parametrize(
+    "extra, labels, left_out",
+    [
+        (
+            {},
+            ["base", "weights=4", "clusters=8", "iterations=3", "warm,iterations=3", "warm,anderson,iterations=3",
+             "warm,iterations=3,weights=4,clusters=8"],
+            {},
+        ),
+        (
+            {**GROUND, "ground": {**GROUND["ground"], "model": "coulomb"}},
+            ["base", "weights=4", "clusters=8", "iterations=3", "warm,iterations=3",
+             "warm,iterations=3,weights=4,clusters=8"],
+            {"acceleration": "Anderson and Newton iterations have no effect under ground contact"},
+        ),
+        (
+            {**GROUND, "ground": {**GROUND["ground"], "model": "reference"}},
+            ["base", "weights=4", "clusters=8", "iterations=3", "iterations=3,weights=4,clusters=8"],
+            {
+                "acceleration": "Anderson and Newton iterations have no effect under ground contact",
+                "warm_start": "a warm start has no effect under the reference contact",
+            },
+        ),
+    ],
+)  # fmt: skip
+def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extra, labels, left_out):
+    report = study.run_study({**FLOATING, **extra}, tmp_path, preset="tiny")
+    assert [r["label"] for r in report["rows"]] == labels
+    assert report["left_out"] == left_out
+    assert {r["acceleration"] for r in report["rows"]} <= ({"none", "anderson"} if not extra else {"none"})
+    if "warm_start" in left_out:
+        assert not any(r["warm_start"] for r in report["rows"])
+    text = (tmp_path / "study.md").read_text()
+    assert ("Not run for this scene: " + "; ".join(left_out.values())) in text if left_out else "Not run" not in text
+    assert json.loads((tmp_path / "study.json").read_text())["meta"]["left_out"] == left_out
+
+
+def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, capsys):
+    out = tmp_path / "study"
+    assert main(["study", "--quick", "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    names = ["study.md", "study.csv", "modal.csv", "study.json", "pareto.png"]
+    assert said[-1] == "wrote " + ", ".join(str(out / n) for n in names)
+    assert sorted(os.listdir(out)) == sorted(names)  # whole files, no temporary ones left
+    (out / "notes.txt").write_text("mine")
+    first = (out / "study.json").read_text()
+
+    assert main(["study", "--quick", "--out", str(out), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"skfem-modal study: error: {str(out)!r} holds an earlier study (modal.csv, pareto.png, study.csv, "
+        "study.json, study.md); pass --overwrite to replace it (only its files are removed) or choose another "
+        "directory\n"
+    )
+    assert (out / "study.json").read_text() == first
+    with pytest.raises(FileExistsError, match="pass overwrite=True"):
+        study.run_study(FLOATING, out, preset="tiny")
+
+    (out / "study.md").unlink()  # a study that left fewer files is replaced all the same
+    assert main(["study", "--quick", "--out", str(out), "-q", "--overwrite"]) == 0
+    assert sorted(os.listdir(out)) == sorted(names + ["notes.txt"]) and (out / "notes.txt").read_text() == "mine"
+    assert json.loads((out / "study.json").read_text())["meta"]["date"]
+
+    # a run's folder and a study's are kept apart, whichever comes first, --overwrite or not
+    run_dir = tmp_path / "run"
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[mesh]\nshape = 'caterpillar'\nparams = { nx = 16, ny = 8 }\n[muscles]\ncount = 1\n[time]\nsteps = 2\n"
+    )
+    assert main(["run", str(scene), "--out", str(run_dir), "-q"]) == 0
+    for flags in ([], ["--overwrite"]):
+        assert main(["study", "--quick", "--out", str(run_dir), "-q", *flags]) == 2
+        assert "holds a run (amplitudes.csv, com.csv, frames.pvd, summary.json, 3 frames): a study there" in (
+            capsys.readouterr().err
+        )
+        assert main(["run", str(scene), "--out", str(out), "-q", *flags]) == 2
+        assert "holds a study (modal.csv, pareto.png, study.csv, study.json, study.md): a run there" in (
+            capsys.readouterr().err
+        )
+    assert not any(n.startswith("study") for n in os.listdir(run_dir)) and not (out / "summary.json").exists()
