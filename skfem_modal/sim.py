@@ -471,7 +471,7 @@ class ModalMuscle:
         self._n_clusters = self._model.elasticity.n_clusters
         self._n_active_clusters = int(active_labels.max()) + 1 if self._n_muscles else 0
         self.iterations = 0
-        self._warn_if_acceleration_idle()
+        self._warn_if_idle("acceleration", "warm_start")
 
     def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
         """Make the effects in order (calling ``D`` if a callable), the model and the backends, each stage timed."""
@@ -576,9 +576,16 @@ class ModalMuscle:
     etol = _driver_setting(
         "etol", _nonnegative, "Relative energy-change tolerance (0: off; costs an energy evaluation per iteration)."
     )
-    warm_start = _driver_setting(
-        "warm_start", _flag, "Start each step's iterations from the inertial prediction ``z + h z_dot``."
-    )
+
+    @property
+    def warm_start(self) -> bool:
+        """Start each step's iterations from the inertial prediction ``z + h z_dot`` (not under the reference contact)."""
+        return self._solver.warm_start
+
+    @warm_start.setter
+    def warm_start(self, value) -> None:
+        self._solver.warm_start = _flag(value, "warm_start")
+        self._warn_if_idle("warm_start")
 
     @property
     def acceleration(self) -> str:
@@ -588,15 +595,27 @@ class ModalMuscle:
     @acceleration.setter
     def acceleration(self, value) -> None:
         self._solver.acceleration = _acceleration_name(value, full_space=self._B is None)
-        self._warn_if_acceleration_idle()
+        self._warn_if_idle("acceleration")
 
-    def _warn_if_acceleration_idle(self) -> None:
+    def _warn_if_idle(self, *settings) -> None:
+        """Warn of each of ``settings`` (``acceleration``, ``warm_start``) that is on but does nothing here."""
         # a setting that does nothing must say so
-        if self._solver.acceleration != "none" and self._model.contact is not None:
+        contact = self._model.contact
+        if contact is None:
+            return
+        if "acceleration" in settings and self._solver.acceleration != "none":
             warnings.warn(
                 f"acceleration={self._solver.acceleration!r} has no effect under ground contact (a projection, not "
-                "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay "
-                "plain; warm_start=True speeds them up there (docs/contact.md)",
+                "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay plain"
+                + ("" if contact.reads_iterates else "; warm_start=True speeds them up there (docs/contact.md)"),
+                UserWarning,
+                stacklevel=3,
+            )
+        if "warm_start" in settings and self._solver.warm_start and contact.reads_iterates:
+            warnings.warn(
+                "warm_start=True has no effect under the reference contact (its rule reads the iterates, so they "
+                "start from the step's start state): the iterations are those without it; contact_model='coulomb' "
+                "warm-starts them (docs/contact.md)",
                 UserWarning,
                 stacklevel=3,
             )
@@ -671,6 +690,7 @@ class ModalMuscle:
         self._contact = _contact_settings(value, None, None, None)
         if self._model.contact is not None:
             self._new_contact("contact_model")
+            self._warn_if_idle("warm_start")
 
     friction = _contact_setting(
         "friction",
@@ -716,7 +736,7 @@ class ModalMuscle:
             self._contact_vertices = boundary_vertices(self._mesh)
         self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
         if contact is None:
-            self._warn_if_acceleration_idle()
+            self._warn_if_idle("acceleration", "warm_start")
 
     @property
     def up(self) -> int:

@@ -1,6 +1,7 @@
 """Faster iterations, the same answer (issue 20): restart on every backend, warm starts, Anderson, Newton, etol."""
 
 import pickle
+import warnings
 
 import numpy as np
 import pytest
@@ -256,3 +257,30 @@ def test_under_contact_iterations_are_not_accelerated():
         w, w_dot = other.step(w, w_dot, a, velocity=True)
     np.testing.assert_array_equal(w, z)
     assert other.solver.accepted == 0
+
+
+def test_a_warm_start_under_the_reference_contact_is_said_to_do_nothing():
+    # its rule reads the iterates: the iterations start from the step's state whatever warm_start says
+    mesh = sm.caterpillar(nx=16, ny=8)
+    kw = dict(n_muscles=2, n_weights=4, n_clusters=6, h=0.01, gravity=[0.0, -9.8], n_contacts=16)
+    kw["ground"] = float(mesh.p[1].min()) - 0.005
+    idle = "warm_start=True has no effect under the reference contact"
+    with pytest.warns(UserWarning, match=idle):
+        reference = sm.ModalMuscle.from_mesh(mesh, contact_model="reference", warm_start=True, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the Coulomb contact takes it: nothing said
+        coulomb = sm.ModalMuscle.from_mesh(mesh, warm_start=True, **kw)
+        reference.warm_start = False
+    with pytest.warns(UserWarning, match=idle):
+        reference.warm_start = True
+    with pytest.warns(UserWarning, match=idle):
+        coulomb.contact_model = "reference"
+    # the acceleration's warning recommends a warm start only where it works
+    with pytest.warns(UserWarning) as said:
+        reference.acceleration = "anderson"
+        sm.ModalMuscle.from_mesh(mesh, acceleration="anderson", **kw)
+    assert [str(w.message).endswith("warm_start=True speeds them up there (docs/contact.md)") for w in said] == [
+        False,
+        True,
+    ]
+    assert "has no effect under ground contact" in str(said[0].message)
