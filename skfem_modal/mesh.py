@@ -353,6 +353,19 @@ def _compact(p: np.ndarray, t: np.ndarray):
     return p[:, used], renumber[t]
 
 
+def _warn_unused(path: str, unused: np.ndarray, n: int, element: str) -> None:
+    """Say which vertices of a file no element uses (they are dropped, so the rest are renumbered)."""
+    shown = ", ".join(map(str, unused[:5])) + (", ..." if unused.size > 5 else "")
+    warnings.warn(
+        f"mesh file {path!r}: {unused.size} of its {n} vertices ({'index' if unused.size == 1 else 'indices'} "
+        f"{shown}) belong to no {element} and were "
+        f"dropped, so the mesh has {n - unused.size}: the others keep their order, but point data from the file "
+        "lines up with them only without those rows",
+        UserWarning,
+        stacklevel=3,
+    )
+
+
 def _read_meshio(path: str):
     """``meshio.read(path)``, with every failure a :class:`MeshError` naming the file.
 
@@ -428,7 +441,8 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     outline with z = 0), and refused otherwise (a curved surface is not a
     planar body). Quadratic cells (``triangle6``, ``tetra10``) keep their
     corner vertices. Vertices no element uses (e.g. gmsh's geometry points)
-    are removed. Coordinates are kept as they are in the file (see
+    are removed, with a ``UserWarning`` naming how many and which (the
+    file's point data then lines up only without them). Coordinates are kept as they are in the file (see
     :func:`normalize_and_center` and :func:`mirror` for units and y-down
     outlines).
 
@@ -496,6 +510,9 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         )
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
         raise MeshError(f"mesh file {path!r}: cells reference vertices outside 0..{len(points) - 1}")
+    unused = np.setdiff1d(np.arange(len(points)), cells)
+    if unused.size:
+        _warn_unused(path, unused, len(points), "tetrahedron" if "tetra" in blocks else "triangle")
     p, t = _compact(points.T, cells.T.astype(np.int64))
     same = coincident_vertices(p.T)
     repeated = int(np.sum(same != np.arange(same.size)))
@@ -549,6 +566,19 @@ def mirror(mesh, axes):
         axis = "xyz".index(name)
         p[axis] = p[axis].min() + p[axis].max() - p[axis]
     return type(mesh)(p, mesh.t.copy(), sort_t=False)
+
+
+def _warn_unused(path: str, unused: np.ndarray, n: int, element: str) -> None:
+    """Say which vertices of a file no element uses (they are dropped, so the rest are renumbered)."""
+    shown = ", ".join(map(str, unused[:5])) + (", ..." if unused.size > 5 else "")
+    warnings.warn(
+        f"mesh file {path!r}: {unused.size} of its {n} vertices ({'index' if unused.size == 1 else 'indices'} "
+        f"{shown}) belong to no {element} and were "
+        f"dropped, so the mesh has {n - unused.size}: the others keep their order, but point data from the file "
+        "lines up with them only without those rows",
+        UserWarning,
+        stacklevel=3,
+    )
 
 
 def _read_meshio(path: str):

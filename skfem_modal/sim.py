@@ -579,7 +579,7 @@ class ModalMuscle:
 
     @property
     def warm_start(self) -> bool:
-        """Start each step's iterations from the inertial prediction ``z + h z_dot`` (not under the reference contact)."""
+        """Start each step's iterations from the inertial prediction ``z + h z_dot`` (not under reference contact)."""
         return self._solver.warm_start
 
     @warm_start.setter

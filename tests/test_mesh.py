@@ -1,4 +1,5 @@
 import inspect
+import warnings
 
 import meshio
 import numpy as np
@@ -194,10 +195,33 @@ def test_load_flat_triangles_drops_z(tmp_path):
     extra = np.vstack([pts, [[9.0, 9.0, 3.5]]])  # a geometry point no cell uses
     path = tmp_path / "beam.vtu"
     meshio.write(path, meshio.Mesh(extra, [("triangle", m.t.T), ("vertex", [[extra.shape[0] - 1]])]))
-    loaded = load_mesh(path)
+    with pytest.warns(UserWarning, match=r"1 of its 16 vertices \(index 15\) belong to no triangle and were dropped"):
+        loaded = load_mesh(path)
     assert isinstance(loaded, MeshTri)
     np.testing.assert_allclose(loaded.p, m.p)
     np.testing.assert_array_equal(loaded.t, m.t)
+
+
+def test_vertices_no_element_uses_are_dropped_with_a_warning_naming_them(tmp_path):
+    # point data of the file lines up with the mesh only without the dropped rows: the user must hear of them
+    m = box3d(2, 2, 2)
+    n = m.p.shape[1]
+    points = np.vstack([[[5.0, 5.0, 5.0]], m.p.T, [[6.0, 6.0, 6.0]]])  # unused first and last
+    path = tmp_path / "box.vtu"
+    meshio.write(path, meshio.Mesh(points, [("tetra", m.t.T + 1)]))
+    with pytest.warns(UserWarning) as said:
+        loaded = load_mesh(path)
+    assert [str(w.message) for w in said] == [
+        f"mesh file {str(path)!r}: 2 of its {n + 2} vertices (indices 0, {n + 1}) belong to no tetrahedron and were "
+        f"dropped, so the mesh has {n}: the others keep their order, but point data from the file lines up with "
+        "them only without those rows"
+    ]
+    np.testing.assert_array_equal(loaded.p, m.p)
+    np.testing.assert_array_equal(loaded.t, m.t)
+    meshio.write(path, meshio.Mesh(m.p.T, [("tetra", m.t.T)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # every vertex used: nothing said
+        assert load_mesh(path).p.shape == (3, n)
 
 
 def test_load_tetrahedra_and_quadratic_cells(tmp_path):
