@@ -105,7 +105,8 @@ SCHEMA: dict[str, Any] = {
             "str",
             None,
             "Mesh file (any format meshio reads), relative to the scene file. "
-            "Triangles make a 2D body, tetrahedra a 3D one.",
+            "Triangles make a 2D body, tetrahedra a 3D one; vertices no element uses are dropped, with a "
+            "warning naming them.",
         ),
         "params": Key(
             "table",
@@ -273,7 +274,8 @@ SCHEMA: dict[str, Any] = {
             "bool",
             False,
             "Start each step's iterations from the inertial prediction z + h z_dot (the same answer in fewer "
-            "iterations; not under the reference contact model, whose rule reads the iterates).",
+            "iterations; not under the reference contact model, whose rule reads the iterates: there it does "
+            "nothing, and a warning says so).",
         ),
         "acceleration": Key(
             "str",
