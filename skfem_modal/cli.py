@@ -709,11 +709,16 @@ def _warning_printer(command: str):
 
     The library's warnings (scales, rounded durations, settings without effect,
     numpy's overflows) name the problem in their message; the file and source
-    line that raised them mean nothing to a user of the command.
+    line that raised them mean nothing to a user of the command. Each is said
+    once (a study builds a scene's simulator once per setting).
     """
+    said = set()
 
     def show(message, category, filename, lineno, file=None, line=None):
-        print(f"skfem-modal {command}: warning: {message}", file=sys.stderr, flush=True)
+        text = f"skfem-modal {command}: warning: {message}"
+        if text not in said:
+            said.add(text)
+            print(text, file=sys.stderr, flush=True)
 
     return show
 

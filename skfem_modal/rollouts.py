@@ -46,6 +46,7 @@ import signal
 import threading
 import time
 import uuid
+import warnings
 
 import numpy as np
 
@@ -230,8 +231,13 @@ def _limit_blas(threads, parent=None) -> None:
 
 
 def _install(key: str, payload: bytes, blas_threads) -> None:
-    """Pool initializer: keep the trial sent, one BLAS thread, leave Ctrl-C to the parent."""
+    """Pool initializer: keep the trial sent, one BLAS thread, leave Ctrl-C to the parent, no warnings.
+
+    A gait that diverges would warn of overflows from each worker, raw; its
+    score (-1000 sizes) says it already.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore")
     _limit_blas(blas_threads)
     _TRIALS[key] = pickle.loads(payload)
 

@@ -38,6 +38,7 @@ import json
 import os
 import platform
 import time
+import warnings
 from concurrent.futures import Executor, ProcessPoolExecutor
 
 import numpy as np
@@ -539,6 +540,16 @@ def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
     return lines
 
 
+def _quiet_worker() -> None:
+    """Pool initializer: no warnings from the workers (raw, once per process); the caller says them.
+
+    The calling process builds and steps every setting's simulator again for
+    the timings (:func:`time_steps`), so each warning is said there, once, in
+    the caller's words (the command line's ``skfem-modal study: warning: ...``).
+    """
+    warnings.simplefilter("ignore")
+
+
 def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer=None, initargs=()):
     """The executor a study (or a gait search) runs on.
 
@@ -659,7 +670,7 @@ def run_study(
     say = print if progress else (lambda *a, **k: None)
     close = None
     if executor is None:
-        executor, close = make_executor(workers, scheduler)
+        executor, close = make_executor(workers, scheduler, initializer=None if scheduler else _quiet_worker)
     started = time.perf_counter()
     try:
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]

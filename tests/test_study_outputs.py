@@ -115,3 +115,16 @@ def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, caps
             capsys.readouterr().err
         )
     assert not any(n.startswith("study") for n in os.listdir(run_dir)) and not (out / "summary.json").exists()
+
+
+def test_the_study_command_says_warnings_once_in_its_own_words(tmp_path, tiny, capfd):
+    # a step large for the body: the ScaleWarning comes from the workers' builds too, which say nothing raw
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[mesh]\nshape = 'caterpillar'\nparams = { nx = 16, ny = 8 }\n[material]\nmu = 1e5\nrho = 1e3\n"
+        "[muscles]\ncount = 1\n[muscles.gait]\namplitude = [0.5]\nperiod = [1.0]\n[time]\nstep = 0.5\nsteps = 4\n"
+    )
+    assert main(["study", str(scene), "--quick", "--out", str(tmp_path / "study"), "-q"]) == 0
+    err = capfd.readouterr().err.splitlines()
+    assert err and all(line.startswith("skfem-modal study: warning: mesh 'caterpillar' is 2") for line in err), err
+    assert len(set(err)) == len(err)  # each said once
