@@ -568,19 +568,6 @@ def mirror(mesh, axes):
     return type(mesh)(p, mesh.t.copy(), sort_t=False)
 
 
-def _warn_unused(path: str, unused: np.ndarray, n: int, element: str) -> None:
-    """Say which vertices of a file no element uses (they are dropped, so the rest are renumbered)."""
-    shown = ", ".join(map(str, unused[:5])) + (", ..." if unused.size > 5 else "")
-    warnings.warn(
-        f"mesh file {path!r}: {unused.size} of its {n} vertices ({'index' if unused.size == 1 else 'indices'} "
-        f"{shown}) belong to no {element} and were "
-        f"dropped, so the mesh has {n - unused.size}: the others keep their order, but point data from the file "
-        "lines up with them only without those rows",
-        UserWarning,
-        stacklevel=3,
-    )
-
-
 def _read_meshio(path: str):
     """``meshio.read``, with every failure a :class:`MeshError` naming the file.
 
