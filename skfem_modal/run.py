@@ -177,7 +177,12 @@ def run_scene(
     Raises
     ------
     SimulationError
-        If the state goes non-finite (the outputs so far are kept).
+        If the state goes non-finite (the outputs so far are kept, up to the
+        last step done); the message adds what the motion monitor saw of the
+        failing step (e.g. activations beyond the ceilings).
+    KeyboardInterrupt
+        On Ctrl-C (or SIGTERM under the command line), once ``summary.json``
+        says ``interrupted`` and every file ends at the last step done.
     FileExistsError
         ``out_dir`` holds an earlier run and ``overwrite`` is false (before any work).
 
