@@ -366,30 +366,6 @@ def _warn_unused(path: str, unused: np.ndarray, n: int, element: str) -> None:
     )
 
 
-def _read_meshio(path: str):
-    """``meshio.read(path)``, with every failure a :class:`MeshError` naming the file.
-
-    meshio prints its reasons and calls ``sys.exit`` when no reader accepts a
-    file; those reasons become the message instead.
-    """
-    import contextlib
-    import io
-
-    import meshio
-
-    said = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            return meshio.read(path)
-    except (Exception, SystemExit) as err:
-        reasons = [line.strip().removeprefix("Error:").strip() for line in said.getvalue().splitlines()]
-        reasons = [reason for reason in reasons if reason]
-        if not isinstance(err, SystemExit):
-            reasons.append(f"{type(err).__name__}: {err}" if not isinstance(err, meshio.ReadError) else str(err))
-        detail = "; ".join(dict.fromkeys(reasons)) or type(err).__name__
-        raise MeshError(f"cannot read mesh file {path!r}: {detail}") from None
-
-
 #: Vertices closer than this fraction of the mesh's largest extent are the same vertex (:func:`coincident_vertices`).
 MERGE_TOLERANCE = 1e-9
 
