@@ -25,25 +25,25 @@ STEPS, H = 100, 0.01  # one second
 size_of = sm.body_size
 
 
-def incline_gravity(dim, along):
-    """Gravity tilted by THETA towards ``along`` (a unit vector in the ground plane), up the last axis."""
+def incline_gravity(dim, along, theta=THETA):
+    """Gravity tilted by ``theta`` towards ``along`` (a unit vector in the ground plane), up the last axis."""
     g = np.zeros(dim)
-    g[: dim - 1] = G * np.sin(THETA) * np.asarray(along)
-    g[-1] = -G * np.cos(THETA)
+    g[: dim - 1] = G * np.sin(theta) * np.asarray(along)
+    g[-1] = -G * np.cos(theta)
     return g
 
 
-def on_incline(mesh, along, friction, **settings):
-    """A stiff body at rest on the ground, gravity tilted by THETA towards ``along`` (the up axis the last)."""
+def on_incline(mesh, along, friction, theta=THETA, stiffness=1e7, **settings):
+    """A body (stiff unless told) at rest on the ground, gravity tilted by ``theta`` towards ``along`` (up: last)."""
     return sm.ModalMuscle.from_mesh(
         mesh,
         n_muscles=0,
         n_weights=4,
         n_clusters=4,
-        mu=1e7,
+        mu=stiffness,
         rho=1e3,
         h=H,
-        gravity=incline_gravity(mesh.p.shape[0], along),
+        gravity=incline_gravity(mesh.p.shape[0], along, theta),
         ground=float(mesh.p[-1].min()),
         friction=friction,
         **settings,
@@ -64,10 +64,33 @@ def slide(sim, steps=STEPS):
     return sim.com(z) - start, worst / size_of(sim.mesh)
 
 
-def travel_expected(friction):
+def travel_expected(friction, theta=THETA):
     """Implicit Euler's travel after STEPS steps from rest (exact for a rigid block) and the continuous one."""
-    a = max(0.0, G * (np.sin(THETA) - friction * np.cos(THETA)))
+    a = max(0.0, G * (np.sin(theta) - friction * np.cos(theta)))
     return a * H**2 * STEPS * (STEPS + 1) / 2, a * (STEPS * H) ** 2 / 2
+
+
+def downhill(dim):
+    """The way down the incline: along the first axis in 2D, diagonal (30 degrees off it) in 3D."""
+    return np.array([1.0]) if dim == 2 else np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0))])
+
+
+def travels(sim, along, steps, speed=0.0):
+    """The centre of mass's travel along ``along`` after each of ``steps`` steps, (steps + 1,), and its last sideways.
+
+    The body starts at rest in shape, moving downhill at ``speed``.
+    """
+    z, z_dot, _ = sim.rest_state()
+    dim = sim.mesh.p.shape[0]
+    velocity = np.zeros(dim)
+    velocity[: dim - 1] = speed * along
+    z_dot = sim.coordinates(np.tile(velocity, sim.mesh.p.shape[1]))
+    start, travel = sim.com(z), [0.0]
+    for _ in range(steps):
+        z, z_dot = sim.step(z, z_dot, None, velocity=True)
+        travel.append(float((sim.com(z) - start)[: dim - 1] @ along))
+    moved = (sim.com(z) - start)[: dim - 1]
+    return np.array(travel), moved - travel[-1] * along
 
 
 @pytest.mark.parametrize("friction", [0.0, 0.2, 0.5])
@@ -90,6 +113,59 @@ def test_a_stiff_block_on_an_incline_slides_as_coulomb_says(dim, friction):
         assert np.abs(moved[: dim - 1]).max() < 0.01 * frictionless  # static friction holds it
     assert abs(moved[-1]) < 1e-3 * size_of(mesh)  # on the incline, not into it or off it
     assert worst <= ALLOWANCE
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_block_sliding_with_friction_above_tan_theta_stops_where_coulomb_says(dim):
+    # launched downhill at 0.1 m/s with mu = 1.05 tan theta, a rigid block slows down by g (mu cos - sin)
+    # (0.17 m/s^2, 5 % of g sin theta: friction off by 5 % would not stop it at all) and sticks. Friction
+    # lagging a step behind the motion turned sideways every step in 3D and stopped it only at 5 % further,
+    # after 2.5 s (and a soft block never: the next test)
+    friction, speed = 1.05 * np.tan(THETA), 0.1
+    along = downhill(dim)
+    travel, sideways = travels(on_incline(block(dim), along, friction), along, 2 * STEPS, speed)
+    slowing = G * (friction * np.cos(THETA) - np.sin(THETA)) * H  # speed lost a step
+    moving = np.arange(1, int(speed / slowing) + 1)  # the steps that end still moving downhill
+    stopped = H * np.sum(speed - slowing * moving)  # implicit Euler's: each step moves h times its end speed
+    # to 1 %: the first steps, while the weight comes onto the ground, change it by 0.05 %; the last
+    # step's travel, had the rule let the block on one step more or less, is 0.06 % of it
+    assert travel[-1] == pytest.approx(stopped, rel=0.01)
+    assert travel[2 * STEPS] - travel[STEPS] < 1e-4 * travel_expected(0.0)[1]  # stuck (measured: 2e-6 of it)
+    assert np.abs(sideways).max() < 1e-3 * travel[-1]
+
+
+@pytest.mark.parametrize(
+    "dim, stiffness, degrees, friction",
+    [(2, 1e5, 20.0, 1.05 * np.tan(THETA)), (3, 1e5, 20.0, 1.05 * np.tan(THETA)), (3, 1e7, 35.0, 0.71)],
+)
+def test_a_block_set_down_with_friction_above_tan_theta_comes_to_rest(dim, stiffness, degrees, friction):
+    # set down at rest, the block's weight comes onto the ground over the first steps (a soft block's
+    # overshoots it), so it slides a little, then friction (mu = 1.05 tan 20, or 0.71 at 35 degrees,
+    # tan 35 = 0.7002) must stop it. With friction a step late, the 3D soft block slid at 0.071 m/s for
+    # ever and the stiff one at 35 degrees at 0.038 m/s (in 2D friction has no sideways to turn to)
+    theta = np.radians(degrees)
+    along = downhill(dim)
+    travel, _ = travels(on_incline(block(dim), along, friction, theta, stiffness), along, 2 * STEPS)
+    # a sticking vertex gives by the compliance (a thousandth of a step's correction) each step: a
+    # creep of about 1e-3 g sin(theta) h a second (measured 4e-5 of the frictionless travel at most)
+    assert abs(travel[2 * STEPS] - travel[STEPS]) < 2e-4 * travel_expected(0.0, theta)[1]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_block_with_friction_below_tan_theta_slides_at_coulombs_acceleration(dim):
+    # mu = 0.95 tan theta: a = g (sin - mu cos) is 5 % of g sin theta, so 1 % of it is friction right to
+    # 5e-4 of itself. Friction a step late let the 3D block slide 10 % too far in 2 s
+    friction = 0.95 * np.tan(THETA)
+    along = downhill(dim)
+    travel, sideways = travels(on_incline(block(dim), along, friction), along, 2 * STEPS)
+    a = G * (np.sin(THETA) - friction * np.cos(THETA))
+    # implicit Euler's travel, to 1 %: the first step, before the weight is on the ground, slides a little
+    # more freely (7.5e-4 m/s more, 0.44 % of the travel after 2 s)
+    assert travel[2 * STEPS] == pytest.approx(a * H**2 * 2 * STEPS * (2 * STEPS + 1) / 2, rel=0.01)
+    half = STEPS // 2  # the acceleration from the travel at 1, 1.5 and 2 s: the start's transient cancels
+    second = travel[2 * STEPS] - 2 * travel[3 * half] + travel[STEPS]
+    assert second / (half * H) ** 2 == pytest.approx(a, rel=0.01)
+    assert np.abs(sideways).max() < 1e-3 * travel[-1]  # straight down
 
 
 @pytest.mark.parametrize("friction", [0.8, 0.0])
