@@ -69,7 +69,7 @@ from .model import Model
 from .solver import TOL, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
-from .units import ScaleWarning, scale_mismatch, up_axis
+from .units import up_axis, warn_scale
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -164,13 +164,6 @@ def _damping_setting(name: str, coefficient: str, doc: str):
     return property(get, put, doc=doc)
 
 
-def _warn_scales(mesh, mu, rho, gravity, h) -> None:
-    """Warn of a body the material or the time step do not suit (:func:`~skfem_modal.units.scale_mismatch`)."""
-    message = scale_mismatch(mesh, np.mean(mu), np.mean(rho), gravity, h=h)
-    if message:
-        warnings.warn(message, ScaleWarning, stacklevel=3)
-
-
 def _from_mesh(
     cls,
     mesh,
@@ -261,7 +254,7 @@ def _from_mesh(
     say = progress or (lambda stage: None)
     with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
         _fits_float64(mesh, mu, gamma, rho, h, gravity)
-        _warn_scales(mesh, mu, rho, gravity, h)
+        warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2)  # the caller of from_mesh
         if ground is not None:
             g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
             _pulled_to_ground(g, ground, axis)
@@ -555,7 +548,7 @@ class ModalMuscle:
     def h(self, value) -> None:
         value = _positive_scalar(value, "h")
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity)
-        _warn_scales(self._mesh, self._mu, self._rho, None, value)
+        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=2)  # who assigns h
         self._model.retime(value)
         self._rebuild()
 

@@ -216,11 +216,15 @@ def scale_mismatch(
     return None
 
 
-def warn_scale(mesh, mu: float, rho: float, gravity=None, duration=None, what: str = "mesh", h=None) -> None:
-    """Warn (:class:`ScaleWarning`) with :func:`scale_mismatch`'s message, if any."""
-    message = scale_mismatch(mesh, mu, rho, gravity, duration, what, h)
+def warn_scale(mesh, mu, rho, gravity=None, duration=None, what: str = "mesh", h=None, stacklevel: int = 2) -> None:
+    """Warn (:class:`ScaleWarning`) with :func:`scale_mismatch`'s message, if any.
+
+    ``mu`` and ``rho`` may be per element (their means are compared); ``stacklevel`` as for
+    :func:`warnings.warn`, counted from the caller.
+    """
+    message = scale_mismatch(mesh, float(np.mean(mu)), float(np.mean(rho)), gravity, duration, what, h)
     if message:
-        warnings.warn(message, ScaleWarning, stacklevel=2)
+        warnings.warn(message, ScaleWarning, stacklevel=stacklevel + 1)
 
 
 def float_range_problems(mesh, *, mu, rho, h=None, gravity=None, gamma=None) -> list[tuple[tuple[str, ...], str]]:
