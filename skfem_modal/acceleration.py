@@ -75,6 +75,9 @@ class StepEnergy:
     ----------
     S, R : ndarray, shape (clusters, dim, dim)
         The cluster matrices and their closest rotations at the last point evaluated.
+    round_off : float
+        How much the last energy evaluated may be off by round-off: energies closer
+        than that are equal as far as they tell.
     """
 
     def __init__(self, model):
@@ -82,6 +85,7 @@ class StepEnergy:
         self.exact = PlainBackend(model)
         self.H = sum(m for m in (e.matrix(model.h) for e in model.effects) if m is not None)
         self.S = self.R = None
+        self.round_off = 0.0
 
     def start(self, z, z_dot, a) -> None:
         """Set up the step from ``(z, z_dot)`` under activation ``a``."""
@@ -104,7 +108,9 @@ class StepEnergy:
         R = self.exact.rotations(S)
         self.S, self.R = S.reshape(-1, d, d), R.reshape(-1, d, d)
         u = z - self.exact.c
-        return 0.5 * float(u @ (self.H @ u)) - float(R.ravel() @ S)
+        inertia, rotated = 0.5 * float(u @ (self.H @ u)), float(R.ravel() @ S)
+        self.round_off = 1e-13 * (abs(inertia) + abs(rotated))
+        return inertia - rotated
 
 
 class Anderson:

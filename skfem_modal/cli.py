@@ -37,6 +37,8 @@ def parse_mesh_spec(spec: str):
     """
     from .mesh import BUILTIN_SHAPES, builtin_mesh, load_mesh
 
+    if _is_scene(spec):
+        raise ValueError(f"{spec} is a scene; this command takes a mesh: a mesh file or a built-in NAME")
     name, _, params = spec.partition(":")
     if name in BUILTIN_SHAPES:
         kwargs = {}
@@ -47,6 +49,10 @@ def parse_mesh_spec(spec: str):
             kwargs[key.strip()] = _number(value.strip(), f"mesh parameter {key.strip()!r}")
         return builtin_mesh(name, **kwargs)
     return load_mesh(spec)
+
+
+def _is_scene(path) -> bool:
+    return path is not None and str(path).lower().endswith(".toml")
 
 
 def _number(text: str, what: str):
@@ -71,17 +77,40 @@ def _material(args) -> tuple[float, float]:
     if args.young is not None or args.poisson is not None:
         if args.young is None or args.poisson is None:
             raise ValueError("--young and --poisson go together")
+        if args.mu is not None or args.lam is not None:
+            raise ValueError("--young/--poisson and --mu/--lam both give the material: give one pair")
         return lame_parameters(args.young, args.poisson)
-    return args.mu, args.lam
+    return (1.0 if args.mu is None else args.mu), (1.0 if args.lam is None else args.lam)
+
+
+def _check_vtu_out(path: str) -> None:
+    """Refuse, before any work, an output file ``modes`` could not write where it is asked to."""
+    if os.path.isdir(path):
+        raise ValueError(f"--out {path} is a directory; give a file name, e.g. {os.path.join(path, 'modes.vtu')}")
+    if not path.lower().endswith(".vtu"):
+        raise ValueError(f"--out {path}: modes writes a .vtu file (VTK XML); name it NAME.vtu")
+    folder = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(folder):  # created when the file is written
+        folder = os.path.dirname(folder)
+    if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+        raise ValueError(f"--out {path}: {folder} is not a folder this user can write in")
 
 
 def cmd_modes(args) -> int:
     from .export import export_modes
     from .mesh import mesh_summary, vertices_where
-    from .modal import actuation_limits, linear_modal_analysis, natural_frequencies, rigid_mode_count
+    from .modal import (
+        actuation_limits,
+        linear_modal_analysis,
+        natural_frequencies,
+        rigid_mode_count,
+        stiffness_scale,
+        zero_stiffness,
+    )
 
-    mesh = parse_mesh_spec(args.mesh)
     mu, lam = _material(args)
+    _check_vtu_out(args.out)
+    mesh = parse_mesh_spec(args.mesh)
     fixed = None
     if args.fix:
         fixed = np.unique(np.concatenate([vertices_where(mesh, cond) for cond in args.fix]))
@@ -111,11 +140,13 @@ def cmd_modes(args) -> int:
     if k <= n_rigid:
         say(f"all {k} are rigid motions: ask for more than {n_rigid} (-k) to see elastic modes")
     say(f"{'mode':>5}  {'eigenvalue':>16}  {'frequency [Hz]':>15}  {'ceiling':>10}  kind")
-    for i, (val, f, c) in enumerate(zip(values, freqs, ceilings)):
-        rigid = i < n_rigid
+    zero = zero_stiffness(values[n_rigid:], stiffness_scale(mesh, mu, lam, args.rho))
+    kinds = ["rigid"] * min(n_rigid, k) + ["hinge" if z else "elastic" for z in zero]
+    for i, (val, f, c, kind) in enumerate(zip(values, freqs, ceilings, kinds)):
         # a rigid motion is no muscle: its "ceiling" only measures a rotation's gradient, or is infinite
-        ceiling = "-" if rigid or not np.isfinite(c) else f"{c:10.6g}"
-        say(f"{i:5d}  {val:16.9e}  {f:15.6g}  {ceiling:>10}  {'rigid' if rigid else 'elastic'}")
+        ceiling = "-" if kind == "rigid" or not np.isfinite(c) else f"{c:10.6g}"
+        f = f if kind == "elastic" else 0.0  # round-off's sqrt is no frequency
+        say(f"{i:5d}  {val:16.9e}  {f:15.6g}  {ceiling:>10}  {kind}")
     export_modes(args.out, mesh, modes, values, element=args.element)
     say(f"wrote {args.out} (ParaView: Warp By Vector on mode_NN)")
     return EXIT_OK
@@ -203,7 +234,7 @@ def cmd_info(args) -> int:
         print(schema_markdown())
         return EXIT_OK
     target = args.target
-    if target is None or target.endswith(".toml"):
+    if target is None or _is_scene(target):
         scene = _load_scene(target)
         mesh = scene.mesh
         info = mesh_summary(mesh)
@@ -437,6 +468,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = None
+    if value is None or not (0.0 < value < np.inf):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
+
+
 def _picture_size(text: str) -> tuple[int, int]:
     width, x, height = text.lower().partition("x")
     if not (x and width.isdigit() and height.isdigit() and min(int(width), int(height)) >= 16):
@@ -479,8 +520,8 @@ def _modes_options(p) -> None:
         type=_positive_int,
         help=f"number of modes, rigid ones included (default: the rigid motions and {ELASTIC_MODES} elastic modes)",
     )
-    p.add_argument("--mu", type=float, default=1.0, help="Lame shear modulus")
-    p.add_argument("--lam", type=float, default=1.0, help="Lame first parameter")
+    p.add_argument("--mu", type=float, help="Lame shear modulus (default 1)")
+    p.add_argument("--lam", type=float, help="Lame first parameter (default 1)")
     p.add_argument("--young", type=float, help="Young's modulus (with --poisson, instead of --mu/--lam)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio")
     p.add_argument("--rho", type=float, default=1.0, help="density")
@@ -493,7 +534,7 @@ def _modes_options(p) -> None:
         help="pin the vertices where COND holds, e.g. 'x <= 0' or 'x == min' (repeatable)",
     )
     p.add_argument(
-        "--max-s", type=float, default=2.0, help="gradient change (Frobenius norm) that defines the ceilings"
+        "--max-s", type=_positive_float, default=2.0, help="gradient change (Frobenius norm) that defines the ceilings"
     )
     p.add_argument("--out", default="modes.vtu", help="output .vtu file")
 

@@ -97,6 +97,8 @@ def atomic_path(path: str | os.PathLike):
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         except FileExistsError:
             continue
+        except OSError as error:  # named as the caller knows it, not by the hidden name
+            raise type(error)(error.errno, error.strerror, path) from None
         return tmp
 
 
@@ -116,7 +118,10 @@ def written_whole(path):
     tmp = atomic_path(path)
     try:
         yield tmp
-        os.replace(tmp, os.fspath(path))
+        try:
+            os.replace(tmp, os.fspath(path))
+        except OSError as error:  # named as the caller knows it, not by the hidden name
+            raise type(error)(error.errno, error.strerror, os.fspath(path)) from None
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -62,7 +62,7 @@ class MeshError(ValueError):
 def _listing(indices: np.ndarray) -> str:
     shown = ", ".join(str(int(i)) for i in indices[:_MAX_LISTED])
     more = f", ... ({len(indices)} in all)" if len(indices) > _MAX_LISTED else ""
-    return f"[{shown}{more}]"
+    return f"[{shown}{more}] (numbered from 0)"
 
 
 def _element_name(dim: int, plural: bool = True) -> str:
@@ -280,10 +280,10 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     >>> import numpy as np
     >>> from skfem import MeshTri
     >>> p = np.array([[0.0, 1.0, 2.0], [0.0, 0.0, 0.0]])
-    >>> check_mesh(MeshTri(p, np.array([[0], [1], [2]])))
+    >>> check_mesh(MeshTri(p, np.array([[0], [1], [2]])))  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    skfem_modal.mesh.MeshError: mesh: 1 degenerate (zero-area) triangles: [0]; every element needs a positive area
+    skfem_modal.mesh.MeshError: mesh: 1 degenerate (zero-area) triangles: [0] (numbered from 0); every element ...
     """
     if id(mesh) in _TRUSTED:
         return

@@ -348,7 +348,7 @@ class LocalGlobal:
 
         A proposal made from ``x`` and its plain iterate ``g`` replaces ``g``
         (handed to the backend) only when its step energy is at most that of
-        ``g``; otherwise ``g`` is kept and the accelerator's history
+        ``g`` (to round-off); otherwise ``g`` is kept and the accelerator's history
         forgotten. So every iterate is at least as low as the plain one it
         replaces, and the energies of the results fall with the iterations.
         """
@@ -371,7 +371,8 @@ class LocalGlobal:
                 return self._finish(backend, done if hit >= 0 else -1)
             if proposal is not None:
                 E_p = energy(proposal)
-                if E_p <= E_g:
+                # no higher, to round-off: refusing a converged proposal over round-off restarts the accelerator
+                if E_p <= E_g + energy.round_off:
                     backend.restart(proposal)
                     self.accepted += 1
                     x, E, local = proposal, E_p, (energy.S, energy.R)

@@ -16,7 +16,7 @@ from skfem_modal.sim import ModalMuscle
 
 @pytest.fixture(scope="module")
 def small():
-    mesh = sm.caterpillar(nx=8, ny=5)
+    mesh = sm.caterpillar(nx=10, ny=5)
     _, modes = sm.linear_modal_analysis(mesh, 5)
     return mesh, modes[:, 3:]
 
@@ -52,7 +52,7 @@ def test_reference_step_is_the_energy_minimum(small):
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("push_out", [0.0, 1.0])
 def test_full_basis_reduced_simulator_equals_the_reference(dim, push_out):
-    mesh = sm.caterpillar(nx=8, ny=5) if dim == 2 else sm.creature(cell=0.3)
+    mesh = sm.caterpillar(nx=10, ny=5) if dim == 2 else sm.creature(cell=0.3)
     n_rigid = 3 if dim == 2 else 6
     _, modes = sm.linear_modal_analysis(mesh, n_rigid + 2)
     D = modes[:, n_rigid:]

@@ -92,3 +92,51 @@ def test_cli_bad_input_exit_code(tmp_path, capsys):
     assert "--young and --poisson go together" in capsys.readouterr().err
     assert main(["modes", "beam2d", "--fix", "x < -5"]) == 2
     assert "selects no vertex" in capsys.readouterr().err
+
+
+def test_cli_modes_refuses_what_it_cannot_write_before_any_work(tmp_path, capsys, monkeypatch):
+    import skfem_modal.modal
+
+    def never(*args, **kwargs):
+        raise AssertionError("the modes were computed")
+
+    monkeypatch.setattr(skfem_modal.modal, "linear_modal_analysis", never)
+    cases = [
+        (["--out", str(tmp_path / "a.vtk")], "modes writes a .vtu file"),
+        (["--out", str(tmp_path)], "is a directory; give a file name"),
+        (["--young", "1", "--poisson", "0.3", "--mu", "2"], "both give the material: give one pair"),
+    ]
+    for extra, message in cases:
+        assert main(["modes", "beam2d", *extra]) == 2
+        assert message in capsys.readouterr().err
+    for value in ("0", "-1", "inf"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["modes", "beam2d", "--max-s", value])
+        assert exit_.value.code == 2
+        assert "argument --max-s: expected a positive finite number" in capsys.readouterr().err
+    assert main(["modes", "examples/seal_crawl.toml"]) == 2
+    assert "is a scene; this command takes a mesh" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_modes_labels_a_hinge_and_prints_no_frequency_for_round_off(tmp_path, capsys):
+    from test_modal import _hinged_squares
+
+    path = tmp_path / "hinged.vtu"
+    mesh = _hinged_squares()
+    meshio.write(path, meshio.Mesh(mesh.p.T, [("triangle", mesh.t.T)]))
+    assert main(["modes", str(path), "--fix", "x == min", "-k", "3", "--out", str(tmp_path / "m.vtu")]) == 0
+    printed = capsys.readouterr()
+    assert "warning: 1 modes have zero stiffness besides the 0 rigid motions the pins leave" in printed.err
+    rows = [line.split() for line in printed.out.splitlines() if line.split()[-1:] in (["hinge"], ["elastic"])]
+    assert [r[-1] for r in rows] == ["hinge", "elastic", "elastic"]
+    assert float(rows[0][2]) == 0.0 and float(rows[1][2]) > 0.0
+
+
+def test_a_scene_is_known_by_its_suffix_in_any_case(tmp_path, capsys):
+    upper = tmp_path / "CREATURE.TOML"
+    upper.write_text(open("examples/creature_crawl.toml").read())
+    assert main(["info", str(upper)]) == 0
+    assert "scene: creature crawl" in capsys.readouterr().out
+    assert main(["modes", str(upper)]) == 2
+    assert "is a scene; this command takes a mesh" in capsys.readouterr().err

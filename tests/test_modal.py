@@ -8,6 +8,7 @@ from skfem_modal import (
     beam2d,
     beam3d,
     box3d,
+    caterpillar,
     linear_modal_analysis,
     make_mesh,
     mass_matrix,
@@ -17,7 +18,7 @@ from skfem_modal import (
     stiffness_matrix,
     vertices_where,
 )
-from skfem_modal.modal import mode_sign_convention
+from skfem_modal.modal import mode_sign_convention, stiffness_scale, zero_stiffness
 
 BETA_L = np.array([1.8751040687119611, 4.6940911329739180])  # cantilever roots
 
@@ -200,3 +201,61 @@ def test_consistent_mass_and_bad_arguments():
         linear_modal_analysis(mesh, 5, mass="diagonal")
     with pytest.raises(TypeError, match="k must be an integer"):
         linear_modal_analysis(mesh, 2.5)
+
+
+def _with_thin_element(mesh, height):
+    """``mesh`` and one more element on its top face, ``height`` high: valid, but nearly flat."""
+    P, T = mesh.p.T, mesh.t.T
+    dim = P.shape[1]
+    top = P[:, dim - 1] == P[:, dim - 1].max()
+    face = mesh.facets[:, mesh.boundary_facets()].T
+    face = face[top[face].all(axis=1)][0]
+    apex = P[face].mean(axis=0) + height * np.eye(dim)[dim - 1]
+    return type(mesh)(np.vstack([P, apex]).T, np.vstack([T, np.r_[face, len(P)]]).T)
+
+
+@pytest.mark.parametrize("mesh", [beam2d(4.0, 1.0, 8, 2), beam3d(4.0, 1.0, 1.0, 4, 2, 2)], ids=["2d", "3d"])
+def test_a_thin_element_leaves_the_lowest_modes_as_they_were(mesh):
+    # few DOFs: the dense solve; solved directly, its errors were round-off of the thin element's
+    # huge eigenvalue (h = 1e-8 gave the 2D beam -9.27 for its lowest bending mode, 0.467)
+    dim = mesh.p.shape[0]
+    n_rigid = 3 if dim == 2 else 6
+    clean, _ = linear_modal_analysis(mesh, n_rigid + 4)
+    for height in (1e-6, 1e-8, 1e-10):
+        values, modes = linear_modal_analysis(_with_thin_element(mesh, height), n_rigid + 4)
+        np.testing.assert_allclose(values[n_rigid:], clean[n_rigid:], rtol=1e-5)
+        assert modes.shape[0] <= 600  # the dense path
+
+
+def _hinged_squares():
+    """Two squares of 3 x 3 cells touching at one corner, (1, 1): a hinge."""
+    grid = np.linspace(0.0, 1.0, 4)
+    a = MeshTri.init_tensor(grid, grid)
+    p = np.hstack([a.p, a.p + 1.0])
+    t = np.hstack([a.t, a.t + a.p.shape[1]])
+    corner = a.p.shape[1] + int(np.flatnonzero((a.p == 0.0).all(axis=0))[0])  # (1, 1) of the second
+    joint = int(np.flatnonzero((a.p == 1.0).all(axis=0))[0])
+    t[t == corner] = joint
+    keep = np.setdiff1d(np.arange(p.shape[1]), [corner])
+    renumber = np.full(p.shape[1], -1)
+    renumber[keep] = np.arange(keep.size)
+    return MeshTri(p[:, keep], renumber[t])
+
+
+def test_a_hinge_is_said_also_when_pins_hold_the_rest():
+    mesh = _hinged_squares()
+    with pytest.warns(RuntimeWarning, match="1 modes have zero stiffness besides the mesh's 3 rigid motions"):
+        free, _ = linear_modal_analysis(mesh, 5)
+    assert abs(free[3]) < 1e-12 and free[4] > 1e-3
+    left = np.flatnonzero(mesh.p[0] == 0.0)
+    with pytest.warns(RuntimeWarning, match="1 modes have zero stiffness besides the 0 rigid motions the pins leave"):
+        pinned, _ = linear_modal_analysis(mesh, 2, fixed=left)
+    assert abs(pinned[0]) < 1e-12 and pinned[1] > 1e-3
+    np.testing.assert_array_equal(zero_stiffness(pinned, stiffness_scale(mesh)), [True, False])
+
+
+def test_a_mesh_of_hinges_only_is_said_not_refused():
+    # legs of a coarse caterpillar joined at single vertices: every elastic mode asked for is a hinge
+    with pytest.warns(RuntimeWarning, match="3 modes have zero stiffness"):
+        values, _ = linear_modal_analysis(caterpillar(nx=8, ny=5), 6)
+    assert np.abs(values).max() < 1e-12 * stiffness_scale(caterpillar(nx=8, ny=5))
