@@ -128,6 +128,7 @@ class Player:
         self.paused = False
         self._intervals = deque(maxlen=_RECENT)
         self._step_times = deque(maxlen=_RECENT)
+        self._frame_steps = deque(maxlen=_RECENT)
         self.message = ""
         self.reset()
 
@@ -186,6 +187,11 @@ class Player:
         return len(self._intervals) / sum(self._intervals) if self._intervals else 0.0
 
     @property
+    def steps_per_frame(self) -> float:
+        """Steps a frame over the last 60 frames that were not paused (0 before any): below 1 when frames outpace steps."""
+        return float(np.mean(self._frame_steps)) if self._frame_steps else 0.0
+
+    @property
     def step_ms(self) -> float:
         """Median wall-clock milliseconds of a step over the last 60 frames that stepped (0 before any)."""
         return 1e3 * float(np.median(self._step_times)) if self._step_times else 0.0
@@ -241,6 +247,7 @@ class Player:
             return 0
         self.behind = self.steps < wanted
         self._owed = 0.0 if self.behind else self._owed - self.steps * h
+        self._frame_steps.append(self.steps)
         if self.steps:
             self.step_seconds = self.clock() - start
             self._step_times.append(self.step_seconds / self.steps)

@@ -322,7 +322,8 @@ class PlayView:
         player = self.player
         values = player.activation() if player.gait_on else player.sliders
         for k, widget in enumerate(self.sliders):
-            value = float(values[k])
+            # a gait's zero crossing is round-off off zero (sin(pi) = 1.2e-16): shown as 0, not +1.31e-15
+            value = float(values[k]) if abs(values[k]) > 1e-12 * player.ranges[k] else 0.0
             if self._shown.get(k) != value:
                 widget.GetRepresentation().SetValue(value)
                 self._shown[k] = value
@@ -332,7 +333,7 @@ class PlayView:
         state = "paused" if player.paused else ("gait" if player.gait_on else "sliders")
         text = (
             f"t = {player.t:7.2f}   {player.fps:5.1f} frames/s   step {player.step_ms:6.3f} ms"
-            f" x {player.steps}/frame   {state}" + ("   (slower than real time)" if player.behind else "")
+            f" x {player.steps_per_frame:.1f}/frame   {state}" + ("   (slower than real time)" if player.behind else "")
         )
         return text + (f"\n{player.message}" if player.message else "")
 

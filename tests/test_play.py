@@ -77,6 +77,8 @@ def test_simulated_time_follows_the_wall_clock(crawl):
         clock.now += sim.h / 3
         steps.append(player.frame())
     assert sum(steps) == 10 and max(steps) == 1
+    # the status line's steps a frame: the mean of the last 60 frames (5 slow ones, 25 of a step, 30 of a third)
+    assert player.steps_per_frame == pytest.approx((sum(taken[-5:]) + 25 + 10) / 60)
 
 
 def test_a_stall_is_skipped_not_raced(crawl):
