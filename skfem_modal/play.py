@@ -188,7 +188,7 @@ class Player:
 
     @property
     def steps_per_frame(self) -> float:
-        """Steps a frame over the last 60 frames that were not paused (0 before any): below 1 when frames outpace steps."""
+        """Steps a frame over the last 60 unpaused frames (0 before any); below 1 when frames outpace steps."""
         return float(np.mean(self._frame_steps)) if self._frame_steps else 0.0
 
     @property
