@@ -204,8 +204,11 @@ class _RenderUnavailable(Exception):
 
 
 def _check_render(args) -> None:
-    from .plot import render_problems
+    from .plot import picture_size_problem, render_problems
 
+    problem = picture_size_problem(args.size, args.format)
+    if problem:
+        raise ValueError(f"--size {problem}")
     problems = render_problems(args.backend, args.format)
     if problems:
         raise _RenderUnavailable("cannot render: " + "; ".join(problems))
@@ -479,10 +482,16 @@ def _positive_float(text: str) -> float:
 
 
 def _picture_size(text: str) -> tuple[int, int]:
+    from .plot import picture_size_problem
+
     width, x, height = text.lower().partition("x")
-    if not (x and width.isdigit() and height.isdigit() and min(int(width), int(height)) >= 16):
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels (each at least 16), got {text!r}")
-    return int(width), int(height)
+    if not (x and width.isdigit() and height.isdigit()):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}")
+    size = int(width), int(height)
+    problem = picture_size_problem(size)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return size
 
 
 def cmd_play(args) -> int:

@@ -15,7 +15,7 @@ import secrets
 import numpy as np
 
 from .fem import scalar_basis
-from .mesh import check_mesh
+from .mesh import _signed_measures, check_mesh
 
 __all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path", "written_whole", "FrameWriter"]
 
@@ -45,7 +45,17 @@ _VTK_QUADRATIC_EDGES = {
 
 
 def vtk_cells(mesh, element: str = "P1"):
-    """Cells of ``mesh`` in meshio/VTK form.
+    """Cells of ``mesh`` in meshio/VTK form, every one positively oriented.
+
+    VTK takes a cell's vertex order as its orientation: a tetrahedron is
+    positive when its fourth vertex lies on the side its first three see
+    counter-clockwise, a triangle when its vertices go counter-clockwise
+    (seen from +z). scikit-fem sorts each element's vertex indices, which
+    turns about half of them inside out, and ParaView's *Integrate
+    Variables* (or pyvista's ``volume``) then sums to about zero. Here the
+    first two corners of each negative element are swapped (and, for
+    quadratic cells, the edge nodes follow); ``mesh`` itself is not changed,
+    and cells already positive keep their order.
 
     Parameters
     ----------
@@ -60,10 +70,14 @@ def vtk_cells(mesh, element: str = "P1"):
     cells : ndarray of int, shape (nT, nodes_per_cell)
     """
     dim = mesh.p.shape[0]
+    inside_out = _signed_measures(mesh.p, mesh.t) < 0.0  # (nT,)
     if element == "P1":
-        return ("triangle" if dim == 2 else "tetra"), np.ascontiguousarray(mesh.t.T)
+        cells = np.array(mesh.t.T)
+        cells[inside_out, :2] = cells[inside_out, 1::-1]
+        return ("triangle" if dim == 2 else "tetra"), cells
     basis = scalar_basis(mesh, element)
-    dofs = basis.element_dofs  # (nloc, nT): corners first, then edge nodes
+    dofs = np.array(basis.element_dofs)  # (nloc, nT): corners first, then edge nodes
+    dofs[:2, inside_out] = dofs[1::-1, inside_out]
     locs = basis.doflocs[:, dofs]  # (dim, nloc, nT)
     corners = dofs[: dim + 1]
     edge_nodes = dofs[dim + 1 :]

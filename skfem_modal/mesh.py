@@ -544,11 +544,12 @@ def mirror(mesh, axes):
     return type(mesh)(p, mesh.t.copy(), sort_t=False)
 
 
-def _read_meshio(path: str):
+def _read_meshio(path: str, role: str = "mesh"):
     """``meshio.read``, with every failure a :class:`MeshError` naming the file.
 
     When no reader understands a file, meshio prints each reader's complaint
     and calls ``sys.exit``; those complaints become the error's message.
+    ``role`` names the file in the message (``cannot read ROLE 'path': ...``).
     """
     import contextlib
     import io
@@ -565,9 +566,9 @@ def _read_meshio(path: str):
         tried = re.search(r" as (?:either of )?([\w, -]+)$", summary)
         what = f"not a file meshio reads as {tried.group(1)}" if tried else "not a file meshio reads"
         reason = f"{complaints.strip()} ({what})" if complaints.strip() else what
-        raise MeshError(f"cannot read mesh {path!r}: {reason}") from None
+        raise MeshError(f"cannot read {role} {path!r}: {reason}") from None
     except Exception as err:  # meshio raises many kinds for broken files
-        raise MeshError(f"cannot read mesh {path!r}: {type(err).__name__}: {err}") from None
+        raise MeshError(f"cannot read {role} {path!r}: {type(err).__name__}: {err}") from None
 
 
 def normalize_and_center(mesh):

@@ -8,6 +8,7 @@ without it everything is drawn with matplotlib.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import json
@@ -20,9 +21,58 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import ELEVATION, Camera, deformation, frame_windows, grid_spacing, up_vector
-from .export import pad3
+from .export import pad3, written_whole
 
-__all__ = ["read_run", "gl_available", "render_problems", "plot_com", "plot_amplitudes", "render_run"]
+__all__ = [
+    "read_run",
+    "gl_available",
+    "render_problems",
+    "picture_size_problem",
+    "plot_com",
+    "plot_amplitudes",
+    "render_run",
+]
+
+#: Smallest and largest side of a picture in pixels. Measured (2026-11-23,
+#: Mesa llvmpipe): pyvista renders blank pictures beyond 16384 pixels a
+#: side (OpenGL's largest off-screen buffer here; 8192 on some GPUs),
+#: matplotlib's Agg refuses 65536, and one 8192 x 8192 frame is 200 MB of
+#: RGB already; 8192 covers 8K video (7680 x 4320).
+MIN_PICTURE_SIDE, MAX_PICTURE_SIDE = 16, 8192
+
+
+def picture_size_problem(size, fmt: str = "gif") -> str | None:
+    """What is wrong with a picture size for :func:`render_run`, or None.
+
+    Parameters
+    ----------
+    size : (int, int)
+        Width and height in pixels.
+    fmt : {"gif", "mp4"}
+        An mp4 (H.264 in yuv420p, what players read) needs an even width and height.
+
+    Returns
+    -------
+    problem : str or None
+        The size (``WxH``) and what was expected.
+
+    Examples
+    --------
+    >>> picture_size_problem((1280, 720)) is None
+    True
+    >>> picture_size_problem((20000, 200))
+    '20000x200: each side must be 16 to 8192 pixels'
+    >>> picture_size_problem((333, 333), "mp4")
+    '333x333: an mp4 needs an even width and height (H.264 in yuv420p): try 334x334, or the gif format'
+    """
+    width, height = (int(v) for v in size)
+    if not (MIN_PICTURE_SIDE <= min(width, height) and max(width, height) <= MAX_PICTURE_SIDE):
+        return f"{width}x{height}: each side must be {MIN_PICTURE_SIDE} to {MAX_PICTURE_SIDE} pixels"
+    if fmt == "mp4" and (width % 2 or height % 2):
+        even = f"{width + width % 2}x{height + height % 2}"
+        why = "an mp4 needs an even width and height (H.264 in yuv420p)"
+        return f"{width}x{height}: {why}: try {even}, or the gif format"
+    return None
 
 
 def read_run(run_dir) -> dict:
@@ -236,16 +286,32 @@ class _Frame:
     deformation: np.ndarray  # (n,) distance from the best rigid motion of the rest shape
 
 
-def _read_frame(time: float, path: str) -> _Frame:
-    import meshio
+def _read_frame(time: float, path: str, first: _Frame | None = None) -> _Frame:
+    """One written frame; any file that is missing, unreadable or not a frame of this run is a ValueError naming it.
 
-    m = meshio.read(path)
-    if "triangle" in m.cells_dict:
-        cells, dim = m.cells_dict["triangle"], 2
-    else:
-        cells, dim = m.cells_dict["tetra"], 3
+    Frames after ``first`` must have its cells and rest shape, and share its arrays (read once, held once).
+    """
+    from .mesh import _read_meshio
+
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"frame file {path!r} (listed in frames.pvd) is missing")
+    m = _read_meshio(path, "frame file")
+    kind = next((k for k in ("triangle", "tetra") if k in m.cells_dict), None)
+    displacement = m.point_data.get("displacement")
+    if kind is None or displacement is None or displacement.shape != m.points.shape:
+        raise ValueError(
+            f"frame file {path!r} is not a frame of a run: it needs triangle or tetrahedron cells "
+            "and a 'displacement' for every point"
+        )
+    cells, dim = m.cells_dict[kind], 2 if kind == "triangle" else 3
     points = m.points[:, :dim]
-    rest = points - m.point_data["displacement"][:, :dim]
+    rest = points - displacement[:, :dim]
+    if first is not None:
+        if cells.shape != first.cells.shape or not np.array_equal(cells, first.cells):
+            raise ValueError(f"frame file {path!r} has other cells than the run's first frame")
+        if not np.allclose(rest, first.rest, rtol=0.0, atol=1e-9 * max(np.ptp(first.rest), 1.0)):
+            raise ValueError(f"frame file {path!r} has another rest shape than the run's first frame")
+        cells, rest = first.cells, first.rest
     return _Frame(time, points, rest, cells, deformation(rest, points))
 
 
@@ -261,6 +327,8 @@ COLOUR_TITLE = "deformation"
 COLOUR_LABEL = "deformation (distance from rigid motion)"
 #: Share of the picture's width the drawing takes (the colour bar has the rest).
 _DRAWING_WIDTH = 0.86
+#: Font size of the colour bar's labels (pyvista).
+_BAR_LABEL_SIZE = 12
 
 
 @dataclass
@@ -280,8 +348,14 @@ class _View:
     floor_hi: np.ndarray
 
     def limits(self, k: int):
+        """Screen box (lower left, upper right) of frame ``k``'s drawing window."""
         half = np.array([self.half_height * self.aspect, self.half_height])
         return self.centres[k] - half, self.centres[k] + half
+
+    def picture_limits(self, k: int):
+        """Screen box of frame ``k``'s whole picture: its window, continued right behind the colour bar."""
+        lo, hi = self.limits(k)
+        return lo, hi + [(hi[0] - lo[0]) * (1.0 / _DRAWING_WIDTH - 1.0), 0.0]
 
 
 def _plan(frames: list[_Frame], summary: dict, size) -> _View:
@@ -354,7 +428,13 @@ def _floor_corners(view: _View) -> np.ndarray:
 
 
 def _matplotlib_frames(frames: list[_Frame], view: _View, size):
-    """RGB images of the frames, drawn with matplotlib through the view's camera."""
+    """RGB images of the frames, drawn with matplotlib through the view's camera.
+
+    Yields
+    ------
+    image : ndarray of uint8, shape (height, width, 3)
+        One frame at a time: only the one being drawn is held.
+    """
     plt = _pyplot()
     from matplotlib.collections import LineCollection, PolyCollection
     from matplotlib.colors import Normalize
@@ -367,52 +447,60 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     light = camera.towards + 0.6 * camera.screen_up + 0.3 * camera.right
     light /= np.linalg.norm(light)
     fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
-    images = []
-    for k, f in enumerate(frames):
-        fig.clear()
-        ax = fig.add_axes([0.0, 0.0, _DRAWING_WIDTH, 1.0])
-        lo, hi = view.limits(k)
-        if view.ground is not None:
-            floor = camera.screen(_floor_lines(view).reshape(-1, view.dim)).reshape(-1, 2, 2)
+    try:
+        for k, f in enumerate(frames):
+            fig.clear()
+            # the axes fill the picture, so the floor goes on behind the colour bar (as pyvista's does)
+            ax = fig.add_axes([0.0, 0.0, 1.0, 1.0])
+            lo, hi = view.picture_limits(k)
+            if view.ground is not None:
+                floor = camera.screen(_floor_lines(view).reshape(-1, view.dim)).reshape(-1, 2, 2)
+                if view.dim == 2:
+                    ax.axhspan(lo[1] - 1e9, view.ground, color="0.9", zorder=0)
+                    ax.axhline(view.ground, color="0.45", lw=1.2, zorder=1)
+                else:
+                    ax.add_patch(plt.Polygon(camera.screen(_floor_corners(view)), color="0.92", zorder=0))
+                ax.add_collection(LineCollection(floor, colors="0.6", linewidths=0.8, zorder=1))
+            screen = camera.screen(f.points)
+            values = f.deformation
+            if view.dim == 3 and view.ground is not None:  # the body's shadow straight below: how high it is
+                below = _on_floor(f.points, view.up, view.ground)[faces]
+                shadow = camera.screen(below.reshape(-1, 3)).reshape(-1, 3, 2)
+                ax.add_collection(PolyCollection(shadow, facecolors="0.75", edgecolors="none", zorder=1.5))
             if view.dim == 2:
-                ax.axhspan(lo[1] - 1e9, view.ground, color="0.9", zorder=0)
-                ax.axhline(view.ground, color="0.45", lw=1.2, zorder=1)
+                tri = Triangulation(screen[:, 0], screen[:, 1], f.cells)
+                ax.tripcolor(tri, values, shading="gouraud", cmap=cmap, norm=norm, zorder=2)
+                ax.triplot(tri, color="k", lw=0.15, alpha=0.35, zorder=3)
             else:
-                ax.add_patch(plt.Polygon(camera.screen(_floor_corners(view)), color="0.92", zorder=0))
-            ax.add_collection(LineCollection(floor, colors="0.6", linewidths=0.8, zorder=1))
-        screen = camera.screen(f.points)
-        values = f.deformation
-        if view.dim == 3 and view.ground is not None:  # the body's shadow straight below: how high it is
-            shadow = camera.screen(_on_floor(f.points, view.up, view.ground)[faces].reshape(-1, 3)).reshape(-1, 3, 2)
-            ax.add_collection(PolyCollection(shadow, facecolors="0.75", edgecolors="none", zorder=1.5))
-        if view.dim == 2:
-            tri = Triangulation(screen[:, 0], screen[:, 1], f.cells)
-            ax.tripcolor(tri, values, shading="gouraud", cmap=cmap, norm=norm, zorder=2)
-            ax.triplot(tri, color="k", lw=0.15, alpha=0.35, zorder=3)
-        else:
-            corners = f.points[faces]  # (F, 3, 3)
-            normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-            normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-300
-            shade = 0.55 + 0.45 * np.abs(normal @ light)
-            order = np.argsort(camera.depth(corners.mean(axis=1)))  # far first: nearer faces drawn over them
-            colours = cmap(norm(values[faces].mean(axis=1)))[:, :3] * shade[:, None]
-            polys = camera.screen(corners.reshape(-1, 3)).reshape(-1, 3, 2)
-            ax.add_collection(PolyCollection(polys[order], facecolors=colours[order], edgecolors="none", zorder=2))
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-        ax.set_aspect("equal")
-        ax.set_axis_off()
-        ax.text(0.02, 0.96, f"t = {f.time:.3f}", transform=ax.transAxes, fontsize=14, va="top")
-        bar = fig.add_axes([_DRAWING_WIDTH + 0.02, 0.12, 0.018, 0.76])
-        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=bar).set_label(COLOUR_LABEL, fontsize=11)
-        fig.canvas.draw()
-        images.append(np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy())
-    plt.close(fig)
-    return images
+                corners = f.points[faces]  # (F, 3, 3)
+                normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+                normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-300
+                shade = 0.55 + 0.45 * np.abs(normal @ light)
+                order = np.argsort(camera.depth(corners.mean(axis=1)))  # far first: nearer faces drawn over them
+                colours = cmap(norm(values[faces].mean(axis=1)))[:, :3] * shade[:, None]
+                polys = camera.screen(corners.reshape(-1, 3)).reshape(-1, 3, 2)
+                ax.add_collection(PolyCollection(polys[order], facecolors=colours[order], edgecolors="none", zorder=2))
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+            ax.set_aspect("equal")
+            ax.set_axis_off()
+            ax.text(0.02 * _DRAWING_WIDTH, 0.96, f"t = {f.time:.3f}", transform=ax.transAxes, fontsize=14, va="top")
+            bar = fig.add_axes([_DRAWING_WIDTH + 0.02, 0.12, 0.018, 0.76])
+            fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=bar).set_label(COLOUR_LABEL, fontsize=11)
+            fig.canvas.draw()
+            yield np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+    finally:
+        plt.close(fig)
 
 
 def _pyvista_frames(frames: list[_Frame], view: _View, size):
-    """RGB images of the frames, rendered off-screen with pyvista through the view's camera."""
+    """RGB images of the frames, rendered off-screen with pyvista through the view's camera.
+
+    Yields
+    ------
+    image : ndarray of uint8, shape (height, width, 3)
+        One frame at a time: only the one being rendered is held.
+    """
     _headless_vtk()
     import pyvista as pv
 
@@ -438,15 +526,17 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
             "width": 0.05,
             "color": "black",
             "title_font_size": 14,
-            "label_font_size": 12,
+            "label_font_size": _BAR_LABEL_SIZE,
         },
     )
+    # VTK puts the title right on the top label: keep them a label's height apart
+    plotter.scalar_bar.SetVerticalTitleSeparation(_BAR_LABEL_SIZE)
     if view.ground is not None:
         lines = pad3(_floor_lines(view).reshape(-1, dim))
         plotter.add_mesh(pv.line_segments_from_points(lines), color="#999999", line_width=1.5, lighting=False)
         if dim == 2:
-            lo = np.min([view.limits(k)[0] for k in range(len(frames))], axis=0)
-            hi = np.max([view.limits(k)[1] for k in range(len(frames))], axis=0)
+            lo = np.min([view.picture_limits(k)[0] for k in range(len(frames))], axis=0)
+            hi = np.max([view.picture_limits(k)[1] for k in range(len(frames))], axis=0)
             right, up = camera.right[:2], view.up
             a = np.array([lo[0], hi[0]])
             ground = [pad3(np.outer(a, right) + w * up) for w in (view.ground, lo[1])]
@@ -461,28 +551,28 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
             plotter.add_mesh(shadow, color="#bfbfbf", lighting=False)
     text = plotter.add_text("", position=(20, size[1] - 44), font_size=14, color="black")
     depth = float(np.median(camera.depth(pad3(frames[0].points))))
-    images = []
-    for k, f in enumerate(frames):
-        body.points = pad3(f.points)
-        body.point_data["deformation"] = f.deformation
-        if dim == 3:
-            body.compute_normals(inplace=True, cell_normals=False, auto_orient_normals=False)
-            if view.ground is not None:
-                shadow.points = _on_floor(f.points, view.up, view.ground)
-        text.SetInput(f"t = {f.time:.3f}")
-        # the window's centre sits left of the picture's (the colour bar takes the right)
-        u = view.centres[k, 0] + (0.5 - _DRAWING_WIDTH / 2) * 2.0 * view.half_height * size[0] / size[1]
-        focal = u * camera.right + view.centres[k, 1] * camera.screen_up + depth * camera.towards
-        plotter.camera.parallel_projection = True
-        plotter.camera.focal_point = focal
-        plotter.camera.position = focal + 4.0 * view.half_height * view.aspect * camera.towards
-        plotter.camera.up = camera.screen_up
-        plotter.camera.parallel_scale = view.half_height
-        plotter.renderer.ResetCameraClippingRange()
-        plotter.render()
-        images.append(plotter.screenshot(return_img=True)[:, :, :3].copy())
-    plotter.close()
-    return images
+    try:
+        for k, f in enumerate(frames):
+            body.points = pad3(f.points)
+            body.point_data["deformation"] = f.deformation
+            if dim == 3:
+                body.compute_normals(inplace=True, cell_normals=False, auto_orient_normals=False)
+                if view.ground is not None:
+                    shadow.points = _on_floor(f.points, view.up, view.ground)
+            text.SetInput(f"t = {f.time:.3f}")
+            # the window's centre sits left of the picture's (the colour bar takes the right)
+            u = view.centres[k, 0] + (0.5 - _DRAWING_WIDTH / 2) * 2.0 * view.half_height * size[0] / size[1]
+            focal = u * camera.right + view.centres[k, 1] * camera.screen_up + depth * camera.towards
+            plotter.camera.parallel_projection = True
+            plotter.camera.focal_point = focal
+            plotter.camera.position = focal + 4.0 * view.half_height * view.aspect * camera.towards
+            plotter.camera.up = camera.screen_up
+            plotter.camera.parallel_scale = view.half_height
+            plotter.renderer.ResetCameraClippingRange()
+            plotter.render()
+            yield plotter.screenshot(return_img=True)[:, :, :3].copy()
+    finally:
+        plotter.close()
 
 
 def _save_png(image, path):
@@ -492,17 +582,55 @@ def _save_png(image, path):
     return os.fspath(path)
 
 
-def _save_animation(images, path, fps: int):
-    from PIL import Image
+class _GifStream:
+    """An animated GIF written one frame at a time (Pillow's own writer holds every frame until the end).
 
-    if os.fspath(path).endswith(".gif"):
-        frames = [Image.fromarray(im) for im in images]
-        frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
-        return os.fspath(path)
-    import imageio.v2 as imageio
+    Each frame gets its own 256 colours (Pillow's adaptive palette, as Pillow
+    picks for a whole GIF) and the full picture; it loops forever.
+    """
 
-    imageio.mimwrite(path, images, fps=fps)
-    return os.fspath(path)
+    def __init__(self, file, fps: int):
+        self.file = file
+        self.duration_ms = int(1000 / fps)
+        self.count = 0
+
+    def append_data(self, image: np.ndarray) -> None:
+        from PIL import GifImagePlugin, Image
+
+        frame = Image.fromarray(image).convert("P", palette=Image.Palette.ADAPTIVE)
+        if self.count == 0:
+            header, _ = GifImagePlugin.getheader(frame, info={"loop": 0, "duration": self.duration_ms})
+            self.file.write(b"".join(header))
+        for chunk in GifImagePlugin.getdata(frame, duration=self.duration_ms, include_color_table=True):
+            self.file.write(chunk)
+        self.count += 1
+
+    def close(self) -> None:
+        self.file.write(b";")  # the GIF trailer
+
+
+@contextlib.contextmanager
+def _animation_writer(path, fps: int):
+    """A writer (``append_data(image)``) streaming frames to ``path`` (.gif or .mp4), written whole.
+
+    An mp4 keeps the frames' size (imageio's ffmpeg writer would scale it to
+    a multiple of 16 and say so); :func:`picture_size_problem` has refused
+    the odd sizes H.264 in yuv420p cannot hold.
+    """
+    with written_whole(path) as partial:
+        if os.fspath(path).endswith(".gif"):
+            with open(partial, "wb") as file:
+                writer = _GifStream(file, fps)
+                yield writer
+                writer.close()
+        else:
+            import imageio.v2 as imageio
+
+            writer = imageio.get_writer(partial, fps=fps, macro_block_size=1)
+            try:
+                yield writer
+            finally:
+                writer.close()
 
 
 def render_run(
@@ -530,10 +658,14 @@ def render_run(
         ``auto`` uses pyvista when off-screen OpenGL works here.
     fmt : {"gif", "mp4"}
     max_frames : int
-        At most this many frames in the animation (evenly spaced).
+        At most this many frames in the animation (evenly spaced, the first
+        and the last among them when it is 2 or more). ``first_frame.png``
+        and ``last_frame.png`` are the run's first and last frames whatever it is.
     fps : int
     size : (int, int)
-        Width and height of the frames in pixels.
+        Width and height of the frames in pixels, each from
+        :data:`MIN_PICTURE_SIDE` to :data:`MAX_PICTURE_SIDE`; even for an
+        mp4 (see :func:`picture_size_problem`).
 
     Returns
     -------
@@ -545,13 +677,21 @@ def render_run(
     ImportError
         Something rendering needs is missing (said before any drawing, see
         :func:`render_problems`).
+    ValueError
+        A backend, format or size out of range; a frame file that cannot be
+        read or is not a frame of this run (naming it, before any drawing).
+    FileNotFoundError
+        No run in ``run_dir``, or a frame file ``frames.pvd`` lists is missing.
     """
     if backend not in ("auto", "pyvista", "matplotlib"):
         raise ValueError(f"backend must be auto, pyvista or matplotlib, got {backend!r}")
     if fmt not in ("gif", "mp4"):
         raise ValueError(f"format must be gif or mp4, got {fmt!r}")
-    if len(size) != 2 or min(size) < 16:
-        raise ValueError(f"size must be (width, height) of at least 16 pixels each, got {size!r}")
+    if len(size) != 2:
+        raise ValueError(f"size must be (width, height) in pixels, got {size!r}")
+    problem = picture_size_problem(size, fmt)
+    if problem:
+        raise ValueError(f"size {problem}")
     run_dir = os.fspath(run_dir)
     if not os.path.isfile(os.path.join(run_dir, "summary.json")):
         raise FileNotFoundError(f"{run_dir!r} is not a run directory (no summary.json)")
@@ -564,9 +704,13 @@ def render_run(
     if backend == "auto":
         backend = "pyvista" if gl_available() else "matplotlib"
     summary = run["summary"]
-    frames = run["frames"]
-    pick = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))
-    frames = [_read_frame(*frames[i]) for i in pick]
+    listed = run["frames"]
+    last = len(listed) - 1
+    animated = set(np.linspace(0, last, min(max_frames, len(listed))).round().astype(int).tolist())
+    # the stills are always the run's first and last frames, whatever the animation holds
+    drawn = sorted(animated | {0, last})
+    frames = [_read_frame(*listed[0])]
+    frames += [_read_frame(*listed[i], first=frames[0]) for i in drawn[1:]]
     size = (int(size[0]), int(size[1]))
     view = _plan(frames, summary, size)
     draw = _pyvista_frames if backend == "pyvista" else _matplotlib_frames
@@ -574,8 +718,13 @@ def render_run(
     written["com"] = plot_com(run, os.path.join(run_dir, "com.png"))
     if summary["sizes"]["muscles"]:
         written["amplitudes"] = plot_amplitudes(run, os.path.join(run_dir, "amplitudes.png"))
-    images = draw(frames, view, size)
-    written["first_frame"] = _save_png(images[0], os.path.join(run_dir, "first_frame.png"))
-    written["last_frame"] = _save_png(images[-1], os.path.join(run_dir, "last_frame.png"))
-    written["animation"] = _save_animation(images, os.path.join(run_dir, f"animation.{fmt}"), fps)
+    stills = {"first_frame": 0, "last_frame": last}
+    animation = os.path.join(run_dir, f"animation.{fmt}")
+    with contextlib.closing(draw(frames, view, size)) as images, _animation_writer(animation, fps) as writer:
+        for index, image in zip(drawn, images):
+            if index in animated:
+                writer.append_data(image)
+            for name in (name for name, at in stills.items() if at == index):
+                written[name] = _save_png(image, os.path.join(run_dir, f"{name}.png"))
+    written["animation"] = animation
     return written

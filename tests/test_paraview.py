@@ -17,10 +17,14 @@ pytestmark = pytest.mark.skipif(
 
 SCRIPT = """
 import json, sys
-from paraview.simple import PVDReader
+from paraview.simple import IntegrateVariables, PVDReader, servermanager
 reader = PVDReader(FileName=sys.argv[1])
 reader.UpdatePipelineInformation()
 times = list(reader.TimestepValues)
+integral = IntegrateVariables(Input=reader)
+integral.UpdatePipeline(times[0])
+sums = servermanager.Fetch(integral).GetCellData()
+rest_measure = sums.GetArray("Volume" if sums.GetArray("Volume") else "Area").GetValue(0)
 reader.UpdatePipeline(times[-1])
 info = reader.GetDataInformation()
 print(json.dumps({
@@ -31,6 +35,7 @@ print(json.dumps({
     "cell_arrays": list(reader.CellData.keys()),
     "field_arrays": list(reader.FieldData.keys()),
     "displacement_range": list(reader.PointData["displacement"].GetRange(-1)),
+    "rest_measure": rest_measure,
 }))
 """
 
@@ -80,3 +85,9 @@ def test_paraview_opens_a_run(tmp_path, data, points, cells):
     assert sorted(seen["cell_arrays"]) == ["cluster", "muscle_cluster"]
     assert sorted(seen["field_arrays"]) == ["activation", "time"]
     assert seen["displacement_range"][1] > 1e-3  # the last frame has moved
+    # Integrate Variables sums the rest frame's cells to the body's area or volume (none written inside out)
+    assert seen["rest_measure"] == pytest.approx(summary_measure(tmp_path / "run"), rel=1e-9)
+
+
+def summary_measure(run_dir):
+    return json.loads((run_dir / "summary.json").read_text())["mesh"]["measure"]

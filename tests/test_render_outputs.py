@@ -1,0 +1,235 @@
+"""What ``skfem-modal render`` writes and refuses: picture sizes, broken frames, streamed animations, the stills."""
+
+import os
+import shutil
+import weakref
+
+import numpy as np
+import pytest
+from test_first_use import SMALL_RUN
+
+from skfem_modal import plot
+from skfem_modal.cli import main
+
+pytest.importorskip("matplotlib", reason="matplotlib is in the plot extra")
+from PIL import Image  # noqa: E402  (pillow comes with matplotlib)
+
+# a 2D body on the ground, 21 frames
+SCENE = SMALL_RUN + "[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.0\n"
+
+
+def needs_gl():
+    if not plot.gl_available():
+        pytest.skip("no off-screen OpenGL here: pyvista cannot render")
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("render")
+    scene = base / "scene.toml"
+    scene.write_text(SCENE)
+    out = base / "run"
+    assert main(["run", str(scene), "--out", str(out), "-q"]) == 0
+    assert len(os.listdir(out / "frames")) == 21
+    return scene, out
+
+
+@pytest.fixture()
+def run_copy(finished_run, tmp_path):
+    """A copy of the finished run that a test may break or render into."""
+    shutil.copytree(finished_run[1], tmp_path / "run")
+    return tmp_path / "run"
+
+
+def exit_code(argv):
+    """The command's exit code, a usage error's (argparse exits) included."""
+    try:
+        return main(argv)
+    except SystemExit as stop:
+        return stop.code
+
+
+def pixels(path):
+    return np.asarray(Image.open(path).convert("RGB")).astype(int)
+
+
+def gif_frames(path):
+    gif = Image.open(path)
+    frames = []
+    for k in range(gif.n_frames):
+        gif.seek(k)
+        frames.append(np.asarray(gif.convert("RGB")).astype(int))
+    return frames
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--size", "20000x200", "--backend", "pyvista"],  # pyvista: blank frames beyond 16384 here
+        ["--size", "70000x100", "--backend", "matplotlib"],  # matplotlib: an OverflowError
+        ["--size", "100000x100000"],  # a MemoryError or an abort
+        ["--size", "8193x16"],
+        ["--size", "16x8193"],
+        ["--size", "15x100"],
+    ],
+)
+def test_sizes_beyond_what_the_backends_draw_are_refused_before_any_work(run_copy, tmp_path, capsys, argv):
+    before = sorted(os.listdir(run_copy))
+    assert exit_code(["render", str(run_copy), *argv]) == 2
+    err = capsys.readouterr().err
+    assert "argument --size" in err and "each side must be 16 to 8192 pixels" in err and "Traceback" not in err
+    assert sorted(os.listdir(run_copy)) == before
+    # and from run --render, before the run starts
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE)
+    assert exit_code(["run", str(scene), "--out", str(tmp_path / "new"), "--render", *argv]) == 2
+    assert "each side must be 16 to 8192 pixels" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
+def test_the_library_refuses_the_same_sizes(run_copy):
+    with pytest.raises(ValueError, match="size 20000x200: each side must be 16 to 8192 pixels"):
+        plot.render_run(run_copy, size=(20000, 200))
+    with pytest.raises(ValueError, match="size 333x333: an mp4 needs an even width and height"):
+        plot.render_run(run_copy, size=(333, 333), fmt="mp4")
+    assert not (run_copy / "com.png").exists()
+
+
+@pytest.mark.parametrize("backend", ["matplotlib", "pyvista"])
+def test_the_largest_side_allowed_is_drawn(run_copy, backend):
+    if backend == "pyvista":
+        needs_gl()
+    assert main(["render", str(run_copy), "-q", "--backend", backend, "--size", "8192x64", "--max-frames", "2"]) == 0
+    image = pixels(run_copy / "last_frame.png")
+    assert image.shape == (64, 8192, 3)
+    # a picture, not one colour: the body's colours are there (far from every grey)
+    assert (np.ptp(image, axis=2) > 40).sum() > 50
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated", "not a frame"])
+def test_a_missing_or_broken_frame_is_named_in_one_line(run_copy, capsys, damage):
+    frame = run_copy / "frames" / "frame_00004.vtu"
+    if damage == "missing":
+        frame.unlink()
+    elif damage == "truncated":
+        frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
+    else:  # a readable .vtu without the displacement a frame has
+        import meshio
+
+        mesh = meshio.read(frame)
+        mesh.point_data = {}
+        meshio.write(frame, mesh)
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--backend", "matplotlib"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith("skfem-modal render: error: ") and f"{str(frame)!r}" in err
+    expected = {
+        "missing": "(listed in frames.pvd) is missing",
+        "truncated": "cannot read frame file",
+        "not a frame": "is not a frame of a run",
+    }
+    assert expected[damage] in err
+    assert sorted(os.listdir(run_copy)) == before  # nothing drawn
+
+
+def test_frames_go_to_the_animation_one_at_a_time(run_copy, monkeypatch):
+    """Each frame is written as soon as it is drawn and nothing keeps it: memory is one frame's, not all of them."""
+    drawn, alive_when_written = [], []
+    draw = plot._matplotlib_frames
+
+    def watched(*args):
+        for image in draw(*args):
+            drawn.append(weakref.ref(image))
+            yield image
+
+    append = plot._GifStream.append_data
+
+    def written(self, image):
+        alive_when_written.append((len(drawn), sum(ref() is not None for ref in drawn)))
+        append(self, image)
+
+    monkeypatch.setattr(plot, "_matplotlib_frames", watched)
+    monkeypatch.setattr(plot._GifStream, "append_data", written)
+    plot.render_run(run_copy, backend="matplotlib", size=(160, 90))
+    assert len(drawn) == 21
+    # when frame k is written, k + 1 frames have been drawn (no more) and only that one is held
+    assert alive_when_written == [(k + 1, 1) for k in range(21)]
+    assert len(gif_frames(run_copy / "animation.gif")) == 21
+
+
+def test_the_streamed_gif_holds_every_frame_as_drawn(run_copy):
+    plot.render_run(run_copy, backend="matplotlib", size=(320, 180), fps=20)
+    gif = Image.open(run_copy / "animation.gif")
+    assert gif.n_frames == 21 and gif.size == (320, 180)
+    assert gif.info["loop"] == 0 and gif.info["duration"] == 50
+    frames = gif_frames(run_copy / "animation.gif")
+    # the first and last frames are the stills, to the 256 colours a GIF frame has
+    assert np.abs(frames[0] - pixels(run_copy / "first_frame.png")).mean() < 1.5
+    assert np.abs(frames[-1] - pixels(run_copy / "last_frame.png")).mean() < 1.5
+    assert np.abs(frames[-1] - frames[0]).mean() > 1.0  # the body moved
+
+
+def test_last_frame_is_the_runs_last_whatever_max_frames(run_copy):
+    assert main(["render", str(run_copy), "-q", "--backend", "matplotlib", "--max-frames", "2"]) == 0
+    first, last = pixels(run_copy / "first_frame.png"), pixels(run_copy / "last_frame.png")
+    assert len(gif_frames(run_copy / "animation.gif")) == 2
+    assert main(["render", str(run_copy), "-q", "--backend", "matplotlib", "--max-frames", "1"]) == 0
+    # the same frames drawn (0 and 20) through the same camera: the same pictures
+    np.testing.assert_array_equal(pixels(run_copy / "first_frame.png"), first)
+    np.testing.assert_array_equal(pixels(run_copy / "last_frame.png"), last)
+    assert np.abs(last - first).mean() > 1.0
+    (only,) = gif_frames(run_copy / "animation.gif")
+    assert np.abs(only - first).mean() < 1.5  # the one-frame animation is the first frame
+
+
+@pytest.mark.parametrize("size", [(1158, 652), (334, 334)])
+def test_mp4_keeps_the_size_given(run_copy, capfd, size):
+    pytest.importorskip("imageio_ffmpeg", reason="imageio's ffmpeg plugin (pip install 'imageio[ffmpeg]')")
+    import imageio.v2 as imageio
+
+    argv = ["render", str(run_copy), "-q", "--backend", "matplotlib", "--format", "mp4", "--max-frames", "5"]
+    assert main([*argv, "--size", f"{size[0]}x{size[1]}"]) == 0
+    assert capfd.readouterr().err == ""  # no word from imageio or ffmpeg about resizing
+    reader = imageio.get_reader(run_copy / "animation.mp4")
+    assert reader.get_meta_data()["size"] == size  # not rounded to a multiple of 16
+    frames = list(reader.iter_data())
+    reader.close()
+    assert len(frames) == 5 and frames[0].shape == (size[1], size[0], 3)
+    assert np.abs(frames[-1].astype(int) - pixels(run_copy / "last_frame.png")).mean() < 4.0  # lossy
+
+
+@pytest.mark.parametrize("size", ["1157x651", "333x333", "1158x651"])
+def test_mp4_refuses_odd_sizes_naming_the_even_one(run_copy, capsys, size):
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--format", "mp4", "--size", size]) == 2
+    err = capsys.readouterr().err
+    w, h = (int(v) for v in size.split("x"))
+    assert err == (
+        f"skfem-modal render: error: --size {size}: an mp4 needs an even width and height (H.264 in yuv420p): "
+        f"try {w + w % 2}x{h + h % 2}, or the gif format\n"
+    )
+    assert sorted(os.listdir(run_copy)) == before
+
+
+def colour_bar_text_rows(image):
+    """Rows of the colour bar's title and of its top label: (first, last) of each run of dark rows above the bar."""
+    bar = image[:, int(0.86 * image.shape[1]) :]
+    top = int(np.argmax((np.ptp(bar, axis=2) > 60).any(axis=1)))  # the bar's first row
+    dark = (bar.max(axis=2) < 110)[: top + 20].any(axis=1)
+    rows = np.flatnonzero(dark)
+    return [(int(r[0]), int(r[-1])) for r in np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1)]
+
+
+@pytest.mark.parametrize("backend", ["matplotlib", "pyvista"])
+def test_the_floor_goes_on_behind_the_colour_bar(run_copy, backend):
+    if backend == "pyvista":
+        needs_gl()
+    assert main(["render", str(run_copy), "-q", "--backend", backend, "--max-frames", "2"]) == 0
+    image = pixels(run_copy / "first_frame.png")
+    # below the ground, right of the colour bar: the floor's grey as under the body, not white
+    corner = image[-30:, -60:]
+    assert np.ptp(corner, axis=2).max() < 8 and 200 < corner.mean() < 245
+    if backend == "pyvista":  # the bar's title clear of its top value
+        title, label = colour_bar_text_rows(image)[:2]
+        assert label[0] - title[1] > 6
