@@ -650,6 +650,10 @@ class CoulombContact(_Ground):
                 # a sliding vertex that its friction drove back (it overshot) sticks again
                 moved = (x.reshape(-1, dim) - self.start) * (np.arange(dim) != up)
                 stops = sliding & (np.einsum("ij,ij->i", moved, direction) > self.tol)
+                if attempt >= _PASSES // 2:
+                    # going round: from here a vertex only starts sliding, never stops again, so that
+                    # the passes end; one its friction drives back stops in the step's next projection
+                    stops = np.zeros_like(stops)
             if not (np.count_nonzero(release) or np.count_nonzero(below)) and not (
                 mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
             ):
@@ -676,8 +680,9 @@ class CoulombContact(_Ground):
                 active = active.copy()
                 active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
                 sliding &= active
-            else:  # friction alone goes round: every vertex that changes sticks
-                sliding = sliding & ~stops & ~slips
+            else:  # friction alone goes round: the vertices sticking takes too much of slide, none stops
+                direction[slips] = tangential[slips] / needed[slips, None]
+                sliding = (sliding | slips) & active
             if not np.count_nonzero(active):
                 # nothing pushed after all: unless the unpushed state leaves a vertex below
                 active = x_t[up::dim] < joining
