@@ -226,7 +226,7 @@ SCHEMA: dict[str, Any] = {
         "table": Key(
             "str",
             None,
-            "CSV file of activations over time (instead of gait): a header, then "
+            "CSV file of activations over time (instead of gait), relative to the scene file: a header, then "
             "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling (beyond 1: a warning, as for "
             "the gait); linearly interpolated, held after the last row.",
         ),
