@@ -658,7 +658,7 @@ def _optimize_options(p) -> None:
         "--amplitude-max",
         type=_positive_float,
         default=1.0,
-        help="largest amplitude, a fraction of the muscle's ceiling (beyond 1: a warning)",
+        help="largest amplitude (beyond 1: a warning), a fraction of the muscle's ceiling",
     )
     p.add_argument(
         "--period-range",
