@@ -192,7 +192,7 @@ def _free_port() -> int:
 @pytest.mark.parametrize("killed", ["workers", "scheduler"])
 def test_a_dask_search_that_loses_its_cluster_says_how_to_resume(tiny_scene, tmp_path, killed):
     """Every dask worker SIGKILLed, or the scheduler: one error, exit code 4, and --resume ends as uninterrupted."""
-    pytest.importorskip("distributed", reason="dask is in the distributed extra")
+    distributed = pytest.importorskip("distributed", reason="dask is in the distributed extra")
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     address = f"tcp://127.0.0.1:{_free_port()}"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "start_new_session": True, "env": env}
@@ -210,6 +210,8 @@ def test_a_dask_search_that_loses_its_cluster_says_how_to_resume(tiny_scene, tmp
     args = ["optimize", tiny_scene, "--generations", "200", "--popsize", "4", "--steps", "60", "--seed", "3"]
     args += ["--out", str(out), "--scheduler", address, "-q"]
     try:
+        with distributed.Client(address, timeout=60) as client:  # the cluster is up before the search starts
+            client.wait_for_workers(2, timeout=60)
         search = subprocess.Popen(
             [sys.executable, "-m", "skfem_modal.cli", *args], stderr=subprocess.PIPE, text=True, env=env
         )
