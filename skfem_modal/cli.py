@@ -2,15 +2,17 @@
 
 Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
 file, an output folder holding an earlier run, a missing extra); 3 numerical
-failure (a simulation that went non-finite); 130 interrupted (Ctrl-C, or SIGTERM: the
-same clean stop); 141 the reader
-of the output went away (e.g. ``| head``).
+failure (a simulation that went non-finite); 4 the workers were lost (a
+worker process killed, the dask scheduler gone: a search keeps its
+checkpoint and says how to resume); 130 interrupted (Ctrl-C, or SIGTERM: the
+same clean stop); 141 the reader of the output went away (e.g. ``| head``).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 import time
 import warnings
@@ -18,10 +20,12 @@ import warnings
 import numpy as np
 
 from .interrupts import Terminated, terminate_as_interrupt
+from .study import WorkersLost
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_NUMERICAL = 3
+EXIT_WORKERS_LOST = 4
 EXIT_INTERRUPTED = 130
 EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
 
@@ -310,14 +314,11 @@ def _scene_data(path, default):
     """
     if path is None:
         return default, None
-    import tomllib
+    from .scene import Scene, read_scene_file
 
-    from .scene import Scene
-
-    Scene.from_toml(path)
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
-    return data, os.path.dirname(os.path.abspath(path))
+    data, base_dir = read_scene_file(path), os.path.dirname(os.path.abspath(path))
+    Scene.from_dict(data, base_dir=base_dir, source=path)
+    return data, base_dir
 
 
 def cmd_study(args) -> int:
@@ -379,8 +380,33 @@ def _resume_command(argv) -> str:
     return shlex.join(["skfem-modal", *words] + ([] if "--resume" in words else ["--resume"]))
 
 
+def _next_command(argv, generations: int) -> str:
+    """What to run after a search stopped: resume its checkpoint, or (none made yet) start it again."""
+    import shlex
+
+    if generations:
+        return f"resume it with: {_resume_command(argv)}"
+    return f"start it again with: {shlex.join(['skfem-modal', *(w for w in argv if w != '--resume')])}"
+
+
+#: Options whose value may start with "-" (``--direction -x``): argparse would read it as an option.
+_SIGNED_VALUES = {"--direction": re.compile(r"-(?:[xyz]|[0-9.])", re.IGNORECASE)}
+
+
+def _joined_signed_values(argv: list[str]) -> list[str]:
+    """``--direction -x`` as ``--direction=-x`` (and ``-1,0``), which argparse reads as the option's value."""
+    words = []
+    for word in argv:
+        pattern = _SIGNED_VALUES.get(words[-1]) if words else None
+        if pattern is not None and pattern.match(word):
+            words[-1] = f"{words[-1]}={word}"
+        else:
+            words.append(word)
+    return words
+
+
 def cmd_optimize(args) -> int:
-    from .optimize import GaitSpace, SearchInterrupted, run_search
+    from .optimize import GaitSpace, SearchInterrupted, SearchStop, run_search
     from .scene import DEFAULT_SCENE, Scene
 
     data, base_dir = _scene_data(args.scene, DEFAULT_SCENE)
@@ -415,11 +441,11 @@ def cmd_optimize(args) -> int:
             blas_threads=args.blas_threads,
             progress=not args.quiet,
         )
-    except SearchInterrupted as stop:
-        # said even with --quiet: the one thing an interrupted user needs
+    except SearchStop as stop:
+        # said even with --quiet: the one thing a stopped search's user needs
         print(f"skfem-modal optimize: {stop}", file=sys.stderr)
-        print(f"resume it with: {_resume_command(args.argv)}", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        print(_next_command(args.argv, stop.generations), file=sys.stderr)
+        return EXIT_INTERRUPTED if isinstance(stop, SearchInterrupted) else EXIT_WORKERS_LOST
     best = result["best"]
     say(
         f"best: travel {best['travel']:.4g}, alignment {best['alignment']:.3g} (fitness {best['fitness']:.4g}"
@@ -440,13 +466,22 @@ def cmd_transfer(args) -> int:
 
     result = transfer_search(args.search, full_space_limit=args.full_space_limit, progress=say)
     if not args.quiet:
-        print("| setting | elements | coordinates | clusters | iterations (mean) | travel | survives | alignment | s |")
-        print("|---|---|---|---|---|---|---|---|---|")
+        print(
+            "| setting | elements | coordinates | clusters | iterations (mean) | travel | survives | alignment "
+            "| largest tilt | s |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|")
         for r in result["rows"]:
             print(
                 f"| {r['setting']} | {r['elements']} | {r['coordinates']} | {r['clusters']} | "
                 f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {r['survives']:.2f} | "
-                f"{r['alignment']:.3f} | {r['seconds']:.1f} |"
+                f"{r['alignment']:.3f} | {r['max_tilt_degrees']:.1f} | {r['seconds']:.1f} |"
+            )
+        searched = result["rows"][0]["travel"]
+        if searched < 0:
+            print(
+                f"the search's own travel is {searched:.4g}, backwards: survives is each replay's travel along the "
+                f"direction over {-searched:.4g}, negative backwards (-1: as the search's)"
             )
         print(f"wrote {result['csv']}")
     return EXIT_OK
@@ -471,13 +506,31 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = None
-    if value is None or not (0.0 < value < np.inf):
-        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+def _float_in(low: float, what: str, *, open_low: bool):
+    """An argparse type: a finite number above ``low`` (``open_low``) or at least ``low``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = np.nan
+        if not (np.isfinite(value) and (value > low if open_low else value >= low)):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    return parse
+
+
+_positive_float = _float_in(0.0, "a positive finite number", open_low=True)
+_non_negative_float = _float_in(0.0, "a finite number >= 0", open_low=False)
+
+
+def _seed(text: str) -> int:
+    from .optimize import SEED_MAX
+
+    value = int(text) if text.lstrip("+-").isdigit() else None
+    if value is None or not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to {SEED_MAX}, got {text!r}")
     return value
 
 
@@ -596,7 +649,7 @@ def _optimize_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml (default: the built-in caterpillar crawl)")
     p.add_argument("--generations", type=_positive_int, default=20, help="CMA-ES generations")
     p.add_argument("--popsize", type=_positive_int, default=12, help="candidates per generation")
-    p.add_argument("--seed", type=int, default=0, help="the same seed gives the same search")
+    p.add_argument("--seed", type=_seed, default=0, help="the same seed gives the same search (0 to 4294967294)")
     p.add_argument("--steps", type=_positive_int, help="rollout length in steps (default: the scene's)")
     p.add_argument(
         "--direction",
@@ -611,21 +664,30 @@ def _optimize_options(p) -> None:
         "(the paper's)",
     )
     p.add_argument(
-        "--amplitude-max", type=float, default=1.0, help="largest amplitude, a fraction of the muscle's ceiling"
+        "--amplitude-max",
+        type=_positive_float,
+        default=1.0,
+        help="largest amplitude (beyond 1: a warning), a fraction of the muscle's ceiling",
     )
     p.add_argument(
         "--period-range",
-        type=float,
+        type=_positive_float,
         nargs=2,
         default=(0.3, 2.0),
         metavar=("MIN", "MAX"),
         help="shortest and longest gait period",
     )
     p.add_argument(
-        "--tip-limit", type=float, default=60.0, help="tilt in degrees beyond which the tipping penalty starts"
+        "--tip-limit",
+        type=_non_negative_float,
+        default=60.0,
+        help="tilt in degrees beyond which the tipping penalty starts",
     )
     p.add_argument(
-        "--tip-weight", type=float, default=10.0, help="body sizes lost per half turn of tilt past the limit"
+        "--tip-weight",
+        type=_non_negative_float,
+        default=10.0,
+        help="body sizes lost per half turn of tilt past the limit",
     )
     p.add_argument(
         "--samples",
@@ -633,7 +695,9 @@ def _optimize_options(p) -> None:
         default=1,
         help="rollouts per candidate: its gait and jittered copies, fitness their mean",
     )
-    p.add_argument("--jitter", type=float, default=0.01, help="relative size of the copies' changes")
+    p.add_argument(
+        "--jitter", type=_non_negative_float, default=0.01, help="relative size of the copies' changes (below 0.5)"
+    )
     p.add_argument("--out", default="search", help="output directory")
     resume = p.add_mutually_exclusive_group()
     resume.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")
@@ -733,7 +797,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point of the ``skfem-modal`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_joined_signed_values(list(sys.argv[1:] if argv is None else argv)))
     args.argv = list(sys.argv[1:] if argv is None else argv)
     try:
         with warnings.catch_warnings(), terminate_as_interrupt():
@@ -743,6 +807,9 @@ def main(argv=None) -> int:
         return code
     except BrokenPipeError:
         return _reader_gone()
+    except WorkersLost as lost:  # a study's; a search's says how to resume (cmd_optimize)
+        print(f"skfem-modal {args.command}: {lost}", file=sys.stderr)
+        return EXIT_WORKERS_LOST
     except (ValueError, TypeError, OSError, _RenderUnavailable) as err:
         # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)

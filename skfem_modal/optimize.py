@@ -25,10 +25,13 @@ checkpoint (the CMA-ES state, numpy's random state, the history), then
 ``history.csv`` and the best gait so far as a playable scene
 (``best_gait.toml``), each file replaced whole. ``resume=True`` continues an
 interrupted search exactly where an uninterrupted one would be; an existing
-checkpoint is never replaced unless asked (``overwrite=True``). Ctrl-C stops
-the workers, keeps the last generation's checkpoint and raises
-:class:`SearchInterrupted`. The same seed gives the same result on any
-number of workers, on the local pool or on dask.
+search is never replaced unless asked (``overwrite=True``), and a search
+never shares its folder with a run or a study. Ctrl-C stops the workers,
+keeps the last generation's checkpoint and raises :class:`SearchInterrupted`;
+workers lost (a process killed, the dask scheduler gone) raise
+:class:`SearchWorkersLost`, the checkpoint kept the same way. The same seed
+gives the same result on any number of workers, on the local pool or on
+dask, whatever the BLAS threads of the calling process.
 """
 
 from __future__ import annotations
@@ -39,36 +42,71 @@ import json
 import os
 import pickle
 import time
+import warnings
 
 import numpy as np
 
+from .export import written_whole
+from .monitor import CeilingWarning
+from .outputs import SEARCH_FILES, TRANSFER_FILE, check_output_folder, listed
 from .rollouts import OBJECTIVES, Rollouts, Trial
 from .run import Progress
+from .study import WorkersLost
 
-__all__ = ["GaitSpace", "SearchInterrupted", "run_search", "scene_to_toml", "SEARCH_FILES"]
+__all__ = [
+    "GaitSpace",
+    "SearchInterrupted",
+    "SearchStop",
+    "SearchWorkersLost",
+    "read_checkpoint",
+    "run_search",
+    "scene_to_toml",
+    "SEARCH_FILES",
+    "SEED_MAX",
+]
 
-#: The files a search writes in its output folder, and ``skfem-modal transfer`` beside them (a new search
-#: replaces only these).
-SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", "transfer.csv")
-#: The keys of the first four's paths in :func:`run_search`'s result.
+#: The keys of the first four :data:`SEARCH_FILES`' paths in :func:`run_search`'s result.
 _PATH_NAMES = ("checkpoint", "history_csv", "best_scene", "plot")
+#: The largest seed: CMA-ES seeds numpy's generator (below 2**32) with the seed plus one (0 would mean the clock).
+SEED_MAX = 2**32 - 2
 
 
-class SearchInterrupted(KeyboardInterrupt):
-    """Ctrl-C stopped a search; its checkpoint holds every finished generation.
+class SearchStop(BaseException):
+    """A stopped search, and what it kept (the base of its stops: Ctrl-C, workers lost).
 
     Attributes
     ----------
     generations : int
-        Generations finished (and checkpointed).
+        Generations finished and checkpointed (0: none, and no checkpoint).
     total : int
         Generations asked for.
     out_dir : str
     """
 
-    def __init__(self, generations: int, total: int, out_dir: str):
-        super().__init__(f"interrupted after generation {generations} of {total}; the checkpoint in {out_dir} holds it")
+    def _kept(self, generations: int, total: int, out_dir: str) -> str:
+        """Record what was kept; in words, what the checkpoint holds."""
         self.generations, self.total, self.out_dir = generations, total, out_dir
+        if generations:
+            return f"the checkpoint in {out_dir} holds generation {generations}"
+        return f"no generation was finished, so nothing was checkpointed in {out_dir}: there is nothing to resume"
+
+
+class SearchInterrupted(SearchStop, KeyboardInterrupt):
+    """Ctrl-C stopped a search; its checkpoint holds every finished generation (:class:`SearchStop`)."""
+
+    def __init__(self, generations: int, total: int, out_dir: str):
+        kept = self._kept(generations, total, out_dir)
+        done = f"after generation {generations}" if generations else "in generation 1"
+        super().__init__(f"interrupted {done} of {total}; {kept}")
+
+
+class SearchWorkersLost(SearchStop, WorkersLost):
+    """The search's workers were lost (a process killed, the dask scheduler gone); its checkpoint is kept
+    (:class:`SearchStop`)."""
+
+    def __init__(self, reason: str, generations: int, total: int, out_dir: str):
+        kept = self._kept(generations, total, out_dir)
+        super().__init__(f"the search lost its workers in generation {generations + 1} of {total}: {reason}; {kept}")
 
 
 class GaitSpace:
@@ -86,10 +124,22 @@ class GaitSpace:
     def __init__(self, n_muscles: int, amplitude_max: float = 1.0, period_min: float = 0.3, period_max: float = 2.0):
         if n_muscles < 1:
             raise ValueError("a gait search needs at least one muscle")
+        for name, value in (("amplitude_max", amplitude_max), ("period_min", period_min), ("period_max", period_max)):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
         if not 0 < period_min < period_max:
             raise ValueError(f"need 0 < period_min < period_max, got {period_min} and {period_max}")
         if not amplitude_max > 0:
             raise ValueError(f"amplitude_max must be positive, got {amplitude_max}")
+        if amplitude_max > 1:
+            warnings.warn(
+                f"amplitude_max = {amplitude_max:g} lets the search drive the muscles up to {amplitude_max:g} times "
+                "their ceilings: an activation beyond 1 asks an element to deform by more than muscles.max_s, and a "
+                "gait found there may swell the body out of shape (skfem-modal run on it warns, and says in "
+                "summary.json whether the motion was physical)",
+                CeilingWarning,
+                stacklevel=2,
+            )
         self.m = n_muscles
         self.amplitude_max = float(amplitude_max)
         self.period_min, self.period_max = float(period_min), float(period_max)
@@ -172,10 +222,8 @@ def scene_to_toml(data: dict) -> str:
 
 def _write_atomic(path: str, writer, mode: str = "wb") -> None:
     """Write a file whole or not at all (a reader or an interruption never sees half of it)."""
-    tmp = path + ".tmp"
-    with open(tmp, mode, **({} if "b" in mode else {"newline": ""})) as f:
+    with written_whole(path) as tmp, open(tmp, mode, **({} if "b" in mode else {"newline": ""})) as f:
         writer(f)
-    os.replace(tmp, path)
 
 
 def _unit_direction(direction, dim: int) -> np.ndarray:
@@ -185,13 +233,31 @@ def _unit_direction(direction, dim: int) -> np.ndarray:
     return direction / np.linalg.norm(direction)
 
 
+def read_checkpoint(path: str) -> dict:
+    """A search's checkpoint: its state (the CMA-ES state, the history, the settings).
+
+    Raises
+    ------
+    ValueError
+        The file is not a checkpoint this version reads (damaged, or from an older version); the message names it.
+    """
+    try:
+        with open(path, "rb") as f:
+            state = pickle.load(f)
+    except OSError:
+        raise
+    except Exception as error:  # unpickling damaged bytes fails in any of a dozen ways
+        said = f"{type(error).__name__}: {error}"
+        raise ValueError(f"{path} is not a search checkpoint that can be read ({said})") from None
+    if not (isinstance(state, dict) and isinstance(state.get("settings"), dict) and "generation" in state):
+        raise ValueError(f"{path} is no search checkpoint of this version; start the search again with --overwrite")
+    return state
+
+
 def _load_checkpoint(path: str, settings: dict) -> dict:
     """A checkpoint's state, after checking it was made with these settings."""
-    with open(path, "rb") as f:
-        state = pickle.load(f)
-    made = state.get("settings") if isinstance(state, dict) else None
-    if made is None:
-        raise ValueError(f"{path} was written by an older version; start again with --overwrite")
+    state = read_checkpoint(path)
+    made = state["settings"]
     changed = [key for key in settings if made.get(key) != settings[key]]
     if changed:
         said = "; ".join(f"{key}: {made.get(key)!r} then, {settings[key]!r} now" for key in changed)
@@ -237,11 +303,12 @@ def run_search(
         Generations (in all: a resumed search runs the rest; fewer than its checkpoint holds is an error,
         and as many runs none, rewriting its files) and candidates per generation.
     seed : int
-        The same seed gives the same search.
+        The same seed gives the same search; from 0 to :data:`SEED_MAX`.
     steps : int, optional
         Rollout length (default: the scene's).
     base_dir : str, optional
-        Where the scene's relative paths start.
+        Where the scene's relative paths start (:func:`~skfem_modal.scene.resolve_paths`; default: the
+        current directory).
     direction : array_like, shape (dim,), optional
         Travel direction, any non-zero vector (default +x).
     objective : {"travel", "aligned"}
@@ -286,25 +353,33 @@ def run_search(
     Raises
     ------
     FileExistsError
-        ``out_dir`` holds a search and neither ``resume`` nor ``overwrite`` was given.
+        ``out_dir`` holds a search and neither ``resume`` nor ``overwrite`` was given; or it holds a run or a
+        study, or is a file (whatever ``resume`` and ``overwrite``).
     SearchInterrupted
         On Ctrl-C, once the workers are stopped (the checkpoint holds every finished generation).
-    """
-    from .scene import Scene
+    SearchWorkersLost
+        The executor lost its workers (a process killed, the dask scheduler gone): the checkpoint holds every
+        finished generation, and ``resume=True`` continues exactly.
 
-    scene = Scene.from_dict(data, base_dir=base_dir)  # every scene error first
+    Every check of the arguments, the scene and ``out_dir``, and the precompute, come before anything is
+    written.
+    """
+    from .scene import Scene, resolve_paths
+
+    data = resolve_paths(data, base_dir)  # read the same by the workers and from best_gait.toml, from anywhere
+    scene = Scene.from_dict(data)  # every scene error first
     m = scene.config["muscles"]["count"]
     space = space or GaitSpace(m)
     if space.m != m:
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
     _check_evolution(generations, popsize, sigma0)
+    _check_seed(seed)
     _check_samples(samples, jitter)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     if resume and overwrite:
         raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
     out_dir = os.fspath(out_dir)
     paths = {name: os.path.join(out_dir, file) for name, file in zip(_PATH_NAMES, SEARCH_FILES)}
-    data = _standalone(data, base_dir)
     settings = {
         "scene": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16],
         "seed": seed,
@@ -315,20 +390,26 @@ def run_search(
         "space": [space.amplitude_max, space.period_min, space.period_max],
         **trial_settings,
     }
-    gait = scene.config["muscles"]["gait"]
-    x0 = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-    state = _first_state(out_dir, paths["checkpoint"], settings, x0, resume=resume, overwrite=overwrite)
-    if state["generation"] > generations:
-        raise ValueError(
-            f"the search in {out_dir} already has {state['generation']} generations, more than the {generations} "
-            f"asked (--generations, generations): ask for more than {state['generation']} to extend it"
+    earlier = check_output_folder(out_dir, "search")  # a file, a run or a study there: refused
+    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations) if resume else None
+    if not resume and earlier and not overwrite:
+        again = "continue it with --resume (resume=True) or " if os.path.isfile(paths["checkpoint"]) else ""
+        raise FileExistsError(
+            f"{out_dir} holds a search ({listed(out_dir, earlier)}): {again}start again with --overwrite "
+            "(overwrite=True; only its files are replaced)"
         )
-    if state["history"]:
-        _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
 
     clock = time.perf_counter()
-    trial = Trial.from_scene(data, **trial_settings)
+    trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock
+    if state is None:
+        gait = scene.config["muscles"]["gait"]
+        state = _new_state(settings, space.point(gait) if gait is not None else np.full(3 * m, 0.5))
+        os.makedirs(out_dir, exist_ok=True)
+        for path in earlier:
+            os.remove(path)
+    elif state["history"]:
+        _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
     recipe = {"data": data, "base_dir": None, **trial_settings}
     bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
     last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
@@ -343,6 +424,9 @@ def run_search(
     except KeyboardInterrupt:
         bar.close()
         raise SearchInterrupted(_restore(paths, data, objective), generations, out_dir) from None
+    except WorkersLost as lost:
+        bar.close()
+        raise SearchWorkersLost(str(lost), _restore(paths, data, objective), generations, out_dir) from lost
     bar.close()
     _write_plot(paths["plot"], state["history"], objective)
     return _result(state, paths, precompute)
@@ -370,14 +454,6 @@ def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: 
     }
 
 
-def _standalone(data: dict, base_dir: str | None) -> dict:
-    """A copy of a scene dict whose mesh file is found from anywhere (for the workers and the best-gait file)."""
-    data = json.loads(json.dumps(data))
-    if data.get("mesh", {}).get("file") and base_dir:
-        data["mesh"]["file"] = os.path.join(base_dir, data["mesh"]["file"])
-    return data
-
-
 def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
     """CMA-ES's settings: at least a generation of at least two candidates, a positive first step."""
     if generations < 1 or popsize < 2:
@@ -386,22 +462,28 @@ def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
         raise ValueError(f"sigma0 must be positive, got {sigma0!r}")
 
 
-def _first_state(out_dir: str, checkpoint: str, settings: dict, x0, *, resume: bool, overwrite: bool) -> dict:
-    """The state a search starts from: its checkpoint's (resuming), or CMA-ES new at ``x0``.
+def _check_seed(seed) -> None:
+    """A seed CMA-ES takes deterministically: an integer from 0 to :data:`SEED_MAX`."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"seed must be an integer from 0 to {SEED_MAX}, got {seed!r}")
 
-    A new search first removes an earlier one's files from ``out_dir`` (only with ``overwrite``).
-    """
-    if resume:
-        if not os.path.isfile(checkpoint):
-            raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
-        state = _load_checkpoint(checkpoint, settings)
-        np.random.set_state(state["numpy_random"])
-        return state
-    if os.path.exists(checkpoint) and not overwrite:
-        raise FileExistsError(
-            f"{out_dir} holds a search ({checkpoint}): continue it with --resume (resume=True) "
-            "or start again with --overwrite (overwrite=True)"
+
+def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: int) -> dict:
+    """The state of the search checkpointed in ``out_dir``, checked against these settings and generations."""
+    if not os.path.isfile(checkpoint):
+        raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
+    state = _load_checkpoint(checkpoint, settings)
+    if state["generation"] > generations:
+        raise ValueError(
+            f"the search in {out_dir} already has {state['generation']} generations, more than the {generations} "
+            f"asked (--generations, generations): ask for more than {state['generation']} to extend it"
         )
+    np.random.set_state(state["numpy_random"])
+    return state
+
+
+def _new_state(settings: dict, x0) -> dict:
+    """A new search's state: CMA-ES at ``x0``, seeded by the settings' seed."""
     import cma
 
     # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
@@ -409,25 +491,26 @@ def _first_state(out_dir: str, checkpoint: str, settings: dict, x0, *, resume: b
     es = cma.CMAEvolutionStrategy(x0.tolist(), settings["sigma0"], options)
     state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
     state["numpy_random"] = np.random.get_state()
-    os.makedirs(out_dir, exist_ok=True)
-    for file in SEARCH_FILES:
-        if os.path.exists(os.path.join(out_dir, file)):
-            os.remove(os.path.join(out_dir, file))
     return state
 
 
 def _save(paths: dict, data: dict, state: dict) -> None:
-    """The checkpoint of a search state, then the files that follow it (history.csv, best_gait.toml)."""
+    """The checkpoint of a search state, then the files that follow it (history.csv, best_gait.toml).
+
+    A ``transfer.csv`` beside them replayed an earlier best gait: it goes.
+    """
     _write_atomic(paths["checkpoint"], lambda f: pickle.dump(state, f))
     _write_outputs(paths, data, state)
+    stale = os.path.join(os.path.dirname(paths["checkpoint"]), TRANSFER_FILE)
+    if os.path.exists(stale):
+        os.remove(stale)
 
 
 def _restore(paths: dict, data: dict, objective: str) -> int:
-    """After Ctrl-C, the files as the last checkpoint has them (whatever the moment); its generation (0: none)."""
+    """After a stop, the files as the last checkpoint has them (whatever the moment); its generation (0: none)."""
     if not os.path.isfile(paths["checkpoint"]):
         return 0
-    with open(paths["checkpoint"], "rb") as f:
-        state = pickle.load(f)
+    state = read_checkpoint(paths["checkpoint"])
     _write_outputs(paths, data, state)
     _write_plot(paths["plot"], state["history"], objective)
     return state["generation"]
@@ -589,6 +672,6 @@ def _write_plot(path: str, history: list, objective: str) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=110)
+    with written_whole(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(path + ".tmp.png", path)

@@ -1,12 +1,14 @@
-"""What a run or a study writes into its folder, and clearing an earlier one out of it.
+"""What a run, a study or a gait search writes into its folder, and clearing an earlier one out of it.
 
 A run directory holds the files of :func:`~skfem_modal.run.run_scene` and the
 pictures of :func:`~skfem_modal.plot.render_run`, under the names below; a
-study's folder the report of :func:`~skfem_modal.study.run_study`. A new run
-into a folder that holds an earlier one would mix the two (stale frames
-beside new ones, old pictures), so the earlier one is removed first, when
-asked, and only its files: anything else in the folder is left alone. A run
-and a study never share a folder.
+study's folder the report of :func:`~skfem_modal.study.run_study`; a search's
+folder the checkpoint and files of :func:`~skfem_modal.optimize.run_search`
+(and ``transfer.csv`` beside them). A new run into a folder that holds an
+earlier one would mix the two (stale frames beside new ones, old pictures),
+so the earlier one is removed first, when asked, and only its files:
+anything else in the folder is left alone. A run, a study and a search never
+share a folder.
 """
 
 from __future__ import annotations
@@ -19,8 +21,13 @@ __all__ = [
     "PICTURES",
     "FRAMES_DIR",
     "STUDY_FILES",
+    "SEARCH_FILES",
+    "TRANSFER_FILE",
     "earlier_run",
     "earlier_study",
+    "earlier_search",
+    "check_output_folder",
+    "listed",
     "clear_earlier_run",
     "clear_earlier_study",
 ]
@@ -33,6 +40,10 @@ PICTURES = ("com.png", "amplitudes.png", "first_frame.png", "last_frame.png", "a
 FRAMES_DIR = "frames"
 #: The files of a study (``skfem-modal study``).
 STUDY_FILES = ("study.csv", "modal.csv", "study.json", "study.md", "pareto.png")
+#: What ``skfem-modal transfer`` writes beside a search's files (a replay of its best gait).
+TRANSFER_FILE = "transfer.csv"
+#: The files of a gait search (``skfem-modal optimize``), and ``skfem-modal transfer``'s beside them.
+SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", TRANSFER_FILE)
 
 
 def _names(files) -> re.Pattern:
@@ -43,6 +54,7 @@ def _names(files) -> re.Pattern:
 
 _TOP = _names(RUN_FILES + PICTURES)
 _STUDY = _names(STUDY_FILES)
+_SEARCH = _names(SEARCH_FILES)
 _FRAME = re.compile(r"\.?frame_\d{5}(?:\.[0-9a-f]{8})?\.vtu")
 
 
@@ -91,31 +103,66 @@ def earlier_study(directory) -> list[str]:
     return sorted(p for p in _found(os.fspath(directory), _STUDY) if os.path.isfile(p))
 
 
-def _listed(directory: str, found: list[str]) -> str:
+def earlier_search(directory) -> list[str]:
+    """The files an earlier gait search (or its transfer) wrote in ``directory`` (sorted; empty when none)."""
+    return sorted(p for p in _found(os.fspath(directory), _SEARCH) if os.path.isfile(p))
+
+
+#: Each kind of output folder, and how to find what an earlier one of that kind wrote.
+_KINDS = {"run": earlier_run, "study": earlier_study, "search": earlier_search}
+
+
+def listed(directory: str, found: list[str]) -> str:
     """What ``found`` holds, in words: the names in ``directory`` and how many frames."""
     frames = sum(os.path.basename(os.path.dirname(p)) == FRAMES_DIR for p in found)
     named = [os.path.basename(p) for p in found if os.path.dirname(p) == directory]
     return ", ".join(named + ([f"{frames} frames"] if frames else []))
 
 
-def _clear(directory, overwrite: bool, how: str, own: str, found: list[str], other: str, others: list[str]) -> int:
-    """Refuse, or remove ``found`` (the earlier ``own`` output); ``others`` (another kind, ``other``) always refuses."""
+def check_output_folder(directory, kind: str) -> list[str]:
+    """Refuse an output folder that would mix outputs; the files of an earlier output of this kind in it.
+
+    Parameters
+    ----------
+    directory : str or path-like
+    kind : {"run", "study", "search"}
+
+    Returns
+    -------
+    found : list of str
+        What an earlier ``kind`` wrote there (empty: nothing).
+
+    Raises
+    ------
+    FileExistsError
+        ``directory`` (or a folder on its path) is a file, or it holds
+        another kind's output: a run, a study and a search never share a folder.
+    """
+    directory = os.fspath(directory)
     blocking = _file_in_the_way(directory)
     if blocking is not None:
         what = "is" if blocking == directory else f"cannot be made: {blocking!r} is"
         raise FileExistsError(
             f"the output folder {directory!r} {what} a file, not a folder: choose another output folder"
         )
-    if others:
-        raise FileExistsError(
-            f"{directory!r} holds a {other} ({_listed(directory, others)}): a {own} there would mix with it; "
-            "choose another directory"
-        )
+    for other, earlier in _KINDS.items():
+        others = earlier(directory) if other != kind else []
+        if others:
+            raise FileExistsError(
+                f"{directory!r} holds a {other} ({listed(directory, others)}): a {kind} there would mix with it; "
+                "choose another directory"
+            )
+    return _KINDS[kind](directory)
+
+
+def _clear(directory: str, overwrite: bool, how: str, own: str) -> int:
+    """Refuse (:func:`check_output_folder`), or remove the earlier ``own`` output's files."""
+    found = check_output_folder(directory, own)
     if not found:
         return 0
     if not overwrite:
         raise FileExistsError(
-            f"{directory!r} holds an earlier {own} ({_listed(directory, found)}); "
+            f"{directory!r} holds an earlier {own} ({listed(directory, found)}); "
             f"pass {how} to replace it (only its files are removed) or choose another directory"
         )
     for path in found:
@@ -149,18 +196,16 @@ def clear_earlier_run(directory, overwrite: bool, *, how: str = "overwrite=True"
     FileExistsError
         The directory holds an earlier run and ``overwrite`` is false; the
         message says what it holds. Also, whatever ``overwrite``, when it
-        holds a study, or when ``directory`` (or a folder on its path) is a
-        file, not a folder: neither is ever removed.
+        holds a study or a search, or when ``directory`` (or a folder on its
+        path) is a file, not a folder: none is ever removed.
     """
-    directory = os.fspath(directory)
-    return _clear(directory, overwrite, how, "run", earlier_run(directory), "study", earlier_study(directory))
+    return _clear(os.fspath(directory), overwrite, how, "run")
 
 
 def clear_earlier_study(directory, overwrite: bool, *, how: str = "overwrite=True") -> int:
     """Make ``directory`` ready for a new study: refuse, or remove the earlier study's files.
 
     As :func:`clear_earlier_run`, for :data:`STUDY_FILES`; a folder holding a
-    run is refused whatever ``overwrite``.
+    run or a search is refused whatever ``overwrite``.
     """
-    directory = os.fspath(directory)
-    return _clear(directory, overwrite, how, "study", earlier_study(directory), "run", earlier_run(directory))
+    return _clear(os.fspath(directory), overwrite, how, "study")

@@ -54,6 +54,7 @@ from .mesh import body_size
 from .muscles import sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
+from .study import WorkersLost, lost_workers, make_executor
 from .threads import limited_blas_threads
 
 __all__ = ["OBJECTIVES", "Trial", "Rollouts", "rollout", "body_rotation_rows"]
@@ -70,6 +71,11 @@ _BLAS_LIMIT: list = []  # the open thread limit of this worker process (kept ope
 def body_rotation_rows(sim) -> np.ndarray:
     """The map from a state to ``sum_i m_i x_i (X_i - C)^T`` (row-major), whose polar part is the body's rotation.
 
+    Computed without BLAS (``einsum``'s own loops): a threaded BLAS sums in
+    an order that depends on its thread count, and these rows, made in the
+    search's own process, score every rollout of it, so the search would
+    depend on the calling shell's thread settings.
+
     Parameters
     ----------
     sim : ModalMuscle or FullSpaceSimulator
@@ -82,10 +88,13 @@ def body_rotation_rows(sim) -> np.ndarray:
     m = sim.mass[::dim]
     X = sim.mesh.p.T
     W = m[:, None] * (X - (m @ X) / m.sum())  # (n, dim)
-    rows = np.zeros((dim * dim, n * dim))
-    for i in range(dim):
-        rows[i * dim : (i + 1) * dim, i::dim] = W.T
-    return rows if sim.B is None else rows @ sim.B
+    if sim.B is None:
+        rows = np.zeros((dim * dim, n * dim))
+        for i in range(dim):
+            rows[i * dim : (i + 1) * dim, i::dim] = W.T
+        return rows
+    # row (i, j) is sum_k W[k, j] B[k dim + i]
+    return np.einsum("kj,kic->ijc", W, np.asarray(sim.B).reshape(n, dim, -1)).reshape(dim * dim, -1)
 
 
 class Trial:
@@ -303,8 +312,6 @@ class Rollouts:
     """
 
     def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
-        from .study import make_executor
-
         clock = time.perf_counter()
         self._close, self._scattered = None, None
         self.blas_threads = blas_threads
@@ -329,7 +336,13 @@ class Rollouts:
         self.startup_seconds = time.perf_counter() - clock
 
     def map(self, gaits) -> list[dict]:
-        """Run and score each gait (in order): :func:`rollout`'s results."""
+        """Run and score each gait (in order): :func:`rollout`'s results.
+
+        Raises
+        ------
+        skfem_modal.study.WorkersLost
+            The executor lost its workers (:func:`~skfem_modal.study.lost_workers` says how).
+        """
         tasks = [
             {
                 "trial": self.handle,
@@ -340,7 +353,13 @@ class Rollouts:
             }
             for gait in gaits
         ]
-        return list(self.executor.map(rollout, tasks))
+        try:
+            return list(self.executor.map(rollout, tasks))
+        except Exception as error:
+            said = lost_workers(error)
+            if said is None:
+                raise
+            raise WorkersLost(said) from error
 
     def close(self, cancel: bool = False) -> None:
         """Stop what was started here (``cancel``: drop the tasks not yet running)."""

@@ -10,6 +10,7 @@ nothing. ``docs/scenes.md`` lists every key (it is generated from
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import os
@@ -36,7 +37,16 @@ from .mesh import (
 from .solver import TOL
 from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
 
-__all__ = ["SceneError", "Scene", "SCHEMA", "DEFAULT_SCENE", "schema_markdown"]
+__all__ = [
+    "SceneError",
+    "Scene",
+    "SCHEMA",
+    "DEFAULT_SCENE",
+    "PATH_KEYS",
+    "resolve_paths",
+    "read_scene_file",
+    "schema_markdown",
+]
 
 
 class SceneError(ValueError):
@@ -216,7 +226,7 @@ SCHEMA: dict[str, Any] = {
         "table": Key(
             "str",
             None,
-            "CSV file of activations over time (instead of gait): a header, then "
+            "CSV file of activations over time (instead of gait), relative to the scene file: a header, then "
             "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling (beyond 1: a warning, as for "
             "the gait); linearly interpolated, held after the last row.",
         ),
@@ -414,6 +424,62 @@ DEFAULT_SCENE: dict[str, Any] = {
     "output": {"every": 5},
 }
 
+
+def read_scene_file(path) -> dict:
+    """A scene file's tables, unvalidated (:meth:`Scene.from_toml` validates them).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    SceneError
+        Not valid TOML; the message names the file and where.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"scene file not found: {path!r}")
+    with open(path, "rb") as f:
+        try:
+            return tomllib.load(f)
+        except tomllib.TOMLDecodeError as err:
+            raise SceneError(f"{path}: not valid TOML: {err}") from None
+
+
+#: The keys whose values are file paths, relative to the scene file's folder (section, key).
+PATH_KEYS = (("mesh", "file"), ("muscles", "table"))
+
+
+def resolve_paths(data: dict, base_dir: str | None = None) -> dict:
+    """A copy of a scene dict whose file paths (:data:`PATH_KEYS`) are absolute, so it reads the same from anywhere.
+
+    Parameters
+    ----------
+    data : dict
+        A scene, as the TOML file's tables.
+    base_dir : str, optional
+        Where its relative paths start: the scene file's folder (default: the current directory).
+
+    Returns
+    -------
+    data : dict
+        A deep copy; values that are not strings are left for validation to name.
+
+    Examples
+    --------
+    >>> resolve_paths({"mesh": {"file": "seal.mesh"}}, "/scenes")["mesh"]["file"]
+    '/scenes/seal.mesh'
+    >>> resolve_paths({"muscles": {"table": "/data/steer.csv"}}, "/scenes")["muscles"]["table"]
+    '/data/steer.csv'
+    """
+    data = copy.deepcopy(data)
+    base_dir = os.path.abspath(base_dir or os.getcwd())
+    for section, key in PATH_KEYS:
+        table = data.get(section) if isinstance(data, dict) else None
+        if isinstance(table, dict) and isinstance(table.get(key), str):
+            table[key] = os.path.join(base_dir, table[key])  # an absolute path stays as it is
+    return data
+
+
 #: The simulated time of a scene that gives neither time.duration nor time.steps.
 DEFAULT_DURATION = 4.5
 #: A duration within this fraction of a whole number of steps is that number (0.1 / 0.01 is 10.000000000000002).
@@ -586,14 +652,7 @@ class Scene:
     def from_toml(cls, path) -> Scene:
         """Load and validate a scene file."""
         path = os.fspath(path)
-        if not os.path.isfile(path):
-            raise FileNotFoundError(f"scene file not found: {path!r}")
-        with open(path, "rb") as f:
-            try:
-                data = tomllib.load(f)
-            except tomllib.TOMLDecodeError as err:
-                raise SceneError(f"{path}: not valid TOML: {err}") from None
-        return cls.from_dict(data, base_dir=os.path.dirname(os.path.abspath(path)), source=path)
+        return cls.from_dict(read_scene_file(path), base_dir=os.path.dirname(os.path.abspath(path)), source=path)
 
     @classmethod
     def default(cls) -> Scene:
@@ -602,22 +661,23 @@ class Scene:
 
     @classmethod
     def from_dict(cls, data: dict, base_dir: str | None = None, source: str = "dict") -> Scene:
-        """Validate a scene given as nested dicts (the same keys as the TOML file)."""
+        """Validate a scene given as nested dicts (the same keys as the TOML file).
+
+        Its file paths are read from ``base_dir`` (default: the current
+        directory; :func:`resolve_paths`), and held absolute in ``config``.
+        """
         errors: list[str] = []
-        config = _validate_table(SCHEMA, data, "", errors)
-        base_dir = base_dir or os.getcwd()
+        config = _validate_table(SCHEMA, resolve_paths(data, base_dir), "", errors)
         mesh = None
         table = None
         # every problem at once: the mesh is built when its own keys are right,
         # and the checks across keys run whatever else is wrong
         if not any(e.split(":", 1)[0].split(".", 1)[0] == "mesh" for e in errors):
-            mesh = _build_mesh(config["mesh"], base_dir, errors)
+            mesh = _build_mesh(config["mesh"], errors)
         _check_cross(config, mesh, errors)
         muscles = config["muscles"]
         if muscles["table"] is not None and muscles["count"] is not None:
-            path = muscles["table"]
-            path = path if os.path.isabs(path) else os.path.join(base_dir, path)
-            table = _read_table(path, muscles["count"], errors)
+            table = _read_table(muscles["table"], muscles["count"], errors)
         if errors:
             head = f"{source}: " if source not in ("dict", "built-in") else ""
             raise SceneError(f"{head}{len(errors)} problem(s) in the scene:\n  " + "\n  ".join(errors))
@@ -921,7 +981,7 @@ def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:
         errors.append(f"{said}: {text} on this mesh")
 
 
-def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
+def _build_mesh(spec: dict, errors: list[str]):
     if spec["shape"] is not None and spec["file"] is not None:
         errors.append("mesh: give either shape or file, not both")
         return None
@@ -930,7 +990,7 @@ def _build_mesh(spec: dict, base_dir: str, errors: list[str]):
             if spec["params"]:
                 errors.append("mesh.params: only for built-in shapes, not with mesh.file")
                 return None
-            path = spec["file"] if os.path.isabs(spec["file"]) else os.path.join(base_dir, spec["file"])
+            path = spec["file"]  # absolute: resolve_paths
             if not os.path.isfile(path):
                 errors.append(f"mesh.file: no such file {path!r}")
                 return None

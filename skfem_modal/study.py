@@ -35,6 +35,7 @@ import copy
 import csv
 import inspect
 import json
+import logging
 import os
 import platform
 import time
@@ -59,6 +60,8 @@ __all__ = [
     "pareto_front",
     "recommend",
     "make_executor",
+    "WorkersLost",
+    "lost_workers",
     "run_study",
 ]
 
@@ -577,7 +580,19 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
         except ImportError:
             raise ValueError("--scheduler needs dask.distributed: pip install 'skfem_modal[distributed]'") from None
         client = Client(scheduler)
-        return client.get_executor(), lambda cancel=False: client.close()
+
+        def close_client(cancel=False):
+            # stopping on an error: a lost scheduler's reconnection, cancelled here, would log a raw traceback
+            logger = logging.getLogger("distributed.client")
+            level = logger.level
+            if cancel:
+                logger.setLevel(logging.CRITICAL)
+            try:
+                client.close()
+            finally:
+                logger.setLevel(level)
+
+        return client.get_executor(), close_client
     import multiprocessing
 
     # Each worker process gets one BLAS thread, as dask's workers do: the
@@ -607,6 +622,42 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
 
 
 _ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+class WorkersLost(RuntimeError):
+    """An executor lost its workers (a process killed, the dask scheduler gone): the tasks they had are lost."""
+
+
+def lost_workers(error: BaseException) -> str | None:
+    """What ``error``, raised by an executor's task, says happened to the workers, in words; None for other errors.
+
+    A local pool's worker process that dies (killed by the out-of-memory
+    killer, say) breaks the pool (``BrokenProcessPool``); a dask cluster
+    cancels the tasks of a lost scheduler connection, and of data that died
+    with its workers (``FutureCancelledError``), and gives up on a task that
+    killed its workers (``KilledWorker``).
+
+    Examples
+    --------
+    >>> from concurrent.futures.process import BrokenProcessPool
+    >>> lost_workers(BrokenProcessPool("A process in the process pool was terminated abruptly"))
+    'a worker process of the local pool died (killed: by the out-of-memory killer, say)'
+    >>> lost_workers(ValueError("a task's own error")) is None
+    True
+    """
+    from concurrent.futures import BrokenExecutor, CancelledError
+
+    dask = type(error).__module__.split(".")[0] == "distributed"
+    if isinstance(error, BrokenExecutor):
+        return "a worker process of the local pool died (killed: by the out-of-memory killer, say)"
+    reason = getattr(error, "reason", None)
+    if dask and (reason == "scheduler-connection-lost" or type(error).__name__ == "CommClosedError"):
+        return "the connection to the dask scheduler was lost"
+    if dask and isinstance(error, CancelledError):
+        return f"the dask cluster cancelled the tasks ({reason}: its workers died, and the data they held)"
+    if dask and type(error).__name__ == "KilledWorker":
+        return "dask workers died running a task, each worker that took it in turn (KilledWorker)"
+    return None
 
 
 def run_study(
@@ -655,7 +706,9 @@ def run_study(
     ------
     FileExistsError
         Before any work: ``out_dir`` holds an earlier study and ``overwrite``
-        is false, or it holds a run (whatever ``overwrite``).
+        is false, or it holds a run or a gait search (whatever ``overwrite``).
+    WorkersLost
+        The executor lost its workers (:func:`lost_workers`); nothing is written.
     """
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
@@ -684,6 +737,11 @@ def run_study(
             row["step_ms"] = ms
         say("step times: " + ", ".join(f"{r['label']} {r['step_ms']:.3f} ms" for r in rows))
         modal_rows = modal_convergence(tuple(cfg["modal"]))
+    except Exception as error:
+        said = lost_workers(error)
+        if said is None:
+            raise
+        raise WorkersLost(f"the study lost its workers: {said}; a study keeps no checkpoint: run it again") from None
     finally:
         if close is not None:
             close()

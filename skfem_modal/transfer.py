@@ -15,8 +15,11 @@ with settings up a ladder of accuracy:
 * for a built-in shape, a copy at half the resolution, reduced as searched
   and in the full space (the full space of a large mesh costs minutes).
 
-``survives`` is each replay's travel over the search's: 1 means the gait
-travels as far, 0 not at all, a negative value backwards.
+``survives`` is each replay's travel along the searched direction over the
+size of the search's own travel (its absolute value): 1 means the replay
+travels as far as the search's, along the direction, 0 not at all, a
+negative value backwards, whatever the sign of the search's own travel (a
+search that found no gait going forward has -1 as searched).
 """
 
 from __future__ import annotations
@@ -24,12 +27,12 @@ from __future__ import annotations
 import copy
 import csv
 import os
-import pickle
 import time
-import tomllib
 
 import numpy as np
 
+from .export import written_whole
+from .outputs import TRANSFER_FILE
 from .rollouts import Trial
 
 __all__ = ["LADDER", "replay", "transfer_search"]
@@ -97,7 +100,7 @@ def replay(
         Per setting: ``setting``, ``space`` (reduced or full), ``elements``,
         ``coordinates``, ``clusters``, ``iterations`` (at most, a step),
         ``mean_iterations``, ``travel``, ``alignment``, ``max_tilt_degrees``,
-        ``fitness``, ``survives`` (travel over the first row's) and ``seconds``.
+        ``fitness``, ``survives`` (travel over the size of the first row's: module docs) and ``seconds``.
     """
     from .scene import Scene
     from .study import resolution_scene
@@ -138,7 +141,7 @@ def replay(
         )
     first = rows[0]["travel"]
     for row in rows:
-        row["survives"] = row["travel"] / first if first else float("nan")
+        row["survives"] = row["travel"] / abs(first) if first else float("nan")
     return rows
 
 
@@ -165,7 +168,8 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     Parameters
     ----------
     out_dir : str or path-like
-        A search's folder (``best_gait.toml`` and ``checkpoint.pkl``).
+        A search's folder (``best_gait.toml`` and ``checkpoint.pkl``; an error names either one that cannot be
+        read).
     full_space_limit : int
         Largest mesh (elements) replayed in the full space.
     progress : callable, optional
@@ -176,18 +180,26 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     result : dict
         ``rows`` (:func:`replay`'s) and ``csv`` (the path written).
     """
+    from .optimize import read_checkpoint
+    from .scene import Scene, read_scene_file
+
     out_dir = os.fspath(out_dir)
     scene_path, checkpoint = os.path.join(out_dir, "best_gait.toml"), os.path.join(out_dir, "checkpoint.pkl")
     for path in (scene_path, checkpoint):
         if not os.path.isfile(path):
             raise FileNotFoundError(f"{out_dir} holds no finished search: {path} is missing")
-    with open(scene_path, "rb") as f:
-        data = tomllib.load(f)
-    with open(checkpoint, "rb") as f:
-        settings = pickle.load(f)["settings"]
+    settings = read_checkpoint(checkpoint)["settings"]
+    missing = [key for key in ("steps", "direction", "objective", "tip_limit", "tip_weight") if key not in settings]
+    if missing:
+        raise ValueError(f"{checkpoint} lacks the search's {', '.join(missing)}: it was written by an older version")
+    data = read_scene_file(scene_path)
+    scene = Scene.from_dict(data, base_dir=out_dir, source=scene_path)  # every problem named in the file's words
+    gait = scene.config["muscles"]["gait"]
+    if gait is None:
+        raise ValueError(f"{scene_path} holds no muscles.gait: it is not a search's best gait")
     rows = replay(
         data,
-        data["muscles"]["gait"],
+        {**gait, "phase": gait["phase"] or [0.0] * len(gait["amplitude"])},
         steps=settings["steps"],
         direction=settings["direction"],
         objective=settings["objective"],
@@ -197,8 +209,8 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         full_space_limit=full_space_limit,
         progress=progress,
     )
-    path = os.path.join(out_dir, "transfer.csv")
-    with open(path, "w", newline="") as f:
+    path = os.path.join(out_dir, TRANSFER_FILE)
+    with written_whole(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         writer.writerows(rows)

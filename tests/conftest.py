@@ -30,3 +30,44 @@ def reference():
 @pytest.fixture(scope="session")
 def cat_mesh():
     return caterpillar()
+
+
+def die():
+    """A task that kills the worker process running it (SIGKILL, as the out-of-memory killer does)."""
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+@pytest.fixture
+def killing_pools():
+    """``kill(make_executor, after)``: a ``make_executor`` whose local pools lose a worker, SIGKILLed while it runs
+    a task (:func:`die`), when their task number ``after`` (from 0) is submitted; the pools are closed after the test.
+
+    The task waits until the pool has seen the worker die: a death the pool has not yet seen races the tasks
+    after it (measured: the tasks of a 2-worker pool went on in the other worker).
+    """
+    import itertools
+
+    made = []
+
+    def kill(make_executor, after: int):
+        def make(*args, **kwargs):
+            pool, close = make_executor(*args, **kwargs)
+            submit, count = pool.submit, itertools.count()
+
+            def submitted(fn, *a, **k):
+                if next(count) == after:
+                    submit(die).exception(timeout=60)  # once the pool has seen it die
+                return submit(fn, *a, **k)
+
+            pool.submit = submitted
+            made.append(close)
+            return pool, close
+
+        return make
+
+    yield kill
+    for close in made:
+        close()

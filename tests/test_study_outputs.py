@@ -7,6 +7,7 @@ import pytest
 
 from skfem_modal import study
 from skfem_modal.cli import main
+from skfem_modal.outputs import earlier_study
 
 TINY = dict(
     steps=10,
@@ -128,3 +129,16 @@ def test_the_study_command_says_warnings_once_in_its_own_words(tmp_path, tiny, c
     err = capfd.readouterr().err.splitlines()
     assert err and all(line.startswith("skfem-modal study: warning: mesh 'caterpillar' is 2") for line in err), err
     assert len(set(err)) == len(err)  # each said once
+
+
+@pytest.mark.parametrize("after", [0, 1])  # a reference's worker killed, or the reduced runs'
+def test_a_study_that_loses_its_workers_says_so_in_one_line(tmp_path, tiny, capsys, monkeypatch, killing_pools, after):
+    monkeypatch.setattr(study, "make_executor", killing_pools(study.make_executor, after=after))
+    out = tmp_path / "study"
+    assert main(["study", "--quick", "--out", str(out), "--workers", "2"]) == 4
+    err = capsys.readouterr().err
+    assert err == (
+        "skfem-modal study: the study lost its workers: a worker process of the local pool died (killed: by the "
+        "out-of-memory killer, say); a study keeps no checkpoint: run it again\n"
+    )
+    assert earlier_study(out) == []  # nothing half written

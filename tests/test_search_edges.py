@@ -1,0 +1,423 @@
+"""Gait search at its edges: scenes read from anywhere, lost workers, stops, bad options, shared folders, transfer."""
+
+import copy
+import csv
+import os
+import pickle
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from conftest import die
+
+from skfem_modal import optimize, rollouts, study
+from skfem_modal.cli import _joined_signed_values, main
+from skfem_modal.monitor import CeilingWarning
+from skfem_modal.optimize import GaitSpace, SearchInterrupted, SearchWorkersLost, run_search, scene_to_toml
+from skfem_modal.run import run_scene
+from skfem_modal.scene import DEFAULT_SCENE, Scene
+
+pytest.importorskip("cma", reason="cma is in the optimize extra")
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+TINY = copy.deepcopy(DEFAULT_SCENE)
+TINY["mesh"] = {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}}
+TINY["subspace"] = {"weights": 6, "clusters": 10}
+QUICK = ["--popsize", "2", "--steps", "20", "--workers", "1", "-q"]
+
+
+def search(out, **kw):
+    return run_search(TINY, out, **{"generations": 2, "popsize": 4, "seed": 3, "steps": 60, **kw})
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    return search(tmp_path_factory.mktemp("uninterrupted"), workers=1)
+
+
+@pytest.fixture
+def tiny_scene(tmp_path):
+    path = tmp_path / "tiny.toml"
+    path.write_text(scene_to_toml(TINY))
+    return str(path)
+
+
+# ------------------------------------------------------------ the scene's files
+
+
+def test_a_scene_with_a_table_is_searched_from_any_folder(tmp_path, monkeypatch, capsys):
+    """examples/beam_pinned.toml names beam_steer.csv beside it: found from another working directory."""
+    monkeypatch.chdir(tmp_path)
+    args = ["optimize", str(EXAMPLES / "beam_pinned.toml"), "--generations", "1", "--direction", "y", "--out", "bp"]
+    assert main([*args, *QUICK]) == 0, capsys.readouterr().err
+    best = tomllib.loads((tmp_path / "bp" / "best_gait.toml").read_text())
+    assert "table" not in best["muscles"] and len(best["muscles"]["gait"]["amplitude"]) == 2  # the gait replaces it
+    with open(tmp_path / "bp" / "history.csv") as f:
+        travel = float(next(csv.DictReader(f))["best_travel"])
+    assert run_scene(Scene.from_dict(best), None)["com"]["travel"][1] == pytest.approx(travel, rel=1e-9, abs=1e-12)
+    # without the table beside the scene: refused, naming it, before any folder is made
+    shutil.copy(EXAMPLES / "beam_pinned.toml", tmp_path / "lonely.toml")
+    assert main(["optimize", str(tmp_path / "lonely.toml"), "--out", "lonely", *QUICK]) == 2
+    assert f"muscles.table: no such file {str(tmp_path / 'beam_steer.csv')!r}" in capsys.readouterr().err
+    assert not (tmp_path / "lonely").exists()
+
+
+def test_a_search_that_fails_to_build_writes_nothing(tmp_path, monkeypatch):
+    (tmp_path / "old").mkdir()
+    search(tmp_path / "old", workers=1, generations=1)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "old").iterdir()}
+
+    def fail(*args, **kwargs):
+        raise ValueError("the precompute failed")
+
+    monkeypatch.setattr(optimize.Trial, "from_scene", fail)
+    for out, flags in ((tmp_path / "new", {}), (tmp_path / "old", {"overwrite": True})):
+        with pytest.raises(ValueError, match="the precompute failed"):
+            search(out, **flags)
+    assert not (tmp_path / "new").exists()
+    assert {p.name: p.read_bytes() for p in (tmp_path / "old").iterdir()} == before  # the search replaced is intact
+
+
+# ------------------------------------------------------------ workers lost, stops
+
+
+def test_a_killed_pool_worker_stops_the_search_which_resumes_exactly(uninterrupted, tmp_path):
+    """A worker SIGKILLed (the out-of-memory killer) between generations: one error, the checkpoint kept."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        search(tmp_path, executor=pool, stop_after=1)
+        pool.submit(die).exception(timeout=60)  # the worker is killed while it runs a task
+        with pytest.raises(SearchWorkersLost) as lost:
+            search(tmp_path, executor=pool, resume=True)
+    assert lost.value.generations == 1 and lost.value.total == 2
+    assert str(lost.value) == (
+        "the search lost its workers in generation 2 of 2: a worker process of the local pool died (killed: by "
+        f"the out-of-memory killer, say); the checkpoint in {tmp_path} holds generation 1"
+    )
+    assert optimize.read_checkpoint(str(tmp_path / "checkpoint.pkl"))["generation"] == 1
+    assert len((tmp_path / "history.csv").read_text().splitlines()) == 2  # the files match the checkpoint
+    resumed = search(tmp_path, workers=1, resume=True)
+    assert [h["best_fitness"] for h in resumed["history"]] == [h["best_fitness"] for h in uninterrupted["history"]]
+    assert resumed["best"] == uninterrupted["best"]
+
+
+def test_the_command_says_how_to_resume_a_search_that_lost_its_workers(tiny_scene, tmp_path, capsys, killing_pools):
+    out = tmp_path / "s"
+    args = ["optimize", tiny_scene, "--generations", "3", "--popsize", "4", "--steps", "60", "--seed", "3"]
+    args += ["--out", str(out), "-q"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rollouts, "make_executor", killing_pools(study.make_executor, after=4))  # in generation 2
+        assert main(args) == 4
+    err = capsys.readouterr().err
+    assert err == (
+        "skfem-modal optimize: the search lost its workers in generation 2 of 3: a worker process of the local "
+        f"pool died (killed: by the out-of-memory killer, say); the checkpoint in {out} holds generation 1\n"
+        f"resume it with: skfem-modal {' '.join(args)} --resume\n"
+    )
+    assert main([*args, "--resume"]) == 0
+    fresh = tmp_path / "fresh"
+    assert main([*args[:-3], "--out", str(fresh), "-q"]) == 0
+    resumed, uninterrupted = (
+        [r.split(",")[:8] for r in (d / "history.csv").read_text().splitlines()] for d in [out, fresh]
+    )
+    assert len(resumed) == 4 and resumed == uninterrupted  # every number but the wall time
+    # lost in the first generation: nothing to resume, and no --resume said
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rollouts, "make_executor", killing_pools(study.make_executor, after=0))
+        assert main([*args[:-3], "--out", str(tmp_path / "first"), "-q"]) == 4
+    err = capsys.readouterr().err
+    assert "in generation 1 of 3" in err and "nothing was checkpointed" in err and "--resume" not in err
+    assert "start it again with: skfem-modal optimize" in err and not (tmp_path / "first" / "checkpoint.pkl").exists()
+
+
+@pytest.mark.parametrize(
+    "error, said",
+    [
+        ("scheduler-connection-lost", "the connection to the dask scheduler was lost"),
+        ("already forgotten", "the dask cluster cancelled the tasks (already forgotten: its workers died"),
+        ("killed", "dask workers died running a task"),
+        ("own", None),
+    ],
+)
+def test_what_dask_says_of_lost_workers(error, said):
+    distributed = pytest.importorskip("distributed", reason="dask is in the distributed extra")
+    from distributed.client import FutureCancelledError
+
+    raised = {
+        "killed": distributed.KilledWorker("rollout-1", SimpleNamespace(address="tcp://127.0.0.1:1234"), 3),
+        "own": RuntimeError("a task's own error"),
+    }.get(error) or FutureCancelledError("rollout-1", error)
+    found = study.lost_workers(raised)
+    assert found is None if said is None else found.startswith(said)
+
+
+def test_ctrl_c_in_the_first_generation_says_nothing_was_checkpointed(tiny_scene, tmp_path, capsys, monkeypatch):
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(optimize, "_generation", interrupted)
+    with pytest.raises(SearchInterrupted) as stop:
+        search(tmp_path / "lib", workers=1)
+    assert stop.value.generations == 0
+    assert str(stop.value) == (
+        f"interrupted in generation 1 of 2; no generation was finished, so nothing was checkpointed in "
+        f"{tmp_path / 'lib'}: there is nothing to resume"
+    )
+    args = ["optimize", tiny_scene, "--generations", "30", "--out", str(tmp_path / "cli"), *QUICK]
+    assert main(args) == 130
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("skfem-modal optimize: interrupted in generation 1 of 30; no generation was finished")
+    assert err[1] == f"start it again with: skfem-modal {' '.join(args)}"
+    assert not (tmp_path / "cli" / "checkpoint.pkl").exists()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("killed", ["workers", "scheduler"])
+def test_a_dask_search_that_loses_its_cluster_says_how_to_resume(tiny_scene, tmp_path, killed):
+    """Every dask worker SIGKILLed, or the scheduler: one error, exit code 4, and --resume ends as uninterrupted."""
+    distributed = pytest.importorskip("distributed", reason="dask is in the distributed extra")
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "start_new_session": True, "env": env}
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--port", address.rsplit(":", 1)[1]]
+        + ["--no-dashboard"],
+        **quiet,
+    )
+    workers = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "2", "--nthreads", "1"]
+        + ["--no-dashboard"],
+        **quiet,
+    )
+    out = tmp_path / "s"
+    args = ["optimize", tiny_scene, "--generations", "200", "--popsize", "4", "--steps", "60", "--seed", "3"]
+    args += ["--out", str(out), "--scheduler", address, "-q"]
+    try:
+        with distributed.Client(address, timeout=60) as client:  # the cluster is up before the search starts
+            client.wait_for_workers(2, timeout=60)
+        search = subprocess.Popen(
+            [sys.executable, "-m", "skfem_modal.cli", *args], stderr=subprocess.PIPE, text=True, env=env
+        )
+        deadline = time.time() + 120
+        while time.time() < deadline and not (out / "history.csv").exists() and search.poll() is None:
+            time.sleep(0.2)
+        time.sleep(0.5)
+        os.killpg((workers if killed == "workers" else scheduler).pid, signal.SIGKILL)
+        _, err = search.communicate(timeout=120)
+    finally:
+        for process in (workers, scheduler):
+            try:
+                os.killpg(process.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            process.wait()
+    lines = [line for line in err.splitlines() if " - distributed." not in line]  # dask's own log lines
+    assert search.returncode == 4 and "Traceback" not in err, err
+    with open(out / "checkpoint.pkl", "rb") as f:
+        done = pickle.load(f)["generation"]
+    reason = "the connection to the dask scheduler was lost" if killed == "scheduler" else "the dask cluster"
+    assert lines[0].startswith(f"skfem-modal optimize: the search lost its workers in generation {done + 1} of 200")
+    assert reason in lines[0] and lines[0].endswith(f"the checkpoint in {out} holds generation {done}")
+    assert lines[1:] == [f"resume it with: skfem-modal {' '.join(args)} --resume"]
+    # the checkpoint resumes, here on the local pool, to the uninterrupted search's end
+    resumed = run_search(TINY, out, generations=done + 1, popsize=4, seed=3, steps=60, workers=1, resume=True)
+    fresh = run_search(TINY, tmp_path / "fresh", generations=done + 1, popsize=4, seed=3, steps=60, workers=1)
+    assert [h["best_fitness"] for h in resumed["history"]] == [h["best_fitness"] for h in fresh["history"]]
+
+
+# ------------------------------------------------------------ seeds, numbers, directions
+
+
+@pytest.mark.parametrize("seed", ["-1", "-5", "4294967295"])
+def test_seeds_outside_what_cma_takes_deterministically_are_refused(tiny_scene, tmp_path, capsys, seed):
+    with pytest.raises(SystemExit) as usage:
+        main(["optimize", tiny_scene, "--seed", seed, "--out", str(tmp_path / "s")])
+    assert usage.value.code == 2
+    assert f"argument --seed: expected an integer from 0 to 4294967294, got {seed!r}" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=f"seed must be an integer from 0 to 4294967294, got {int(seed)}"):
+        search(tmp_path / "s", seed=int(seed))
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_largest_seed_gives_the_same_search_twice(tmp_path):
+    runs = [search(tmp_path / name, seed=optimize.SEED_MAX, generations=1, popsize=2, workers=1) for name in "ab"]
+    assert runs[0]["best"] == runs[1]["best"] and runs[0]["history"][0]["sigma"] == runs[1]["history"][0]["sigma"]
+
+
+def test_body_rotation_rows_do_not_depend_on_the_blas_threads(cat_mesh):
+    """Made in the search's own process, whose threads the calling shell sets: 2 threads summed in another order."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    n = cat_mesh.p.shape[1]
+    rng = np.random.default_rng(0)
+    mass = np.repeat(rng.uniform(0.5, 1.5, n), 2)
+    sim = SimpleNamespace(mesh=cat_mesh, mass=mass, B=rng.standard_normal((2 * n, 48)))
+    rows = {}
+    for threads in (1, 2):
+        with threadpoolctl.threadpool_limits(threads):
+            rows[threads] = rollouts.body_rotation_rows(sim)
+    assert np.array_equal(rows[1], rows[2])  # threaded BLAS: 34 to 52 of these 192 entries differed, by up to 1.4e-14
+    full = rollouts.body_rotation_rows(SimpleNamespace(mesh=cat_mesh, mass=sim.mass, B=None))
+    np.testing.assert_allclose(rows[1], full @ sim.B, rtol=0, atol=1e-12 * np.abs(full).sum(1).max())
+
+
+@pytest.mark.parametrize(
+    "option, values, said",
+    [
+        ("--period-range", ["0.3", "inf"], "argument --period-range: expected a positive finite number, got 'inf'"),
+        ("--period-range", ["nan", "2"], "argument --period-range: expected a positive finite number, got 'nan'"),
+        ("--amplitude-max", ["inf"], "argument --amplitude-max: expected a positive finite number, got 'inf'"),
+        ("--amplitude-max", ["0"], "argument --amplitude-max: expected a positive finite number, got '0'"),
+        ("--tip-limit", ["inf"], "argument --tip-limit: expected a finite number >= 0, got 'inf'"),
+        ("--tip-weight", ["-1"], "argument --tip-weight: expected a finite number >= 0, got '-1'"),
+        ("--jitter", ["nan"], "argument --jitter: expected a finite number >= 0, got 'nan'"),
+    ],
+)
+def test_option_values_are_finite_before_any_work(tiny_scene, tmp_path, capsys, option, values, said):
+    with pytest.raises(SystemExit) as usage:
+        main(["optimize", tiny_scene, option, *values, "--out", str(tmp_path / "s")])
+    assert usage.value.code == 2 and said in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_gait_space_is_finite_and_warns_beyond_the_ceilings():
+    with pytest.raises(ValueError, match="period_max must be a finite number, got inf"):
+        GaitSpace(2, period_max=np.inf)
+    with pytest.raises(ValueError, match="amplitude_max must be a finite number, got nan"):
+        GaitSpace(2, amplitude_max=np.nan)
+    with pytest.warns(CeilingWarning, match="up to 1e[+]08 times their ceilings: an activation beyond 1 asks"):
+        GaitSpace(2, amplitude_max=1e8)
+
+
+def test_the_command_warns_of_amplitudes_beyond_the_ceilings(tiny_scene, tmp_path, capsys):
+    args = ["optimize", tiny_scene, "--amplitude-max", "2", "--generations", "1", "--out", str(tmp_path / "s")]
+    assert main([*args, *QUICK]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith(
+        "skfem-modal optimize: warning: amplitude_max = 2 lets the search drive the muscles up to 2 times their "
+        "ceilings: an activation beyond 1 asks an element to deform by more than muscles.max_s"
+    )
+
+
+def test_a_direction_with_a_sign_is_its_value(tiny_scene, tmp_path, capsys):
+    assert _joined_signed_values(["optimize", "--direction", "-x", "--out", "-o"]) == [
+        "optimize",
+        "--direction=-x",
+        "--out",
+        "-o",
+    ]
+    assert _joined_signed_values(["--direction", "-1,0", "--direction", "--quiet"]) == [
+        "--direction=-1,0",
+        "--direction",
+        "--quiet",
+    ]
+    for direction, said in (("-x", "[-1.0, 0.0]"), ("-1,0.5", "[-1.0, 0.5]"), ("-.5,-2", "[-0.5, -2.0]")):
+        args = ["optimize", tiny_scene, "--direction", direction, "--generations", "1", "--popsize", "2"]
+        assert main([*args, "--steps", "10", "--workers", "1", "--out", str(tmp_path / direction)]) == 0
+        assert f"(travel along {said})" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------ output folders
+
+
+def test_a_resumed_search_that_goes_on_drops_the_transfer_of_its_old_best(tmp_path):
+    search(tmp_path, workers=1, generations=1)
+    (tmp_path / "transfer.csv").write_text("setting,travel\nas searched,0.1\n")
+    search(tmp_path, workers=1, generations=1, resume=True)  # no new generation: the replay still stands
+    assert (tmp_path / "transfer.csv").exists()
+    search(tmp_path, workers=1, resume=True)
+    assert not (tmp_path / "transfer.csv").exists()
+
+
+def test_a_search_run_and_study_never_share_a_folder(tiny_scene, tmp_path, capsys):
+    searched, ran, studied = tmp_path / "search", tmp_path / "run", tmp_path / "study"
+    assert main(["optimize", tiny_scene, "--generations", "1", "--out", str(searched), *QUICK]) == 0
+    short = tmp_path / "short.toml"
+    short.write_text(scene_to_toml({**TINY, "time": {"step": 0.01, "steps": 2}}))
+    assert main(["run", str(short), "--out", str(ran), "-q"]) == 0
+    studied.mkdir()
+    (studied / "study.json").write_text("{}")
+    for flags in ([], ["--overwrite"], ["--resume"]):
+        for other, kind in ((ran, "run"), (studied, "study")):
+            assert main(["optimize", tiny_scene, "--generations", "1", "--out", str(other), *QUICK, *flags]) == 2
+            assert f"{str(other)!r} holds a {kind} (" in capsys.readouterr().err
+    for flags in ([], ["--overwrite"]):
+        assert main(["run", tiny_scene, "--out", str(searched), "-q", *flags]) == 2
+        assert "holds a search (best_gait.toml, checkpoint.pkl, fitness.png, history.csv): a run there" in (
+            capsys.readouterr().err
+        )
+        assert main(["study", tiny_scene, "--out", str(searched), "-q", *flags]) == 2
+        assert "holds a search (best_gait.toml, checkpoint.pkl, fitness.png, history.csv): a study there" in (
+            capsys.readouterr().err
+        )
+    assert sorted(os.listdir(searched)) == ["best_gait.toml", "checkpoint.pkl", "fitness.png", "history.csv"]
+    # a search's files without its checkpoint are a search all the same: replaced only when asked
+    (searched / "checkpoint.pkl").unlink()
+    assert main(["optimize", tiny_scene, "--generations", "1", "--out", str(searched), *QUICK]) == 2
+    err = capsys.readouterr().err
+    assert "holds a search (best_gait.toml, fitness.png, history.csv): start again with --overwrite" in err
+    assert "--resume" not in err
+
+
+# ------------------------------------------------------------ transfer
+
+
+@pytest.fixture(scope="module")
+def backwards(tmp_path_factory):
+    """A search towards +x of the caterpillar, which crawls towards -x: its best travel is negative."""
+    out = tmp_path_factory.mktemp("backwards")
+    found = run_search(TINY, out, generations=1, popsize=2, seed=0, steps=60, workers=1)
+    assert found["best"]["travel"] < 0
+    return out, found
+
+
+def test_transfer_names_the_file_it_cannot_read(backwards, tmp_path, capsys):
+    from skfem_modal.transfer import transfer_search
+
+    out = tmp_path / "copy"
+    shutil.copytree(backwards[0], out)
+    good = (out / "checkpoint.pkl").read_bytes()
+    (out / "checkpoint.pkl").write_text("garbage\n")
+    checkpoint = str(out / "checkpoint.pkl")
+    with pytest.raises(ValueError, match=f"^{checkpoint} is not a search checkpoint that can be read"):
+        transfer_search(out)
+    assert main(["transfer", str(out), "-q"]) == 2
+    assert f"skfem-modal transfer: error: {checkpoint} is not a search checkpoint" in capsys.readouterr().err
+    (out / "checkpoint.pkl").write_bytes(good)
+    (out / "best_gait.toml").write_text((out / "best_gait.toml").read_text().replace("[muscles.gait]", "[muscles.gait"))
+    assert main(["transfer", str(out), "-q"]) == 2
+    assert f"skfem-modal transfer: error: {out / 'best_gait.toml'}: not valid TOML:" in capsys.readouterr().err
+    (out / "checkpoint.pkl").write_bytes(good[: len(good) // 2])
+    with pytest.raises(ValueError, match=f"^{checkpoint} is not a search checkpoint that can be read"):  # --resume too
+        search(out, resume=True, generations=1, popsize=2, seed=0)
+
+
+def test_transfer_prints_the_tilt_and_survives_means_the_same_for_a_backward_search(backwards, capsys):
+    out, found = backwards
+    assert main(["transfer", str(out), "--full-space-limit", "1"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].endswith("| travel | survives | alignment | largest tilt | s |")
+    with open(out / "transfer.csv") as f:
+        rows = list(csv.DictReader(f))
+    searched = float(rows[0]["travel"])
+    assert searched == found["best"]["travel"] < 0 and float(rows[0]["survives"]) == -1.0
+    for row, line in zip(rows, printed[2:]):
+        assert float(row["survives"]) == pytest.approx(float(row["travel"]) / -searched, rel=1e-15)  # along +x
+        assert f"| {float(row['max_tilt_degrees']):.1f} |" in line
+    assert f"the search's own travel is {searched:.4g}, backwards" in printed[-2]
