@@ -526,11 +526,13 @@ _non_negative_float = _float_in(0.0, "a finite number >= 0", open_low=False)
 
 
 def _seed(text: str) -> int:
-    from .optimize import SEED_MAX
+    from .optimize import SEED_MAX, _check_seed
 
-    value = int(text) if text.lstrip("+-").isdigit() else None
-    if value is None or not 0 <= value <= SEED_MAX:
-        raise argparse.ArgumentTypeError(f"expected an integer from 0 to {SEED_MAX}, got {text!r}")
+    try:
+        value = int(text)
+        _check_seed(value)  # the library's one rule
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to {SEED_MAX}, got {text!r}") from None
     return value
 
 

@@ -663,26 +663,27 @@ class CoulombContact(_Ground):
             if attempt == _PASSES - 1:
                 break
             key = active.tobytes() + sliding.tobytes()
+            friction_changes = bool(mu)
             if attempt < _PASSES // 2 and key not in seen:
                 seen.add(key)
                 # release every vertex the ground pulls, hold the deepest few below: the rows of
                 # neighbouring vertices nearly repeat each other, so a few stand for a whole patch
                 active = active & ~release
                 active[self._deepest(below, x)] = True
-                if mu:
-                    direction[slips] = tangential[slips] / needed[slips, None]
-                    sliding = (sliding | slips) & ~stops & active
             elif np.count_nonzero(below):
                 # going round in circles: one change at a time, the deepest vertex first
                 depth = x[up::dim] - joining
                 active = active | (below & (depth <= depth[below].min()))
+                friction_changes = False
             elif np.count_nonzero(release):
                 active = active.copy()
                 active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
                 sliding &= active
-            else:  # friction alone goes round: the vertices sticking takes too much of slide, none stops
+                friction_changes = False
+            # (else friction alone goes round: in the second half only slips are left, stops cleared above)
+            if friction_changes:
                 direction[slips] = tangential[slips] / needed[slips, None]
-                sliding = (sliding | slips) & active
+                sliding = (sliding | slips) & ~stops & active
             if not np.count_nonzero(active):
                 # nothing pushed after all: unless the unpushed state leaves a vertex below
                 active = x_t[up::dim] < joining
