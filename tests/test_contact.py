@@ -402,6 +402,28 @@ def test_a_body_starting_deep_in_the_ground_is_refused(contact_model):
     assert sim.up == 1
 
 
+def test_a_run_started_from_a_state_deep_in_the_ground_is_refused():
+    # the setters check the rest shape; a state given to step is checked as its run starts
+    mesh = sm.caterpillar(nx=12, ny=6)
+    size = size_of(mesh)
+    kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -9.8], ground=float(mesh.p[1].min()) - 0.01 * size)
+    sim = sm.ModalMuscle.from_mesh(mesh, **kw)
+    z, z_dot, _ = sim.rest_state()
+    down = sim.coordinates(np.tile([0.0, -1.0], mesh.p.shape[1]))
+    deep = r"the state starts inside the ground: a boundary vertex is 0.02 \(1 % of the body's size\) below the ground"
+    with pytest.raises(ValueError, match=deep):
+        sim.step(z + 0.02 * size * down, z_dot)
+    # nothing half-written: the next run goes as a fresh simulator's
+    fresh = sm.ModalMuscle.from_mesh(mesh, **kw)
+    assert np.array_equal(trajectory_of(sim, 30), trajectory_of(fresh, 30))
+    # within the allowance it starts; a run goes on from where its last step ended (every vertex within it)
+    z1, z1_dot = sim.step(z + (0.01 + 0.9 * ALLOWANCE) * size * down, z_dot, velocity=True)
+    sim.step(z1, z1_dot)
+    # the reference contact's own steps end with vertices inside the ground: not checked
+    sim.contact_model = "reference"
+    sim.step(z + 0.02 * size * down, z_dot)
+
+
 def test_the_reported_penetration_covers_every_vertex():
     # the reference model constrains 30 points and lets the feet between them sink: the summary sees them
     data = {
