@@ -612,7 +612,13 @@ def _render_options(p) -> None:
     )
     p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
     p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
-    p.add_argument("--size", type=_picture_size, default="1280x720", metavar="WxH", help="picture size in pixels")
+    p.add_argument(
+        "--size",
+        type=_picture_size,
+        default="1280x720",
+        metavar="WxH",
+        help="picture size in pixels (text and lines grow with it)",
+    )
 
 
 def _run_options(p) -> None:

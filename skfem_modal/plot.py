@@ -327,8 +327,20 @@ COLOUR_TITLE = "deformation"
 COLOUR_LABEL = "deformation (distance from rigid motion)"
 #: Share of the picture's width the drawing takes (the colour bar has the rest).
 _DRAWING_WIDTH = 0.86
-#: Font size of the colour bar's labels (pyvista).
+#: Font size of the colour bar's labels (pyvista), at the default size.
 _BAR_LABEL_SIZE = 12
+#: The default picture size, the one text and line sizes are chosen for.
+DEFAULT_SIZE = (1280, 720)
+
+
+def _text_scale(size) -> float:
+    """How much larger than at :data:`DEFAULT_SIZE` text and lines are drawn: a picture looks the same at any size."""
+    return min(size[0] / DEFAULT_SIZE[0], size[1] / DEFAULT_SIZE[1])
+
+
+def _points(value: float, scale: float) -> int:
+    """A font size (pyvista takes whole points) scaled, at least 1."""
+    return max(1, round(value * scale))
 
 
 @dataclass
@@ -446,7 +458,10 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     faces = _surface(frames[0].cells) if view.dim == 3 else None
     light = camera.towards + 0.6 * camera.screen_up + 0.3 * camera.right
     light /= np.linalg.norm(light)
-    fig = plt.figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
+    # text and lines are in points: a dpi in proportion to the size keeps them in proportion too
+    dpi = 100.0 * _text_scale(size)
+    inches = [pixels / dpi if int(pixels / dpi * dpi) == pixels else (pixels + 0.01) / dpi for pixels in size]
+    fig = plt.figure(figsize=inches, dpi=dpi)
     try:
         for k, f in enumerate(frames):
             fig.clear()
@@ -510,6 +525,8 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
     body = pv.PolyData.from_regular_faces(pad3(frames[0].points), cells)
     body.point_data["deformation"] = frames[0].deformation
     plotter = pv.Plotter(off_screen=True, window_size=list(size))
+    scale = _text_scale(size)
+    label_size = _points(_BAR_LABEL_SIZE, scale)
     plotter.set_background("white")
     plotter.add_mesh(
         body,
@@ -525,15 +542,15 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
             "height": 0.76,
             "width": 0.05,
             "color": "black",
-            "title_font_size": 14,
-            "label_font_size": _BAR_LABEL_SIZE,
+            "title_font_size": _points(14, scale),
+            "label_font_size": label_size,
         },
     )
     # VTK puts the title right on the top label: keep them a label's height apart
-    plotter.scalar_bar.SetVerticalTitleSeparation(_BAR_LABEL_SIZE)
+    plotter.scalar_bar.SetVerticalTitleSeparation(label_size)
     if view.ground is not None:
         lines = pad3(_floor_lines(view).reshape(-1, dim))
-        plotter.add_mesh(pv.line_segments_from_points(lines), color="#999999", line_width=1.5, lighting=False)
+        plotter.add_mesh(pv.line_segments_from_points(lines), color="#999999", line_width=1.5 * scale, lighting=False)
         if dim == 2:
             lo = np.min([view.picture_limits(k)[0] for k in range(len(frames))], axis=0)
             hi = np.max([view.picture_limits(k)[1] for k in range(len(frames))], axis=0)
@@ -542,14 +559,15 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
             ground = [pad3(np.outer(a, right) + w * up) for w in (view.ground, lo[1])]
             quad = np.vstack([ground[0], ground[1][::-1]]) - [0.0, 0.0, 1e-3 * view.spacing]
             plotter.add_mesh(pv.PolyData(quad, faces=[4, 0, 1, 2, 3]), color="#e6e6e6", lighting=False)
-            plotter.add_mesh(pv.Line(*ground[0]), color="#737373", line_width=2, lighting=False)
+            plotter.add_mesh(pv.Line(*ground[0]), color="#737373", line_width=2 * scale, lighting=False)
         else:
             below = -1e-3 * view.spacing * view.up  # under the lines and the shadow
             floor = pv.PolyData(_floor_corners(view) + below, faces=[4, 0, 1, 2, 3])
             plotter.add_mesh(floor, color="#ebebeb", lighting=False)
             shadow = pv.PolyData.from_regular_faces(_on_floor(frames[0].points, view.up, view.ground), cells)
             plotter.add_mesh(shadow, color="#bfbfbf", lighting=False)
-    text = plotter.add_text("", position=(20, size[1] - 44), font_size=14, color="black")
+    corner = (round(20 * scale), size[1] - round(44 * scale))
+    text = plotter.add_text("", position=corner, font_size=_points(14, scale), color="black")
     depth = float(np.median(camera.depth(pad3(frames[0].points))))
     try:
         for k, f in enumerate(frames):
@@ -640,7 +658,7 @@ def render_run(
     fmt: str = "gif",
     max_frames: int = 120,
     fps: int = 20,
-    size: tuple[int, int] = (1280, 720),
+    size: tuple[int, int] = DEFAULT_SIZE,
 ) -> dict:
     """Pictures and an animation of a finished run, written into its directory.
 
@@ -665,7 +683,9 @@ def render_run(
     size : (int, int)
         Width and height of the frames in pixels, each from
         :data:`MIN_PICTURE_SIDE` to :data:`MAX_PICTURE_SIDE`; even for an
-        mp4 (see :func:`picture_size_problem`).
+        mp4 (see :func:`picture_size_problem`). Text and lines grow with it,
+        in proportion to :data:`DEFAULT_SIZE`: a picture looks the same at
+        any size.
 
     Returns
     -------

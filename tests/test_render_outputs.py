@@ -233,3 +233,29 @@ def test_the_floor_goes_on_behind_the_colour_bar(run_copy, backend):
     if backend == "pyvista":  # the bar's title clear of its top value
         title, label = colour_bar_text_rows(image)[:2]
         assert label[0] - title[1] > 6
+
+
+def time_text_width(image):
+    """Columns of the time's text (black on the white sky) in the picture's top left corner."""
+    h, w = image.shape[:2]
+    corner = image[: h // 8, : w // 4]
+    columns = np.flatnonzero((corner.max(axis=2) < 80).any(axis=0))
+    return columns.max() - columns.min() + 1
+
+
+@pytest.mark.parametrize("backend", ["matplotlib", "pyvista"])
+def test_text_grows_with_the_picture(run_copy, backend):
+    # at 4K the time and the colour bar read as they do at the default size, not a third as tall
+    if backend == "pyvista":
+        needs_gl()
+    widths = {}
+    for size in [(1280, 720), (2560, 1440), (3840, 1440)]:  # the last: as tall as 2560x1440, wider
+        w, h = size
+        argv = ["render", str(run_copy), "-q", "--backend", backend, "--max-frames", "1", "--size", f"{w}x{h}"]
+        assert main(argv) == 0
+        image = pixels(run_copy / "last_frame.png")
+        assert image.shape == (h, w, 3)
+        widths[size] = time_text_width(image)
+    assert widths[(1280, 720)] >= 50  # "t = 0.200"
+    assert abs(widths[(2560, 1440)] / widths[(1280, 720)] - 2.0) < 0.15
+    assert abs(widths[(3840, 1440)] - widths[(2560, 1440)]) <= 2
