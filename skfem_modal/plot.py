@@ -460,6 +460,7 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     light /= np.linalg.norm(light)
     # text and lines are in points: a dpi in proportion to the size keeps them in proportion too
     dpi = 100.0 * _text_scale(size)
+    # matplotlib truncates inches * dpi to whole pixels: a hundredth of a pixel over keeps the size given
     inches = [pixels / dpi if int(pixels / dpi * dpi) == pixels else (pixels + 0.01) / dpi for pixels in size]
     fig = plt.figure(figsize=inches, dpi=dpi)
     try:
