@@ -192,9 +192,11 @@ class KroneckerBackend:
         self.K, self.n, self.m, self.max_batch = K, n, m, max_iter
         self.nc = n - n_active
         nc = self.nc
-        self.Yt = _row_blocks(Y, scale).reshape(4 * n, K + 1)
+        # the two big operands of an iteration's products in Fortran order:
+        # OpenBLAS multiplies them by a 4-column right side a fifth faster
+        self.Yt = np.asfortranarray(_row_blocks(Y, scale).reshape(4 * n, K + 1))
         self.shift_column = self.Yt[3::4, K]
-        self.Wt = np.zeros((K + 1 + p, 4 * n + 3))
+        self.Wt = np.zeros((K + 1 + p, 4 * n + 3), order="F")
         self.Wt[:K, : 4 * n] = _column_blocks(V)
         self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
         self.Wt[K + 1 :, : 4 * n] = U @ self.Wt[:K, : 4 * n]
@@ -207,6 +209,7 @@ class KroneckerBackend:
             rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3] for k in range(m + 1)])
             cols = np.stack([_column_blocks(VA[k]) for k in range(m + 1)])
             Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
+            assert np.shares_memory(Yt_active, self.Yt), "the active rows must be a view of the operator"
             pairs = [(rows, Yt_active), (cols, self.Wt[:K, 4 * nc : 4 * n])]
             if p:
                 pairs.append((np.einsum("pk,mkc->mpc", U, cols), self.Wt[K + 1 :, 4 * nc : 4 * n]))
