@@ -184,22 +184,24 @@ class KroneckerBackend:
     def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0):
         n, _, K = Y.shape
         # U (p, K): the contact's watched heights are U Z[:, up]; they ride
-        # along in the global product as p more rows of Z
+        # along in the global product as p more rows of Z, first, so that
+        # they and z's rows take C and the activation in one write each
         U = np.zeros((0, K)) if U is None else U
         p = U.shape[0]
-        self.watching = p > 0
         m = YA.shape[0] - 1 if YA is not None else 0
-        self.K, self.n, self.m, self.max_batch = K, n, m, max_iter
+        self.K, self.n, self.m, self.p, self.max_batch = K, n, m, p, max_iter
         self.nc = n - n_active
         nc = self.nc
-        self.Yt = _row_blocks(Y, scale).reshape(4 * n, K + 1)
+        # the two big operands of an iteration's products in Fortran order:
+        # OpenBLAS multiplies them by a 4-column right side a fifth faster
+        self.Yt = np.asfortranarray(_row_blocks(Y, scale).reshape(4 * n, K + 1))
         self.shift_column = self.Yt[3::4, K]
-        self.Wt = np.zeros((K + 1 + p, 4 * n + 3))
-        self.Wt[:K, : 4 * n] = _column_blocks(V)
-        self.Wt[K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
-        self.Wt[K + 1 :, : 4 * n] = U @ self.Wt[:K, : 4 * n]
-        self.C_slot = self.Wt[:K, 4 * n :]
-        self.C_slot_watched = self.Wt[K + 1 :, 4 * n :]
+        # rows: the watched heights, z, the trailing row
+        self.Wt = np.zeros((p + K + 1, 4 * n + 3), order="F")
+        self.Wt[p : p + K, : 4 * n] = _column_blocks(V)
+        self.Wt[p + K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
+        self.Wt[:p, : 4 * n] = U @ self.Wt[p : p + K, : 4 * n]
+        self.C_slot = self.Wt[: p + K, 4 * n :]
         self.activation = None
         if m:
             # the active clusters' F rows (not their shift rows, which the
@@ -207,18 +209,17 @@ class KroneckerBackend:
             rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3] for k in range(m + 1)])
             cols = np.stack([_column_blocks(VA[k]) for k in range(m + 1)])
             Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
-            pairs = [(rows, Yt_active), (cols, self.Wt[:K, 4 * nc : 4 * n])]
-            if p:
-                pairs.append((np.einsum("pk,mkc->mpc", U, cols), self.Wt[K + 1 :, 4 * nc : 4 * n]))
-            self.activation = ActivationRows(pairs)
-        # C = [P_z, P_v, C_ext] [Z; Z_dot; I3]
-        self.C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
-        self.C_operator_watched = U @ self.C_operator
+            assert np.shares_memory(Yt_active, self.Yt), "the active rows must be a view of the operator"
+            cols = np.concatenate([np.einsum("pk,mkc->mpc", U, cols), cols], axis=1)
+            self.activation = ActivationRows([(rows, Yt_active), (cols, self.Wt[: p + K, 4 * nc : 4 * n])])
+        # C = [P_z, P_v, C_ext] [Z; Z_dot; I3], and the watched heights' U C
+        C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
+        self.C_operator = np.vstack([U @ C_operator, C_operator])
         self.C_input = np.zeros((2 * K + 3, 3))
         self.C_input[2 * K :] = np.eye(3)
         # iterates Z (with the trailing row), rotations (with the I3 rows), powers
-        self.Z = np.zeros((max_iter + 1, K + 1 + p, 4))
-        self.Z[:, K, 3] = 1.0
+        self.Z = np.zeros((max_iter + 1, p + K + 1, 4))
+        self.Z[:, p + K, 3] = 1.0
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
         # level first: each level's traces are one matrix-vector product over
@@ -231,18 +232,20 @@ class KroneckerBackend:
         # certificate (level 0 as the shifts are made: s = 1.05 sqrt(t_1) / 4)
         self.levels = np.empty((MAX_SQUARINGS + 1, max_iter, n))
         self.levels_flat = self.levels.reshape(-1)
-        self.Z_rows = self.Z[:, : K + 1].reshape(max_iter + 1, -1)
+        # (level, iteration and cluster): a step's first k iterations are a 2D slice, cheaper to reduce
+        self.levels_2d = self.levels.reshape(MAX_SQUARINGS + 1, -1)
+        self.Z_rows = self.Z[:, p:].reshape(max_iter + 1, -1)
         assert np.shares_memory(self.Z_rows, self.Z), "the rows must be a view of the iterates"
         self.C_z = self.C_input[:K].reshape(-1)  # contiguous rows: views
         self.C_z_dot = self.C_input[K : 2 * K].reshape(-1)
-        self.Z0 = self.Z[0, :K, :3]
+        self.Z0 = self.Z[0, p : p + K, :3]
         self.RT = np.empty((n, 17))  # t R^T blocks and t = tr(P^(2^s))
         self.shifted = False  # the shifts are set (from the last step)
         self.squarings = 4
         self.F16 = self.F.reshape(n, 16)
         self.RT16, self.trace = self.RT[:, :16], self.RT[:, 16:]
         self.C_z_block = self.C_input[:K]  # the same z, as (K, 3)
-        self.outputs = [Zk[:K, :3] for Zk in self.Z]
+        self.outputs = [Zk[p : p + K, :3] for Zk in self.Z]
         self.z_flat = np.empty(3 * K)  # a contiguous z for the contact projection
         self.z_block = self.z_flat.reshape(K, 3)
         # per number of squarings s: each iteration's operands (iterates,
@@ -251,7 +254,7 @@ class KroneckerBackend:
         self._views = [
             [
                 (
-                    self.Z[i, : K + 1],
+                    self.Z[i, p:],
                     self.Z[i + 1],
                     self.powers[0, i].reshape(n, 16),
                     self.powers[s, i].reshape(n, 16),
@@ -259,7 +262,7 @@ class KroneckerBackend:
                     self.R[i, : 4 * n].reshape(n, 16),
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
                     self.outputs[i + 1],
-                    self.Z[i + 1, K + 1 :, up] if p else None,
+                    self.Z[i + 1, :p, up] if p else None,
                 )
                 for i in range(max_iter)
             ]
@@ -318,15 +321,13 @@ class KroneckerBackend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
-        if self.watching:
-            np.matmul(self.C_operator_watched, self.C_input, self.C_slot_watched)
         np.copyto(self.Z0, self.C_z_block)
         if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best
             # shift for a rotation (eigenvalues 3, -1, -1, -1 become 4, 0, 0, 0),
             # with a margin for the certificate (see finish)
             self.shift_column[:] = 0.0
-            np.dot(self.Yt, self.Z[0, : self.K + 1], self.F)
+            np.dot(self.Yt, self.Z[0, self.p :], self.F)
             shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", self.F16, self.F16) / 3.0)
             self.shift_column[:] = shift
             np.multiply(shift, 4.0 / 1.05, self.levels[0])
@@ -368,7 +369,7 @@ class KroneckerBackend:
             # the traces of levels 1..s, all iterations: one matrix-vector product
             powers, traces = self._trace_rows[s]
             _dot(powers, EYE16, traces)
-            ok, top, rho = certify_levels(self.levels[: s + 1, :k], top_bound=1.05**2)
+            ok, top, rho = certify_levels(self.levels_2d[: s + 1, : k * self.n], top_bound=1.05**2)
             if ok and not top:
                 ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
         if k is None or not ok:

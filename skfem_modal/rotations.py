@@ -279,13 +279,16 @@ def certify_levels(levels: np.ndarray, tol: float = 1e-13, top_bound: float = 1.
     """
     # no errstate here (it costs as much as the arithmetic): a zero or
     # non-finite trace gives NaN or inf, which fail the comparisons
-    ratios = levels[1:] / np.square(levels[:-1])
-    # one reduction for all levels (level 0's minimum is not needed), and
-    # plain floats from there on: numpy scalars cost more than the arithmetic
+    ratios = np.square(levels[:-1])
+    np.divide(levels[1:], ratios, out=ratios)
+    # level 0's ratio is bounded above, the others below: with level 0's
+    # negated, one reduction finds both (and plain floats from there on:
+    # numpy scalars cost more than the arithmetic)
+    np.negative(ratios[:1], out=ratios[:1])
     lowest = ratios.min(axis=tuple(range(1, ratios.ndim))).tolist()
     rho = [1.0 - x for x in lowest[1:]]
     ok = rho[-1] <= 2.0 * math.sqrt(tol)
-    top = float(ratios[0].max()) < top_bound
+    top = -lowest[0] < top_bound
     return ok, top, rho
 
 

@@ -857,16 +857,17 @@ class ModalMuscle:
     # ------------------------------------------------------------------ step
     def _activation(self, a) -> np.ndarray:
         """The muscles' activation checked, shape (m,); None: zero (the muscles at rest)."""
+        m = self._n_muscles
         if a is None:
-            return np.zeros(self.n_muscles)
-        if self.n_muscles == 0:
+            return np.zeros(m)
+        if m == 0:
             if np.size(a):
                 raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
             return np.zeros(0)
         a = np.asarray(a, dtype=np.float64).ravel()
-        if a.shape != (self.n_muscles,):
-            raise ValueError(f"activation must have one value per muscle ({self.n_muscles}), got {a.size}")
-        if not np.all(np.isfinite(a)):
+        if a.shape != (m,):
+            raise ValueError(f"activation must have one value per muscle ({m}), got {a.size}")
+        if not np.isfinite(a).all():  # the method: half the cost of np.all's dispatch, every step
             raise ValueError(f"activation must be finite, got {a.tolist()}")
         return a
 
