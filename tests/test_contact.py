@@ -338,11 +338,14 @@ def test_a_gait_at_a_large_step_keeps_every_vertex_within_the_allowance(shape):
 
 @pytest.mark.parametrize("h", [0.2, 0.3])
 def test_a_drop_under_tilted_gravity_with_friction_at_a_large_step_gains_no_energy(h):
-    # taking the compliance's give back within the iterations made this body bounce, one step gaining 5.4
+    # taking the compliance's give back within the iterations made this body bounce, one step gaining 5.4.
+    # The body is stiff for these steps (ScaleWarning): with the default 10 iterations, at h = 0.3 the
+    # steps stay unconverged and one gains 0.5 % of the energy in 7 of 8 round-off branches (a 1e-14
+    # change of the start); 30 iterations keep every branch from gaining
     mesh = sm.caterpillar()
     sim = sm.ModalMuscle.from_mesh(
         mesh, n_muscles=0, n_weights=6, n_clusters=10, h=h, gravity=[-3.0, -9.8], ground=float(mesh.p[1].min()),
-        friction=0.5, mu=1e6,
+        friction=0.5, mu=1e6, max_iter=30,
     )  # fmt: skip
     z, z_dot, _ = sim.rest_state()
     energy = [sim.mechanical_energy(z, z_dot)]
