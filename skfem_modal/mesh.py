@@ -288,8 +288,22 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     if id(mesh) in _TRUSTED:
         return
     if not isinstance(mesh, (MeshTri, MeshTet)) or mesh.elem not in (ElementTriP1, ElementTetP1):
-        raise TypeError(f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}")
+        raise TypeError(
+            f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}{_hint(mesh)}"
+        )
     _check_arrays(mesh.p, mesh.t, what=what)
+
+
+def _hint(mesh) -> str:
+    """How to get a linear triangle or tetrahedron mesh from another scikit-fem mesh ('' if no hint)."""
+    name = type(mesh).__name__
+    if name.startswith("MeshQuad"):
+        return " (split it into triangles: mesh.to_meshtri())"
+    if name.startswith("MeshHex"):
+        return " (split it into tetrahedra: mesh.to_meshtet())"
+    if name in ("MeshTri2", "MeshTet2"):
+        return " (a quadratic mesh: pass the linear mesh of its corners; element='P2' gives quadratic modes)"
+    return ""
 
 
 def body_size(mesh) -> float:
@@ -351,6 +365,46 @@ def _compact(p: np.ndarray, t: np.ndarray):
     renumber = np.full(p.shape[1], -1, dtype=np.int64)
     renumber[used] = np.arange(used.size)
     return p[:, used], renumber[t]
+
+
+#: Quadratic cells read as their linear corners (the first nodes of each cell, as meshio orders them).
+_LINEAR = {"tetra10": "tetra", "triangle6": "triangle"}
+#: Cell types by dimension (meshio's names; higher orders start the same way).
+_SOLIDS = {3: ("tetra", "hexahedron", "wedge", "pyramid", "polyhedron"), 2: ("triangle", "quad", "polygon")}
+
+
+def _refuse_other_cells(path: str, blocks, dim: int) -> None:
+    """Refuse cells of the body's dimension that are not (linear or quadratic) triangles or tetrahedra.
+
+    Leaving them out would leave holes in the body (a gmsh mesh recombined into some quads,
+    boundary-layer prisms); lower-dimensional cells (a solid's boundary faces, lines) are only
+    dropped.
+    """
+    read = ("tetra", "tetra10") if dim == 3 else ("triangle", "triangle6")
+    counts = {}
+    for block in blocks:
+        if block.type not in read and block.type.startswith(_SOLIDS[dim]):
+            counts[block.type] = counts.get(block.type, 0) + len(block.data)
+    if counts:
+        found = ", ".join(f"{n} {kind}" for kind, n in counts.items())
+        element, split = ("tetrahedra", "MeshHex.to_meshtet") if dim == 3 else ("triangles", "MeshQuad.to_meshtri")
+        raise MeshError(
+            f"mesh file {path!r}: {found} cells beside the {element} would be left out, a hole in the body; "
+            f"only {' and '.join(read)} cells are read: split the others into {element} (gmsh: without "
+            f"recombining; scikit-fem: {split})"
+        )
+
+
+def _warn_straightened(path: str, n: int, solid: bool) -> None:
+    """Say that quadratic cells were read by their corners (their mid-edge nodes dropped, edges straight)."""
+    kind = "tetra10" if solid else "triangle6"
+    warnings.warn(
+        f"mesh file {path!r}: quadratic {kind} cells are read by their corner vertices; their {n} mid-edge nodes "
+        "are dropped, so curved edges become straight (a body with a curved boundary loses a little of it). "
+        "For quadratic elements, build them on the linear mesh: element='P2' (modes)",
+        UserWarning,
+        stacklevel=3,
+    )
 
 
 def _warn_unused(path: str, unused: np.ndarray, n: int, element: str) -> None:
@@ -416,7 +470,11 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     a z column is dropped when it is constant (a flat mesh, e.g. an OBJ
     outline with z = 0), and refused otherwise (a curved surface is not a
     planar body). Quadratic cells (``triangle6``, ``tetra10``) keep their
-    corner vertices. Vertices no element uses (e.g. gmsh's geometry points)
+    corner vertices, with a ``UserWarning`` that their mid-edge nodes are
+    dropped (curved edges become straight). Other cells of the body's
+    dimension (quads, hexahedra, prisms, cubic triangles) are refused: left
+    out, they would leave holes; lower-dimensional ones (a solid's boundary
+    faces, lines) are dropped. Vertices no element uses (e.g. gmsh's geometry points)
     are removed, with a ``UserWarning`` naming how many and which (the
     file's point data then lines up only without them). Coordinates are kept as they are in the file (see
     :func:`normalize_and_center` and :func:`mirror` for units and y-down
@@ -444,20 +502,26 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         No such file.
     MeshError
         (a ``ValueError``) naming the file: unreadable or unknown format, no
-        triangle or tetrahedron cells, a non-flat triangle surface, or an
-        invalid mesh (see :func:`check_mesh`).
+        triangle or tetrahedron cells, other cells of the body's dimension
+        beside them, a non-flat triangle surface, or an invalid mesh (see
+        :func:`check_mesh`; non-finite coordinates are named before anything
+        else reads them).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file not found: {path!r}")
     raw = _read_meshio(path)
-    blocks = {}
+    blocks, midside = {}, []
     for block in raw.cells:
-        kind = {"tetra10": "tetra", "triangle6": "triangle"}.get(block.type, block.type)
+        kind = _LINEAR.get(block.type, block.type)
         ncorner = {"tetra": 4, "triangle": 3}.get(kind)
         if ncorner is None:
             continue
-        blocks.setdefault(kind, []).append(np.asarray(block.data)[:, :ncorner])
+        data = np.asarray(block.data)
+        blocks.setdefault(kind, []).append(data[:, :ncorner])
+        midside.append(data[:, ncorner:].ravel())
+    if blocks:
+        _refuse_other_cells(path, raw.cells, 3 if "tetra" in blocks else 2)
     points = np.asarray(raw.points, dtype=np.float64)
     if points.size == 0:
         raise MeshError(f"mesh file {path!r} holds no vertices")
@@ -481,20 +545,26 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     else:
         found = sorted({b.type for b in raw.cells}) or ["none"]
         raise MeshError(
-            f"mesh file {path!r}: no triangle or tetrahedron cells (found: {', '.join(found)}); "
-            "a 2D body needs triangles, a 3D one tetrahedra"
+            f"mesh file {path!r}: no triangle or tetrahedron cells (only triangle, triangle6, tetra and tetra10 "
+            f"are read; found: {', '.join(found)}); a 2D body needs triangles, a 3D one tetrahedra"
         )
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
         raise MeshError(f"mesh file {path!r}: cells reference vertices outside 0..{len(points) - 1}")
     unused = np.setdiff1d(np.arange(len(points)), cells)
+    midside = np.intersect1d(unused, np.concatenate(midside))
+    if midside.size:
+        _warn_straightened(path, midside.size, "tetra" in blocks)
+        unused = np.setdiff1d(unused, midside)
     if unused.size:
         _warn_unused(path, unused, len(points), "tetrahedron" if "tetra" in blocks else "triangle")
     p, t = _compact(points.T, cells.T.astype(np.int64))
+    what = f"mesh file {path!r}"
+    _check_arrays(p, t, what=what)  # before the vertices are compared: an infinite one named, not a k-d tree error
     same = coincident_vertices(p.T)
     repeated = int(np.sum(same != np.arange(same.size)))
     if repeated and merge:
         p, t = _compact(p, same[t])
-    mesh = make_mesh(p.T, t.T, what=f"mesh file {path!r}" + (" (coincident vertices merged)" if merge else ""))
+    mesh = make_mesh(p.T, t.T, what=what + (" (coincident vertices merged)" if merge else ""))
     if repeated and not merge:
         parts = int(connected_parts(mesh).max()) + 1
         warnings.warn(

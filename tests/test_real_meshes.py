@@ -16,6 +16,7 @@ import warnings
 import meshio
 import numpy as np
 import pytest
+import skfem
 from skfem import MeshTri
 
 from skfem_modal import MeshError, load_mesh, mirror, normalize_and_center, tangled_elements
@@ -143,12 +144,94 @@ def test_a_vtu_without_cells_or_with_only_lines_is_a_mesh_error(tmp_path):
         load_mesh(empty)
     lines = tmp_path / "lines.vtu"
     meshio.write(lines, meshio.Mesh(points, [("line", np.array([[0, 1], [1, 2]]))]))
-    with pytest.raises(MeshError, match=r"lines.vtu.*no triangle or tetrahedron cells \(found: line\)"):
+    with pytest.raises(MeshError, match=r"lines.vtu.*no triangle or tetrahedron cells \(only .* found: line\)"):
         load_mesh(lines)
     nothing = tmp_path / "nothing.obj"
     nothing.write_text("")
     with pytest.raises(MeshError, match="nothing.obj' holds no vertices"):
         load_mesh(nothing)
+
+
+def grid_cells(nx, ny):
+    """A (nx+1) x (ny+1) grid of unit squares: its points (n, 2) and quads (nx ny, 4), counter-clockwise."""
+    x, y = np.meshgrid(np.arange(nx + 1.0), np.arange(ny + 1.0), indexing="ij")
+    points = np.column_stack([x.ravel(), y.ravel()])
+    corner = (np.arange(nx)[:, None] * (ny + 1) + np.arange(ny)).ravel()
+    return points, np.column_stack([corner, corner + ny + 1, corner + ny + 2, corner + 1])
+
+
+@pytest.mark.parametrize("ext", ["msh", "vtu"])
+def test_cells_of_the_body_s_dimension_left_out_are_refused(ext, tmp_path):
+    # a gmsh mesh partly recombined into quads loaded as its triangles alone: 7.5 of its area 8, no word
+    points, quads = grid_cells(4, 2)
+    keep = [1, 6]  # two quads inside; the others split into triangles
+    split = np.delete(quads, keep, axis=0)
+    triangles = np.vstack([split[:, [0, 1, 2]], split[:, [0, 2, 3]]])
+    path = tmp_path / f"recombined.{ext}"
+    meshio.write(
+        path,
+        meshio.Mesh(np.column_stack([points, np.zeros(len(points))]), [("triangle", triangles), ("quad", quads[keep])]),
+    )
+    with pytest.raises(
+        MeshError, match=r"2 quad cells beside the triangles would be left out, a hole in the body.*to_meshtri"
+    ):
+        load_mesh(path)
+    # 3D: tetrahedra beside hexahedra (boundary-layer meshes); a solid's boundary faces are only dropped
+    cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    points3 = np.vstack([cube, cube + [1.0, 0.0, 0.0]])
+    tets = np.array([[0, 1, 3, 4], [1, 2, 3, 6], [1, 3, 4, 6], [1, 4, 5, 6], [3, 4, 6, 7]])
+    hexes = np.array([[1, 8, 11, 2, 5, 12, 15, 6]])
+    mixed = tmp_path / f"mixed3d.{ext}"
+    meshio.write(mixed, meshio.Mesh(points3, [("tetra", tets), ("hexahedron", hexes)]))
+    with pytest.raises(MeshError, match=r"1 hexahedron cells beside the tetrahedra would be left out.*to_meshtet"):
+        load_mesh(mixed)
+    faces = tmp_path / f"faces.{ext}"
+    meshio.write(faces, meshio.Mesh(cube, [("tetra", tets), ("quad", np.array([[0, 1, 2, 3]]))]))
+    assert load_mesh(faces).t.shape == (4, 5)
+
+
+def test_an_infinite_coordinate_is_named_like_a_nan(tmp_path):
+    path = tmp_path / "inf.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv inf 1 0\nf 1 2 3\nf 2 4 3\n")
+    with pytest.raises(MeshError, match=r"inf.obj'?: 1 vertices have non-finite coordinates: \[3\]"):
+        load_mesh(path)
+
+
+def test_quadratic_cells_are_read_by_their_corners_and_say_so(tmp_path):
+    # their mid-edge nodes were reported as "vertices that belong to no triangle"
+    points, quads = grid_cells(2, 1)
+    corners = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    edges = np.sort(np.vstack([corners[:, [0, 1]], corners[:, [1, 2]], corners[:, [2, 0]]]), axis=1)
+    unique, index = np.unique(edges, axis=0, return_inverse=True)
+    middles = len(points) + index.reshape(3, -1).T  # each triangle's mid-edge nodes, in meshio's order
+    all_points = np.vstack([points, (points[unique[:, 0]] + points[unique[:, 1]]) / 2])
+    all_points = np.column_stack([all_points, np.zeros(len(all_points))])
+    path = tmp_path / "quadratic.vtu"
+    meshio.write(path, meshio.Mesh(all_points, [("triangle6", np.hstack([corners, middles]))]))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh = load_mesh(path)
+    messages = [str(w.message) for w in caught]
+    assert mesh.p.shape == (2, len(points)) and mesh.t.shape == (3, 4)
+    assert len(messages) == 1 and f"their {len(unique)} mid-edge nodes are dropped" in messages[0]
+    assert "belong to no triangle" not in messages[0]
+    cubic = tmp_path / "cubic.msh"
+    meshio.write(cubic, meshio.Mesh(all_points, [("triangle10", np.arange(10)[None, :])]), file_format="gmsh22")
+    with pytest.raises(MeshError, match=r"only triangle, triangle6, tetra and tetra10 are read; found: triangle10"):
+        load_mesh(cubic)
+
+
+@pytest.mark.parametrize(
+    "mesh, hint",
+    [
+        (lambda: skfem.MeshQuad(), "to_meshtri()"),
+        (lambda: skfem.MeshHex(), "to_meshtet()"),
+        (lambda: skfem.MeshTri2.init_circle(), "element='P2' gives quadratic modes"),
+    ],
+)
+def test_other_scikit_fem_meshes_are_refused_saying_how_to_convert(mesh, hint):
+    with pytest.raises(TypeError, match=re.escape(hint)):
+        check_mesh(mesh())
 
 
 def test_the_cli_says_which_file_it_cannot_read(tmp_path):
