@@ -124,7 +124,8 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
     out = np.nonzero(((t < 0) | (t >= n)).any(axis=0))[0]
     if out.size:
         raise MeshError(f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}")
-    repeated = np.nonzero((np.diff(np.sort(t, axis=0), axis=0) == 0).any(axis=0))[0]
+    ordered = np.sort(t, axis=0)
+    repeated = np.nonzero((np.diff(ordered, axis=0) == 0).any(axis=0))[0]
     if repeated.size:
         raise MeshError(f"{what}: {repeated.size} elements use the same vertex twice: {_listing(repeated)}")
     measure = np.abs(_signed_measures(p, t))
@@ -146,6 +147,14 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
         )
     tangled = tangled_elements(p, t)
     if tangled.size:
+        # a copy of an element overlaps it across every facet: say so, rather than "tangled"
+        _, first, group = np.unique(ordered.T, axis=0, return_index=True, return_inverse=True)
+        copies = np.flatnonzero(first[group.ravel()] != np.arange(t.shape[1]))
+        if copies.size:
+            raise MeshError(
+                f"{what}: {copies.size} {_element_name(dim)} repeat earlier ones (the same vertices): "
+                f"{_listing(copies)}; remove the copies"
+            )
         facet = "edge" if dim == 2 else "face"
         raise MeshError(
             f"{what}: {tangled.size} tangled (inverted or folded) {_element_name(dim)}: {_listing(tangled)}; "
@@ -537,9 +546,16 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
             z = points[:, 2]
             extent = np.ptp(points[:, :2], axis=0).max() if len(points) else 0.0
             if np.ptp(z) > 1e-12 * max(extent, 1.0):
+                spans = np.ptp(points, axis=0)
+                flat = [a for a in range(2) if spans[a] <= 1e-12 * max(spans.max(), 1.0)]
+                where = (
+                    f"they lie in the plane {'xy'[flat[0]]} = {points[0, flat[0]]:.6g}: turn them into the x-y plane"
+                    if flat
+                    else "a 2D mesh must be flat"
+                )
                 raise MeshError(
                     f"mesh file {path!r}: triangles are not in a plane of constant z "
-                    f"(z spans {np.ptp(z):.3g}); a 2D mesh must be flat, a 3D body needs tetrahedra"
+                    f"(z spans {np.ptp(z):.3g}); {where} (a 2D mesh lies in x-y), a 3D body needs tetrahedra"
                 )
             points = points[:, :2]
     else:

@@ -234,6 +234,22 @@ def test_other_scikit_fem_meshes_are_refused_saying_how_to_convert(mesh, hint):
         check_mesh(mesh())
 
 
+def test_a_repeated_element_is_named_as_a_copy_not_as_tangled():
+    square = MeshTri.init_symmetric()
+    t = np.hstack([square.t, square.t[::-1, [2]]])  # element 4 is element 2 again, its vertices reordered
+    with pytest.raises(MeshError, match=r"1 triangles repeat earlier ones \(the same vertices\): \[4\]"):
+        make_mesh(square.p.T, t.T)
+
+
+def test_an_outline_in_another_plane_is_named(tmp_path):
+    points, quads = grid_cells(2, 1)
+    xz = np.column_stack([points[:, 0], np.zeros(len(points)), points[:, 1]])  # y = 0, the outline along z
+    path = tmp_path / "xz.vtu"
+    meshio.write(path, meshio.Mesh(xz, [("triangle", np.vstack([quads[:, :3], quads[:, [0, 2, 3]]]))]))
+    with pytest.raises(MeshError, match=r"z spans 1\); they lie in the plane y = 0: turn them into the x-y plane"):
+        load_mesh(path)
+
+
 def test_the_cli_says_which_file_it_cannot_read(tmp_path):
     path = tmp_path / "garbage.msh"
     path.write_bytes(b"\x00 not a mesh")
