@@ -149,6 +149,12 @@ def count_problems(
         if problem:
             problems.append((name, f"must be {problem}"))
     if contact_candidates is not None:
+        indices = np.asarray(contact_candidates).ravel()
+        outside = indices[(indices < 0) | (indices >= n_vertices)] if np.issubdtype(indices.dtype, np.integer) else None
+        if outside is None or outside.size:
+            shown = "not integers" if outside is None else f"got {', '.join(map(str, outside[:5]))}"
+            problems.append(("contact_candidates", f"must be vertex indices 0..{n_vertices - 1} ({shown})"))
+            return problems
         try:
             sample_boundary(mesh, None, contact_candidates)
         except ValueError:

@@ -297,3 +297,18 @@ def test_a_body_far_from_the_origin_moves_as_it_does_there(offset, recwarn):
     # what is left: the coordinates' own round-off there (1e-16 of the offset), grown over the crawl
     # (measured 4e-13 and 8e-13 of the offset, 4e-7 and 8e-5 of the body's size)
     assert np.abs(there - here).max() <= 5e-12 * offset
+
+
+@pytest.mark.parametrize(
+    "candidates, message",
+    [
+        ([10**6], r"contact_candidates: 1 vertices must be vertex indices 0\.\.\d+ \(got 1000000\)"),
+        ([-1, 3], r"must be vertex indices 0\.\.\d+ \(got -1\)"),
+        ([0.5], r"must be vertex indices 0\.\.\d+ \(not integers\)"),
+    ],
+)
+def test_contact_candidates_outside_the_mesh_are_named(candidates, message):
+    # they were "1 vertices select no boundary vertex of the mesh"
+    ground = float(SMALL.p[1].min())
+    with pytest.raises(ValueError, match=message):
+        ModalMuscle.from_mesh(SMALL, **FAST, gravity=[0.0, -9.8], ground=ground, contact_candidates=candidates)
