@@ -508,7 +508,7 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     Raises
     ------
     FileNotFoundError
-        No such file.
+        No such file (``IsADirectoryError``: a folder).
     MeshError
         (a ``ValueError``) naming the file: unreadable or unknown format, no
         triangle or tetrahedron cells, other cells of the body's dimension
@@ -517,6 +517,8 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         else reads them).
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(f"mesh file {path!r} is a folder")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file not found: {path!r}")
     raw = _read_meshio(path)

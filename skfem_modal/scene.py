@@ -992,7 +992,8 @@ def _build_mesh(spec: dict, errors: list[str]):
                 return None
             path = spec["file"]  # absolute: resolve_paths
             if not os.path.isfile(path):
-                errors.append(f"mesh.file: no such file {path!r}")
+                what = "a folder, not a mesh file" if os.path.isdir(path) else "no such file"
+                errors.append(f"mesh.file: {what} {path!r}")
                 return None
             mesh = load_mesh(path, merge=spec["merge"])
         else:

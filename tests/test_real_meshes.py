@@ -378,3 +378,12 @@ def test_an_undamped_seal_dropped_at_a_tiny_step_gains_no_energy(friction):
     assert min(lowest) / size < 0.01  # it landed and bounced on the ground for 0.1 s
     assert min(lowest) >= -ALLOWANCE * size
     assert np.diff(energy).max() <= 1e-6 * (energy[0] - min(energy))
+
+
+def test_a_folder_given_as_the_mesh_file_is_named_a_folder(tmp_path):
+    folder = tmp_path / "mesh.obj"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError, match=r"mesh file '.*mesh.obj' is a folder"):
+        load_mesh(folder)
+    with pytest.raises(SceneError, match=r"mesh.file: a folder, not a mesh file '.*mesh.obj'"):
+        Scene.from_dict({"mesh": {"file": str(folder)}})
