@@ -36,8 +36,8 @@ CONFIGS = [
     ("+ muscles", {"muscles": MUSCLES}),
     ("+ muscles + gravity", {"muscles": MUSCLES, "gravity": {"acceleration": [0.0, -9.8]}}),
     (
-        "+ muscles + gravity + ground contact",
-        {"muscles": MUSCLES, "gravity": {"acceleration": [0.0, -9.8]}, "ground": {"offset": 0.15, "contacts": 30}},
+        "+ muscles + gravity + ground (Coulomb)",
+        {"muscles": MUSCLES, "gravity": {"acceleration": [0.0, -9.8]}, "ground": {"offset": 0.15, "model": "coulomb"}},
     ),
     ("+ muscles + pinned", {"muscles": MUSCLES, "pinned": {"where": ["y == min"]}}),
     ("+ muscles + damping", {"muscles": MUSCLES, "damping": {"mass": 0.5, "stiffness": 0.001}}),
