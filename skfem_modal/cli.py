@@ -453,7 +453,8 @@ def cmd_optimize(args) -> int:
         + f") in generation {best['generation']}; "
         f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
     )
-    say(f"wrote {result['best_scene']} (play it: skfem-modal run {result['best_scene']} --out OUT), {result['history_csv']}")
+    play = f"skfem-modal run {result['best_scene']} --out OUT"
+    say(f"wrote {result['best_scene']} (play it: {play}), {result['history_csv']}")
     return EXIT_OK
 
 
