@@ -115,8 +115,10 @@ SCHEMA: dict[str, Any] = {
             "str",
             None,
             "Mesh file (any format meshio reads), relative to the scene file. "
-            "Triangles make a 2D body, tetrahedra a 3D one; vertices no element uses are dropped, with a "
-            "warning naming them.",
+            "Triangles make a 2D body, tetrahedra a 3D one (quadratic `triangle6` / `tetra10` by their "
+            "corners, with a warning that curved edges become straight); other cells of the body's dimension "
+            "beside them (quads, hexahedra, prisms) are an error, as leaving them out would leave holes; "
+            "vertices no element uses are dropped, with a warning naming them.",
         ),
         "params": Key(
             "table",
