@@ -577,12 +577,13 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         _warn_unused(path, unused, len(points), "tetrahedron" if "tetra" in blocks else "triangle")
     p, t = _compact(points.T, cells.T.astype(np.int64))
     what = f"mesh file {path!r}"
-    _check_arrays(p, t, what=what)  # before the vertices are compared: an infinite one named, not a k-d tree error
+    # checked before its vertices are compared: an infinite one is named, not a k-d tree error
+    mesh = make_mesh(p.T, t.T, what=what)
     same = coincident_vertices(p.T)
     repeated = int(np.sum(same != np.arange(same.size)))
     if repeated and merge:
         p, t = _compact(p, same[t])
-    mesh = make_mesh(p.T, t.T, what=what + (" (coincident vertices merged)" if merge else ""))
+        mesh = make_mesh(p.T, t.T, what=what + " (coincident vertices merged)")
     if repeated and not merge:
         parts = int(connected_parts(mesh).max()) + 1
         warnings.warn(
