@@ -53,17 +53,21 @@ def test_the_second_thread_changes_nothing_and_from_mesh_uses_these_ingredients(
         beside = ingredients(mesh, pool, **kw)
         D = beside.muscles()
 
-    def same(actual, expected):  # to round-off: BLAS threads may sum in another order
-        np.testing.assert_allclose(actual, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    def same(actual, expected, tol=1e-12):  # to round-off: BLAS threads may sum in another order
+        np.testing.assert_allclose(actual, expected, rtol=0, atol=tol * np.abs(expected).max())
 
-    same(alone.muscles(), D)
+    # the modes are eigenvectors: their round-off is the matrix's over the gap to the next eigenvalue
+    # (seen 2.4e-12 of the largest entry with two BLAS threads beside one)
+    modes = 1e-10
+
+    same(alone.muscles(), D, modes)
     assert D.shape == (mesh.p.size, 2) and "modal_analysis" in beside.timings
     same(alone.B, beside.B)
     np.testing.assert_array_equal(alone.labels, beside.labels)
     assert alone.contact_vertices.size == 30  # the reference contact's default count
     sim = ModalMuscle.from_mesh(mesh, **{k: v for k, v in kw.items() if k not in ("cluster_weights", "n_contacts")})
     same(sim.B, alone.B)
-    same(sim.D, D)
+    same(sim.D, D, modes)
     np.testing.assert_array_equal(sim.labels, alone.labels)
     np.testing.assert_array_equal(sim.active_labels, alone.active_labels)
     np.testing.assert_array_equal(sim.contact_vertices, np.sort(alone.contact_vertices))
