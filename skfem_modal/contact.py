@@ -41,12 +41,12 @@ Both models report the deepest of all boundary vertices below the ground
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sps
 from scipy.optimize import nnls
 
+from ._contact_sets import Picked, SetOperator
 from ._fast import dot
 from .effects import Effect
 from .mesh import body_size, boundary_vertices
@@ -73,22 +73,8 @@ _OPERATORS = 64
 _KEEP = 10
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
-# solves that may take back the way the compliance lets the ground give (see _forces)
+# solves that may take back the way the compliance lets the ground give (see SetOperator.refined)
 _REFINE = 16
-
-
-class _Operator(NamedTuple):
-    """A Coulomb projection's solve for given sets of vertices (indices into the picked ones)."""
-
-    rows: np.ndarray  # (k,) the rows held: the pushed vertices' heights, then the sticking ones' tangents
-    pushes: np.ndarray  # (k, r) each row's force's push on z, H^-1 F^T as rows
-    inverse: np.ndarray  # (k, k) of A H^-1 F^T + c I
-    pushed: np.ndarray  # the pushed vertices
-    held: np.ndarray  # the sticking tangents, as flat indices into a (picked, dim) array
-    slid: np.ndarray  # the sliding vertices
-    ways: np.ndarray  # (s, dim) the way friction pushes each sliding vertex
-    stuck: np.ndarray  # the sticking vertices, as indices into the pushed ones
-    free: np.ndarray  # the vertices not pushed
 
 
 class _Ground(Effect):
@@ -540,11 +526,13 @@ class CoulombContact(_Ground):
         if not picked.size:
             return
         dim = self.dim
+        self.rows_of_picked = (picked[:, None] * dim + np.arange(dim)).ravel()  # candidate rows, picked order
         if not same:  # the operators index the picked vertices: made again for others
             self._operators, self._last, self._made_for = {}, None, picked
             rows = self.space.rows(self.space.dofs(self.vertices[picked]))
             self.J = rows.tocsr() if sps.issparse(rows) else rows
-        self.start = np.asarray(self.J @ z_start).reshape(-1, dim)
+            self.sets = Picked(self.J, self._push_of(self.rows_of_picked), dim, self.up)
+        self.start = self.sets.positions(z_start).reshape(-1, dim)
         if start is not None:
             self.start[: start.shape[0]] = start
         self.target = self.start.ravel().copy()
@@ -555,7 +543,7 @@ class CoulombContact(_Ground):
         band = self.ground - 0.9 * self.allowance
         self.target[self.up :: dim] = np.clip(self.start[:, self.up] + self.climb, band, self.ground)
         self.floor = self.target[self.up :: dim] - self.tol  # a vertex below it joins the pushed ones
-        self.rows_of_picked = (picked[:, None] * dim + np.arange(dim)).ravel()  # candidate rows, picked order
+        self.sets.aim(self.start.ravel(), self.target, self.floor)
 
     def project(self, z, watched=None) -> bool:
         """Project a global solution ``z`` (r,) in place; True if it changed."""
@@ -641,24 +629,30 @@ class CoulombContact(_Ground):
     # ---------------------------------------------------------- the solve
     def _constrain(self, z) -> bool:
         """The pushed, sticking and sliding vertices by an active set, warm-started; z (r,) in place."""
-        picked, dim, up, mu = self.picked, self.dim, self.up, self.friction
-        x_t = np.asarray(self.J @ z)
+        picked, mu = self.picked, self.friction
         # the exact projection (no slack: a vertex let a little below, then pushed out in a later
         # step, would be kicked; each global step then lowers the step's energy); a vertex joins
         # below its own target height (the ground, or where it starts a little below it)
-        joining = self.floor
         retest, self._retest = self._retest, False
-        if self._last is not None and not retest and self._again(self._last, z, x_t, joining):
-            return True
-        self._last = None
-        below = x_t[up::dim] < joining
+        last, self._last = (None if retest else self._last), None
+        x_t = self.sets.positions(z)
+        if last is not None:
+            # the local/global iterations change the solution less and less, and so seldom who is
+            # pushed, who sticks or slides and which way: the last sets are tried first
+            found = last.evaluate(self.sets, x_t, self._refine, self._quiet)
+            if last.holds(*found, self.tol):
+                last.apply(z, found[0])
+                self._last = last
+                return True
+        z_t = z.copy()
         active = self.touching[picked].copy()
         if not np.count_nonzero(active):
-            if not np.count_nonzero(below):
+            depth = x_t[self.up :: self.dim] - self.floor
+            if not np.count_nonzero(depth < 0.0):
                 self._release()
                 return False
-            active[self._deepest(below, x_t)] = True
-        z_t = z.copy()
+            active[self._deepest(depth)] = True
+            last = None
         # a step begins with every pushed vertex sticking: one that slid on would push the way it
         # slid in the step before, a step late (the class docstring); one that sticking takes
         # more than friction gives slides the way that force points, against the motion it would
@@ -668,26 +662,23 @@ class CoulombContact(_Ground):
         seen = set()
         for attempt in range(_PASSES):
             stick = active & ~sliding if mu else np.zeros_like(active)
-            normal, tangential, x = self._solve(active, stick, sliding, direction, z_t, x_t, z)
-            release = active & (normal < -1e-9 * max(normal.max(initial=0.0), 1e-300))
-            below = ~active & (x[up::dim] < joining)
-            slips = stops = None
-            if mu:
-                needed = np.sqrt(np.einsum("ij,ij->i", tangential, tangential))
-                # sticking takes more than friction gives: slide, friction leaning the way the ground held it
-                slips = stick & (needed > mu * normal * (1.0 + 1e-9)) & ~release
-                # a sliding vertex that its friction drove back (it overshot) sticks again
-                moved = (x.reshape(-1, dim) - self.start) * (np.arange(dim) != up)
-                stops = sliding & (np.einsum("ij,ij->i", moved, direction) > self.tol)
-                if attempt >= _PASSES // 2:
-                    # going round: from here a vertex only starts sliding, never stops again, so that
-                    # the passes end; one its friction drives back stops in the step's next projection
-                    stops = np.zeros_like(stops)
+            if last is not None:  # the last sets' solve, refused above: the first pass
+                op, last = last, None
+            else:
+                op = self._operator(active, stick, sliding, direction)
+                found = op.evaluate(self.sets, x_t, self._refine, self._quiet)
+            np.copyto(z, z_t)
+            op.apply(z, found[0])
+            normal, tangential, needed, release, below, slips, stops, depth = op.diagnose(*found, picked.size, self.tol)
+            if mu and attempt >= _PASSES // 2:
+                # going round: from here a vertex only starts sliding, never stops again, so that
+                # the passes end; one its friction drives back stops in the step's next projection
+                stops[:] = False
             if not (np.count_nonzero(release) or np.count_nonzero(below)) and not (
                 mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
             ):
                 self._update_state(active, sliding, direction)
-                self._last = self._used  # the next projection tries the same sets first
+                self._last = op  # the next projection tries the same sets first
                 return True
             if attempt == _PASSES - 1:
                 break
@@ -698,10 +689,9 @@ class CoulombContact(_Ground):
                 # release every vertex the ground pulls, hold the deepest few below: the rows of
                 # neighbouring vertices nearly repeat each other, so a few stand for a whole patch
                 active = active & ~release
-                active[self._deepest(below, x)] = True
+                active[self._deepest(depth)] = True
             elif np.count_nonzero(below):
                 # going round in circles: one change at a time, the deepest vertex first
-                depth = x[up::dim] - joining
                 active = active | (below & (depth <= depth[below].min()))
                 friction_changes = False
             elif np.count_nonzero(release):
@@ -712,10 +702,11 @@ class CoulombContact(_Ground):
             # (else friction alone goes round: in the second half only slips are left, stops cleared above)
             if friction_changes:
                 direction[slips] = tangential[slips] / needed[slips, None]
-                sliding = (sliding | slips) & ~stops & active
+                sliding = (sliding | slips) & ~stops
+            sliding &= active
             if not np.count_nonzero(active):
                 # nothing pushed after all: unless the unpushed state leaves a vertex below
-                active = x_t[up::dim] < joining
+                active = x_t[self.up :: self.dim] < self.floor
                 sliding &= active
                 if not np.count_nonzero(active):
                     np.copyto(z, z_t)
@@ -727,38 +718,9 @@ class CoulombContact(_Ground):
         self._update_state(normal > 0.0, np.zeros(picked.size, bool), direction)
         return True
 
-    def _again(self, op, z, x_t, joining) -> bool:
-        """Project with the last projection's sets if they still hold (z in place); False if not.
-
-        The local/global iterations change the solution less and less, and so seldom who is
-        pushed, who sticks or slides and which way: this checks the same conditions as the active
-        set, at a fraction of its cost.
-        """
-        up, dim = self.up, self.dim
-        lam = self._forces(op, x_t)
-        normal = lam[: op.pushed.size]
-        if normal.min() < -1e-9 * max(normal.max(), 1e-300):
-            return False
-        z_new = z + lam @ op.pushes
-        x = self.J @ z_new
-        if op.free.size and np.count_nonzero(np.less(x[up::dim], joining)[op.free]):
-            return False
-        if op.stuck.size:
-            held = lam[op.pushed.size :].reshape(-1, dim - 1)
-            if np.any(np.einsum("ij,ij->i", held, held) > (self.friction * normal[op.stuck]) ** 2 * (1.0 + 1e-9)):
-                return False
-        if op.slid.size:
-            # a sliding vertex that its friction drove back (it overshot) would stick
-            moved = x.reshape(-1, dim)[op.slid] - self.start[op.slid]
-            if np.any(np.einsum("ij,ij->i", moved, op.ways) > self.tol):
-                return False
-        np.copyto(z, z_new)
-        return True
-
-    def _deepest(self, below, x) -> np.ndarray:
-        """The few deepest (below their target heights) of the vertices ``below`` (indices into the picked ones)."""
-        depths = np.where(below, x[self.up :: self.dim] - self.target[self.up :: self.dim], np.inf)
-        return np.argsort(depths)[: min(_JOIN, np.count_nonzero(below))]
+    def _deepest(self, depth) -> np.ndarray:
+        """The few deepest below their floors, given every picked vertex's height over its floor (p,)."""
+        return np.argsort(depth)[: min(_JOIN, np.count_nonzero(depth < 0.0))]
 
     def _least_distance(self, near, stick, z_t, x_t, z):
         """The projection as a least-distance problem over some rows, solved by NNLS (Lawson and Hanson).
@@ -785,7 +747,7 @@ class CoulombContact(_Ground):
         for _ in range(self._refine + 1):
             lam, x = self._least_distance_solve(G, half, HA, signs, goal - x_t[rows], z_t, z)
             held[: normal_rows.size] = lam[: normal_rows.size] > 0.0
-            # the way the compliance let the ground give: taken back by aiming that much further (see _forces)
+            # the way the compliance let the ground give: taken back by aiming that much further (see SetOperator.refined)
             give = np.where(held, self.target[rows] - x[rows], 0.0)
             if np.abs(give).max(initial=0.0) <= 0.1 * self.allowance:
                 break
@@ -817,78 +779,20 @@ class CoulombContact(_Ground):
         np.add(z_t, HA.T @ (signs * lam), out=z)
         return lam, np.asarray(self.J @ z)
 
-    def _solve(self, active, stick, sliding, direction, z_t, x_t, z):
-        """One pass: the active vertices onto the ground, the sticking ones held; z in place.
-
-        ``(A H^-1 F^T + c I) lam = targets - A z_t``, ``z = z_t + H^-1 F^T lam`` over the rows
-        ``A`` of the active vertices' heights and the sticking ones' tangents; ``F = A``, but for
-        the sliding vertices, whose force leans by ``friction`` the way friction pushes them
-        (``direction``), so that it is exactly ``friction`` times their normal force.
-        Returns the normal forces (c,), the tangential forces (c, dim) and the positions after.
-        """
-        op = self._used = self._operator(active, stick, sliding, direction)
-        lam = self._forces(op, x_t)
-        np.add(z_t, lam @ op.pushes, out=z)
-        x = self.J @ z
-        normal = np.zeros(self.picked.size)
-        normal[op.pushed] = lam[: op.pushed.size]
-        tangential = np.zeros((self.picked.size, self.dim))
-        tangential.ravel()[op.held] = lam[op.pushed.size :]
-        if op.slid.size:
-            tangential[op.slid] = (self.friction * normal[op.slid])[:, None] * direction[op.slid]
-        return normal, tangential, x
-
-    def _forces(self, op, x_t) -> np.ndarray:
-        """The rows' forces ``(A H^-1 F^T + c I)^-1 (targets - A z_t)``, shape (k,), for the rows ``A`` of ``op``.
-
-        The compliance lets each pushed vertex give way by ``c`` times its force: at large time
-        steps (forces of a whole step's fall) that is more than the allowance (1e-3 of the size
-        at h = 0.3). At the end of a step (``_refine`` solves, see :meth:`finish_step`) the
-        solve is repeated with the targets moved by that much: what is left is ``c^2`` times
-        the force over a row's compliance. Within the iterations the compliant solve stays: an
-        exact one there (no give) made a body dropped under tilted gravity with friction at
-        h = 0.3 bounce, one step gaining energy.
-        """
-        lam = op.inverse @ (self.target[op.rows] - x_t[op.rows])
-        give = lam[: op.pushed.size]  # over c: how far each pushed vertex ends below its target
-        for _ in range(self._refine):
-            if give @ give <= self._quiet:  # a tenth of the allowance at most
-                break
-            step = op.inverse[:, : op.pushed.size] @ (self.compliance * give)
-            lam = lam + step
-            give = step[: op.pushed.size]
-        return lam
-
-    def _operator(self, active, stick, sliding, direction) -> _Operator:
-        """The solve's operator for sets of pushed, sticking and sliding vertices (and the slides' ways).
+    def _operator(self, active, stick, sliding, direction) -> SetOperator:
+        """The solve for sets of pushed, sticking and sliding vertices (and the slides' ways).
 
         Kept: the sets repeat from one iteration to the next, and so do the ways the vertices
         slide (found once a step, as it begins: :meth:`_constrain`).
         """
-        slid = np.flatnonzero(sliding) if self.friction else np.zeros(0, np.int64)
+        slid = sliding.nonzero()[0] if self.friction else np.zeros(0, np.int64)
         key = active.tobytes() + stick.tobytes() + slid.tobytes() + direction[slid].tobytes()
         found = self._operators.get(key)
-        if found is not None:
-            return found
-        dim, up = self.dim, self.up
-        pushed = np.flatnonzero(active)
-        held = (np.flatnonzero(stick)[:, None] * dim + self.tangents).ravel()
-        rows = np.concatenate([pushed * dim + up, held])
-        candidate_rows = self.rows_of_picked[rows]
-        pushes = self._push_of(candidate_rows)
-        if slid.size:
-            lean = self.rows_of_picked.reshape(-1, dim)[slid][:, self.tangents]  # (s, dim - 1)
-            weights = self.friction * direction[slid][:, self.tangents]
-            leaned = np.einsum("st,str->sr", weights, self._push_of(lean.ravel()).reshape(*lean.shape, -1))
-            pushes[np.searchsorted(pushed, slid)] += leaned
-        K = self._rows_of(candidate_rows) @ pushes.T
-        K.flat[:: rows.size + 1] += self.compliance
-        stuck = np.searchsorted(pushed, np.flatnonzero(stick))
-        free = np.flatnonzero(~active)
-        found = _Operator(rows, pushes, np.linalg.inv(K), pushed, held, slid, direction[slid].copy(), stuck, free)
-        self._operators[key] = found
-        if len(self._operators) > _OPERATORS:
-            self._operators.pop(next(iter(self._operators)))
+        if found is None:
+            found = SetOperator(self.sets, active, stick, sliding, direction, self.friction, self.compliance)
+            self._operators[key] = found
+            if len(self._operators) > _OPERATORS:
+                self._operators.pop(next(iter(self._operators)))
         return found
 
     def _update_state(self, active, sliding, direction) -> None:
