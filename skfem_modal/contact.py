@@ -73,6 +73,8 @@ _OPERATORS = 64
 _KEEP = 10
 # projections at the end of a step that may each find more vertices below the ground
 _FINISH = 8
+# what the Coulomb contact keeps for each candidate vertex from step to step (changed in place)
+_PER_VERTEX = ("touching", "sliding", "direction")
 # solves that may take back the way the compliance lets the ground give (see SetOperator.refined)
 _REFINE = 16
 
@@ -369,6 +371,7 @@ class CoulombContact(_Ground):
         self._first = False
         self._retest = False
         self._checked = None  # a state at the end of a step and its candidates' heights
+        self._saved = None  # the state a step starts from (a backend refusing it has it redone from there)
         self._end = None  # where the last step ended
         self._previous = np.zeros(0, np.int64)  # the last step's picked vertices
         self._keep = 0  # steps that may keep them before the vertices are picked anew
@@ -413,7 +416,7 @@ class CoulombContact(_Ground):
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state.pop("_saved", None)  # a step's start: a new step takes its own
+        state["_saved"] = None  # a step's start: a new step takes its own
         if "_pushes" in state:  # made again where needed
             state["_pushes"] = np.zeros_like(self._pushes)
             state["_made"] = np.zeros_like(self._made)
@@ -439,7 +442,7 @@ class CoulombContact(_Ground):
             If a run starts (``z_start`` is not where the last step ended) with a vertex deeper
             below the ground than the allowance: the contact would fling the body out.
         """
-        continuing = self._end is not None and np.array_equal(self._end, z_start)
+        continuing = self._end is not None and not np.not_equal(self._end, z_start).any()
         if not (again or continuing):
             self._check_clear(z_start)
         if again:
@@ -448,9 +451,16 @@ class CoulombContact(_Ground):
             for name, values in arrays.items():
                 np.copyto(getattr(self, name), values)
         else:
-            # the arrays changed in place; the rest is replaced, not changed (caches aside)
-            arrays = {name: getattr(self, name).copy() for name in ("touching", "sliding", "direction")}
-            self._saved = ({k: v for k, v in self.__dict__.items() if k != "_saved"}, arrays)
+            # the arrays change in place (copied into buffers of their own); the rest is replaced,
+            # not changed (caches aside)
+            if self._saved is None:
+                self._saved = ({}, {name: getattr(self, name).copy() for name in _PER_VERTEX})
+            saved, arrays = self._saved
+            for name, values in arrays.items():
+                np.copyto(values, getattr(self, name))
+            saved.clear()
+            saved.update(self.__dict__)
+            del saved["_saved"]
         self.z_start, self.z_dot = z_start, z_dot
         self._previous = self.picked
         if not continuing:
@@ -541,7 +551,8 @@ class CoulombContact(_Ground):
         # a body in a step: lifted onto the ground at once, a tiny step would kick it up, adding
         # energy; a deeper one (the end of a step holding one that sagged) comes into that band
         band = self.ground - 0.9 * self.allowance
-        self.target[self.up :: dim] = np.clip(self.start[:, self.up] + self.climb, band, self.ground)
+        heights = self.start[:, self.up] + self.climb
+        self.target[self.up :: dim] = np.minimum(np.maximum(heights, band, out=heights), self.ground, out=heights)
         self.floor = self.target[self.up :: dim] - self.tol  # a vertex below it joins the pushed ones
         self.sets.aim(self.start.ravel(), self.target, self.floor)
 
