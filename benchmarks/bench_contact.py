@@ -40,8 +40,9 @@ step), the step and the contact's share of it. A third its memory: the
 pushes ``H^-1 B_row^T`` it keeps (``_pushes``: boundary vertices x dim x
 subspace doubles, allocated when the system is bound, a row filled when
 first needed: "rows made" is what is filled) and the most its cache of
-operators held at the end of a step, against the bound boundary vertices x
-dim x subspace size x 8 bytes.
+operators held at the end of a step, with the picked vertices' rows, pushes
+and reach they are gathered from, against the bound boundary vertices x dim
+x subspace size x 8 bytes.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from skfem_modal._contact_sets import SetOperator  # noqa: E402
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -183,13 +185,18 @@ def timed(name, data, args):
 
 
 class _Timer:
-    """Wraps the contact's methods on one instance: how often and how long they ran."""
+    """Wraps methods of an instance (or of a class, until :meth:`restore`): how often and how long they ran."""
 
-    def __init__(self, contact, names):
+    def __init__(self, owner, names):
         self.calls = dict.fromkeys(names, 0)
         self.seconds = dict.fromkeys(names, 0.0)
+        self.owner, self.originals = owner, {name: getattr(owner, name) for name in names}
         for name in names:
-            setattr(contact, name, self._wrap(name, getattr(contact, name)))
+            setattr(owner, name, self._wrap(name, getattr(owner, name)))
+
+    def restore(self):
+        for name, method in self.originals.items():
+            setattr(self.owner, name, method)
 
     def _wrap(self, name, method):
         def wrapped(*args, **kwargs):
@@ -207,7 +214,8 @@ def where_the_time_goes(name, scene, sim, steps):
     """A gait run of the Coulomb contact with its methods timed; the second and third tables' rows."""
     sim.reset()
     contact = sim.model.contact
-    solves = _Timer(contact, ["_solve"])
+    # a pass of the active set is one check of a set's solve, saying who breaks it
+    passes = _Timer(SetOperator, ["diagnose"])
     top = _Timer(contact, ["start_step", "project", "missed", "finish_step"])
     made = [0]
     operator = contact._operator
@@ -225,12 +233,14 @@ def where_the_time_goes(name, scene, sim, steps):
         clock = time.perf_counter()
         z, z_dot = sim.step(z, z_dot, scene.activation(i * sim.h, sim.ceilings), velocity=True)
         total += time.perf_counter() - clock
-        cache = sum(a.nbytes for op in contact._operators.values() for a in op)
+        cache = sum(op.nbytes for op in contact._operators.values())
+        cache += contact.sets.nbytes if contact.picked.size else 0  # the pick's pushes and reach
         most_cache = max(most_cache, cache)
+    passes.restore()
     in_contact = sum(top.seconds.values())
     per_step = [
         top.calls["project"] / steps,
-        solves.calls["_solve"] / steps,
+        passes.calls["diagnose"] / steps,
         made[0] / steps,
         1e6 * top.seconds["project"] / max(top.calls["project"], 1),
         (top.calls["start_step"] - steps) / steps,  # start_step: once per attempt at a step

@@ -91,6 +91,12 @@ class Picked:
         """The picked coordinates of a state ``z`` (r,), shape (p dim,)."""
         return np.asarray(self.J @ z)
 
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the pick's arrays (``J`` too when dense)."""
+        arrays = (self.J, self.pushes, self.reach, self.tangent_pushes, self.tangent_reach)
+        return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+
 
 class SetOperator:
     """The solve for sets of pushed, sticking and sliding picked vertices, and its checks.

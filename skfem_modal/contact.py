@@ -758,7 +758,7 @@ class CoulombContact(_Ground):
         for _ in range(self._refine + 1):
             lam, x = self._least_distance_solve(G, half, HA, signs, goal - x_t[rows], z_t, z)
             held[: normal_rows.size] = lam[: normal_rows.size] > 0.0
-            # the way the compliance let the ground give: taken back by aiming that much further (see SetOperator.refined)
+            # the way the compliance let the ground give: taken back by aiming that much further (SetOperator.refined)
             give = np.where(held, self.target[rows] - x[rows], 0.0)
             if np.abs(give).max(initial=0.0) <= 0.1 * self.allowance:
                 break
