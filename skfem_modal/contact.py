@@ -44,6 +44,7 @@ from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sps
+from scipy.linalg import lapack
 from scipy.optimize import nnls
 
 from ._contact_sets import Picked, SetOperator
@@ -77,6 +78,22 @@ _FINISH = 8
 _PER_VERTEX = ("touching", "sliding", "direction")
 # solves that may take back the way the compliance lets the ground give (see SetOperator.refined)
 _REFINE = 16
+
+
+def _least_norm(L) -> np.ndarray | None:
+    """``L^T (L L^T)^-1`` (shape (n, m)) for ``L`` (m, n) of full row rank, else None.
+
+    Full rank as ``np.linalg.matrix_rank`` says; that SVD is only made when a Cholesky factor of
+    ``L L^T`` does not show it at once (reciprocal condition above 1e-12), so a well-posed
+    set of contact points costs a factor and a solve.
+    """
+    G = L @ L.T
+    factor, info = lapack.dpotrf(G)
+    if info == 0 and lapack.dpocon(factor, np.abs(G).sum(axis=0).max())[0] > 1e-12:
+        return lapack.dpotrs(factor, L)[0].T
+    if np.linalg.matrix_rank(L) == L.shape[0]:
+        return L.T @ np.linalg.solve(G, np.eye(L.shape[0]))
+    return None
 
 
 class _Ground(Effect):
@@ -234,9 +251,9 @@ class ReferenceContact(_Ground):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < L.shape[1] and np.linalg.matrix_rank(L) == rows.size:
+        elif rows.size < L.shape[1] and (least := _least_norm(L)) is not None:
             # reference: the least change of force that meets every constraint exactly
-            dz = self.solve(L.T @ np.linalg.solve(L @ L.T, np.eye(rows.size)))
+            dz = self.solve(least)
         else:
             # reference, more constraints than coordinates: least squares
             dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
