@@ -28,8 +28,10 @@ __all__ = [
     "load_mesh",
     "coincident_vertices",
     "MERGE_TOLERANCE",
+    "SIZE_RANGE",
     "mirror",
     "tangled_elements",
+    "hanging_vertices",
     "caterpillar",
     "beam2d",
     "beam3d",
@@ -51,6 +53,10 @@ __all__ = [
 #: An element whose measure is below this fraction of (longest edge)**dim is
 #: degenerate. Slivers of aspect ratio 1e4 are still far above it.
 DEGENERATE_RTOL = 1e-12
+
+#: Sizes a mesh may have (its extent, and how far from the origin it lies): within them its areas,
+#: volumes and operators neither overflow nor underflow (modes exact to 1e-14 from 1e-60 to 1e60)
+SIZE_RANGE = (1e-60, 1e60)
 
 _MAX_LISTED = 10
 
@@ -121,6 +127,13 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
     bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
     if bad.size:
         raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
+    extent, farthest = float(np.ptp(p, axis=1).max()), float(np.abs(p).max())
+    if extent > 0.0 and not (SIZE_RANGE[0] <= extent and farthest <= SIZE_RANGE[1]):
+        raise MeshError(
+            f"{what}: the mesh is {extent:.3g} across, with coordinates up to {farthest:.3g}: its areas, volumes "
+            f"and matrices overflow or underflow outside {SIZE_RANGE[0]:g} to {SIZE_RANGE[1]:g}; rescale its "
+            "coordinates first (e.g. make_mesh(points * scale, elements))"
+        )
     out = np.nonzero(((t < 0) | (t >= n)).any(axis=0))[0]
     if out.size:
         raise MeshError(f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}")
@@ -145,7 +158,8 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
             f"{what}: {unused.size} vertices belong to no element: {_listing(unused)}; "
             "remove them (load_mesh does this for files)"
         )
-    tangled = tangled_elements(p, t)
+    groups = _facet_groups(p, t)
+    tangled = _tangled(p, t, groups)
     if tangled.size:
         # a copy of an element overlaps it across every facet: say so, rather than "tangled"
         _, first, group = np.unique(ordered.T, axis=0, return_index=True, return_inverse=True)
@@ -159,6 +173,16 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
         raise MeshError(
             f"{what}: {tangled.size} tangled (inverted or folded) {_element_name(dim)}: {_listing(tangled)}; "
             f"each overlaps a neighbour across a shared {facet} (e.g. a vertex moved across its neighbours)"
+        )
+    hanging, facets = _hanging(p, t, groups)
+    if hanging.size:
+        facet = "edge" if dim == 2 else "face"
+        first = ", ".join(map(str, facets[0]))
+        raise MeshError(
+            f"{what}: {hanging.size} hanging vertices (the mesh is not conforming): {_listing(hanging)}; each lies "
+            f"inside {'an' if dim == 2 else 'a'} {facet} of a neighbouring element without being one of its corners "
+            f"(vertex {hanging[0]} in the {facet} ({first})), so the elements are not joined there: a crack "
+            "through the body. Split the elements at the vertex, or mesh the body in one piece"
         )
 
 
@@ -206,15 +230,32 @@ def tangled_elements(p: np.ndarray, t: np.ndarray) -> np.ndarray:
     >>> tangled_elements(p, square.t).tolist()
     [0, 1, 2]
     """
+    return _tangled(p, t, _facet_groups(p, t))
+
+
+def _facet_groups(p, t):
+    """Every element's facets grouped by their vertices: ``(flat, opposite, order, starts, counts)``.
+
+    ``flat`` (nv nT, dim): facet ``i`` of element ``e`` (sorted vertices) at row ``i nT + e``, its
+    opposite vertex at the same place of ``opposite`` (nv, nT); ``order`` sorts the rows so that
+    equal facets are adjacent, in groups beginning at ``starts`` of ``counts`` rows.
+    """
     dim, n = p.shape
     nv, nT = t.shape
     faces, opposite = _facets(t)
-    flat = faces.transpose(0, 2, 1).reshape(nv * nT, dim)  # facet i of element e at row i * nT + e
+    flat = faces.transpose(0, 2, 1).reshape(nv * nT, dim)
     keys = _facet_keys(flat, n)
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
     starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
     counts = np.diff(np.r_[starts, sorted_keys.size])
+    return flat, opposite, order, starts, counts
+
+
+def _tangled(p, t, groups) -> np.ndarray:
+    """:func:`tangled_elements` from the facets' groups (:func:`_facet_groups`)."""
+    flat, opposite, order, starts, counts = groups
+    nT = t.shape[1]
     bad = [order[np.repeat(counts > 2, counts)] % nT]
     pairs = starts[counts == 2]
     first, second = order[pairs], order[pairs + 1]
@@ -230,6 +271,93 @@ def tangled_elements(p: np.ndarray, t: np.ndarray) -> np.ndarray:
     bad.append(first[same] % nT)
     bad.append(second[same] % nT)
     return np.unique(np.concatenate(bad))
+
+
+def hanging_vertices(p: np.ndarray, t: np.ndarray):
+    """Vertices inside a boundary facet of their own part without being one of its corners.
+
+    In a conforming mesh two elements meet across a whole facet (edge in 2D,
+    triangle in 3D). A vertex in the middle of a neighbour's facet (a
+    T-junction, as merging meshes of different refinement makes) leaves that
+    facet and the pieces on the other side each with one element: the mesh
+    is cut along them, a crack inside the body. A vertex of another part
+    touching a facet is two bodies touching, not a crack.
+
+    Parameters
+    ----------
+    p : ndarray, shape (dim, n)
+    t : ndarray of int, shape (dim + 1, nT)
+
+    Returns
+    -------
+    vertices : ndarray of int
+        The hanging vertices, ascending.
+    facets : ndarray of int, shape (len(vertices), dim)
+        The corners of the facet each lies in.
+
+    Examples
+    --------
+    >>> p = np.array([[0.0, 1.0, 1.0, 0.0, 2.0, 2.0, 1.0], [0.0, 0.0, 1.0, 1.0, 0.0, 1.0, 0.5]])
+    >>> t = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 6], [4, 5, 6], [5, 2, 6]]).T  # 6 on the edge (1, 2)
+    >>> vertices, facets = hanging_vertices(p, t)
+    >>> vertices.tolist(), facets.tolist()
+    ([6], [[1, 2]])
+    """
+    return _hanging(p, t, _facet_groups(p, t))
+
+
+def _hanging(p, t, groups):
+    """:func:`hanging_vertices` from the facets' groups (:func:`_facet_groups`)."""
+    from scipy.spatial import cKDTree
+
+    dim, n = p.shape
+    flat, _, order, starts, counts = groups
+    boundary = flat[order[starts[counts == 1]]]  # (f, dim) corner indices
+    corners = p[:, boundary]  # (dim, f, dim)
+    centre = corners.mean(axis=2)
+    radius = np.sqrt(((corners - centre[:, :, None]) ** 2).sum(axis=0).max(axis=1))
+    # candidates: boundary vertices within each facet's circumscribing ball, not its corners
+    on_boundary = np.unique(boundary)
+    hits = cKDTree(p[:, on_boundary].T).query_ball_point(centre.T, radius * (1.0 + 1e-9), return_sorted=False)
+    sizes = np.fromiter(map(len, hits), np.int64, len(hits))
+    vertex = on_boundary[np.fromiter((i for found in hits for i in found), np.int64, int(sizes.sum()))]
+    facet = np.repeat(np.arange(boundary.shape[0]), sizes)
+    keep = (vertex[:, None] != boundary[facet]).all(axis=1)
+    vertex, facet = vertex[keep], facet[keep]
+    # inside the facet: on its line or plane and strictly within it (to a billionth of its size)
+    a = p[:, boundary[facet, 0]]
+    edges = p[:, boundary[facet, 1:]] - a[:, :, None]  # (dim, k, dim - 1)
+    w = p[:, vertex] - a
+    size2 = (edges**2).sum(axis=0).max(axis=1)
+    if dim == 2:
+        d = edges[:, :, 0]
+        off = (d[0] * w[1] - d[1] * w[0]) ** 2 / size2  # squared distance times its length squared
+        along = (d * w).sum(axis=0) / size2
+        inside = (off <= 1e-18 * size2) & (along > 1e-9) & (along < 1.0 - 1e-9)
+    else:
+        normal = np.cross(edges[:, :, 0], edges[:, :, 1], axis=0)
+        area2 = (normal**2).sum(axis=0)
+        off = (normal * w).sum(axis=0) ** 2 / area2
+        # barycentric coordinates from the sub-triangles' signed areas along the normal
+        e1, e2 = edges[:, :, 0], edges[:, :, 1]
+        b1 = (np.cross(w, e2, axis=0) * normal).sum(axis=0) / area2
+        b2 = (np.cross(e1, w, axis=0) * normal).sum(axis=0) / area2
+        inside = (off <= 1e-18 * size2) & (b1 > 1e-9) & (b2 > 1e-9) & (b1 + b2 < 1.0 - 1e-9)
+    vertex, facet = vertex[inside], facet[inside]
+    same = _parts(t, n)
+    own = same[vertex] == same[boundary[facet, 0]]
+    order = np.argsort(vertex[own], kind="stable")
+    return vertex[own][order], boundary[facet[own][order]]
+
+
+def _parts(t: np.ndarray, n: int) -> np.ndarray:
+    """The connected part of each of ``n`` vertices (elements sharing a vertex are connected), shape (n,)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(t[:1], t.shape[0] - 1, axis=0).ravel()
+    graph = coo_matrix((np.ones(rows.size), (rows, t[1:].ravel())), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 # ids of meshes checked by an enclosing `validated` block
@@ -267,8 +395,9 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     Checks, before any work is done: the mesh type (linear ``MeshTri`` or
     ``MeshTet``), array shapes and dtypes, finite coordinates, element indices
     in range, no element using a vertex twice, no degenerate (zero-measure)
-    element, and no unused vertex. Offending elements and vertices are listed
-    by index.
+    element, no unused vertex, no tangled element and no hanging vertex
+    (:func:`hanging_vertices`). Offending elements and vertices are listed by
+    index.
 
     Parameters
     ----------
@@ -1001,15 +1130,7 @@ def connected_parts(mesh) -> np.ndarray:
         Part index of each vertex, numbered 0.. in order of first vertex.
     """
     check_mesh(mesh)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    t = mesh.t
-    n = mesh.p.shape[1]
-    rows = np.repeat(t[:1], t.shape[0] - 1, axis=0).ravel()
-    cols = t[1:].ravel()
-    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
+    labels = _parts(mesh.t, mesh.p.shape[1])
     # renumber parts by their first vertex so labels do not depend on the solver
     _, first = np.unique(labels, return_index=True)
     order = np.argsort(first)

@@ -1,4 +1,5 @@
 import inspect
+import re
 import warnings
 
 import meshio
@@ -290,3 +291,48 @@ def test_connected_parts():
     p = [[0, 0], [1, 0], [0, 1], [5, 5], [6, 5], [5, 6]]
     m = make_mesh(np.array(p, float), [[3, 4, 5], [0, 1, 2]])
     np.testing.assert_array_equal(connected_parts(m), [0, 0, 0, 1, 1, 1])
+
+
+def _t_junction_2d():
+    """Two unit squares side by side, the right one's triangles around a vertex on the shared edge."""
+    p = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [2.0, 0.0], [2.0, 1.0], [1.0, 0.5]]
+    t = [[0, 1, 2], [0, 2, 3], [1, 4, 6], [4, 5, 6], [5, 2, 6]]
+    return np.array(p), np.array(t)
+
+
+def test_a_hanging_vertex_is_named_with_the_edge_it_cracks():
+    # vertex 6 lies inside the left square's edge (1, 2): the squares meet only at two corners there
+    p, t = _t_junction_2d()
+    message = r"1 hanging vertices \(the mesh is not conforming\): \[6\] .*vertex 6 in the edge \(1, 2\)"
+    with pytest.raises(MeshError, match=message):
+        make_mesh(p, t)
+    # conforming: the left square split at the same vertex is accepted, and so are scikit-fem's own meshes
+    make_mesh(p, [[0, 1, 6], [0, 6, 2], [0, 2, 3], [1, 4, 6], [4, 5, 6], [5, 2, 6]])
+    for mesh in (MeshTri.init_symmetric().refined(3), MeshTri.init_sqsymmetric(), MeshTet.init_ball(2), box3d(4, 3, 2)):
+        check_mesh(mesh)
+
+
+def test_a_hanging_vertex_in_a_face_is_named():
+    # a tetrahedron under one face, that face split into three around its centroid (vertex 4) on the other side
+    p = np.array(
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.2, 0.2, -1.0], [1 / 3, 1 / 3, 0.0], [0.3, 0.3, 1.0]]
+    )
+    t = [[0, 1, 2, 3], [0, 1, 4, 5], [1, 2, 4, 5], [2, 0, 4, 5]]
+    with pytest.raises(MeshError, match=r"\[4\] .* inside a face .*vertex 4 in the face \(0, 1, 2\)"):
+        make_mesh(p, t)
+
+
+def test_a_vertex_of_another_part_on_a_facet_is_two_bodies_touching():
+    # a triangle whose corner rests on the middle of another's edge: two parts, no crack
+    p = np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.5, -1.0], [1.5, -1.0]])
+    mesh = make_mesh(p, [[0, 1, 2], [3, 4, 5]])
+    assert np.unique(connected_parts(mesh)).size == 2
+
+
+@pytest.mark.parametrize("scale", [1e-70, 1e61, 1e200])
+def test_a_mesh_too_small_or_too_large_for_float64_is_named_with_its_size(scale):
+    # its areas underflowed (reported as degenerate elements) or the modal analysis raised numpy's own errors
+    mesh = MeshTri.init_symmetric()
+    with pytest.raises(MeshError, match=re.escape(f"the mesh is {scale:.3g} across") + ".* rescale its coordinates"):
+        make_mesh(mesh.p.T * scale, mesh.t.T)
+    make_mesh(mesh.p.T * 1e-59, mesh.t.T)  # inside the range: accepted
