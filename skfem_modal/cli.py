@@ -33,11 +33,12 @@ EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
 ELASTIC_MODES = 6
 
 
-def parse_mesh_spec(spec: str):
+def parse_mesh_spec(spec: str, merge: bool = False):
     """A mesh from a command-line spec: a file path, or ``NAME[:key=value,...]``.
 
     ``caterpillar:nx=280,ny=136`` builds the built-in caterpillar with those
-    parameters; anything that is not a built-in name is read as a file.
+    parameters; anything that is not a built-in name is read as a file
+    (``merge``: its coincident vertices merged, as for a triangle soup).
     """
     from .mesh import BUILTIN_SHAPES, builtin_mesh, load_mesh
 
@@ -51,8 +52,10 @@ def parse_mesh_spec(spec: str):
             if not eq:
                 raise ValueError(f"mesh parameter {item!r} in {spec!r} must look like key=value")
             kwargs[key.strip()] = _number(value.strip(), f"mesh parameter {key.strip()!r}")
+        if merge:
+            raise ValueError(f"--merge is for mesh files; {name} is a built-in shape (its vertices are shared)")
         return builtin_mesh(name, **kwargs)
-    return load_mesh(spec)
+    return load_mesh(spec, merge=merge)
 
 
 def _is_scene(path) -> bool:
@@ -114,7 +117,7 @@ def cmd_modes(args) -> int:
 
     mu, lam = _material(args)
     _check_vtu_out(args.out)
-    mesh = parse_mesh_spec(args.mesh)
+    mesh = parse_mesh_spec(args.mesh, args.merge)
     fixed = None
     if args.fix:
         fixed = np.unique(np.concatenate([vertices_where(mesh, cond) for cond in args.fix]))
@@ -242,6 +245,10 @@ def cmd_info(args) -> int:
         return EXIT_OK
     target = args.target
     if target is None or _is_scene(target):
+        if args.merge:
+            raise ValueError(
+                "--merge is for mesh files; a scene merges its mesh file's vertices with mesh.merge = true"
+            )
         scene = _load_scene(target)
         mesh = scene.mesh
         info = mesh_summary(mesh)
@@ -281,7 +288,7 @@ def cmd_info(args) -> int:
         if c["pinned"] is not None:
             print(f"pinned: {scene.pinned_vertices().size} vertices")
         return EXIT_OK
-    mesh = parse_mesh_spec(target)
+    mesh = parse_mesh_spec(target, args.merge)
     info = mesh_summary(mesh)
     print(
         f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {info['dim']}D, "
@@ -602,6 +609,15 @@ def _modes_options(p) -> None:
         "--max-s", type=_positive_float, default=2.0, help="gradient change (Frobenius norm) that defines the ceilings"
     )
     p.add_argument("--out", default="modes.vtu", help="output .vtu file")
+    _merge_option(p)
+
+
+def _merge_option(p) -> None:
+    p.add_argument(
+        "--merge",
+        action="store_true",
+        help="merge the mesh file's coincident vertices (a triangle soup, as OBJ and STL exports write)",
+    )
 
 
 def _render_options(p) -> None:
@@ -636,6 +652,7 @@ def _run_options(p) -> None:
 def _info_options(p) -> None:
     p.add_argument("target", nargs="?", help="scene .toml, mesh file or built-in NAME (default: the built-in scene)")
     p.add_argument("--scene-reference", action="store_true", help="print the scene file reference (markdown)")
+    _merge_option(p)
 
 
 def _pool_options(p, workers: int, workers_help: str, what: str) -> None:

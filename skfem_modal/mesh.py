@@ -720,7 +720,7 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
             f"{same.size - repeated} distinct positions, within {MERGE_TOLERANCE:g} of the mesh's size), so "
             "elements that touch there share no vertex and the mesh "
             f"falls into {parts} separate part(s) (a triangle soup, as OBJ and STL exports write); merge them "
-            "with mesh.merge = true in a scene, or load_mesh(..., merge=True)",
+            "with mesh.merge = true in a scene, --merge on the command line, or load_mesh(..., merge=True)",
             UserWarning,
             stacklevel=2,
         )

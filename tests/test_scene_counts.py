@@ -127,3 +127,25 @@ def test_a_triangle_soup_is_said_and_merged(tmp_path):
     assert Scene.from_dict(data).mesh.p.shape[1] == 25
     with pytest.raises(SceneError, match="mesh.merge: only for mesh files"):
         Scene.from_dict({"mesh": {"shape": "beam2d", "merge": True}})
+
+
+def test_modes_and_info_merge_a_triangle_soup_on_the_command_line(tmp_path, capsys):
+    import meshio
+
+    loose = soup()
+    path = tmp_path / "soup.obj"
+    meshio.write_points_cells(str(path), np.vstack([loose.p, np.zeros(loose.p.shape[1])]).T, [("triangle", loose.t.T)])
+    out = tmp_path / "modes.vtu"
+    assert main(["modes", str(path), "-k", "5", "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "96 vertices" in said.out and "96 rigid motions (32 connected part(s))" in said.out  # 32 loose triangles
+    assert "a triangle soup" in said.err and "--merge on the command line" in said.err
+    assert main(["modes", str(path), "--merge", "-k", "5", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "25 vertices, 32 triangle elements" in said and "3 rigid motions (1 connected part(s))" in said
+    assert main(["info", str(path), "--merge"]) == 0
+    assert "mesh: 25 vertices, 32 triangle elements" in capsys.readouterr().out
+    assert main(["modes", "beam2d", "--merge"]) == 2
+    assert "--merge is for mesh files; beam2d is a built-in shape" in capsys.readouterr().err
+    assert main(["info", "--merge"]) == 2
+    assert "--merge is for mesh files; a scene merges" in capsys.readouterr().err
