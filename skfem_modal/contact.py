@@ -740,7 +740,8 @@ class CoulombContact(_Ground):
                     np.copyto(z, z_t)
                     self._release()
                     return True
-        # going round in circles: the whole problem over the rows concerned, exactly (sticking)
+        # going round in circles: the whole problem over the rows concerned, at once (friction within a
+        # pyramid inside Coulomb's cone: _least_distance)
         near = active | below
         normal, tangential, x = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
         self._update_state(normal > 0.0, np.zeros(picked.size, bool), direction)
@@ -751,61 +752,74 @@ class CoulombContact(_Ground):
         return np.argsort(depth)[: min(_JOIN, np.count_nonzero(depth < 0.0))]
 
     def _least_distance(self, near, stick, z_t, x_t, z):
-        """The projection as a least-distance problem over some rows, solved by NNLS (Lawson and Hanson).
+        """The projection as a least-distance problem over the near vertices, solved by NNLS (Lawson and Hanson).
 
-        The dual, ``min 1/2 m^T K m - d^T m`` with the height pushes ``m >= 0`` and the sticking
-        tangents' forces free (each split into two non-negative parts), is ``|G^T m|^2 / 2 - d^T m``
-        with ``G G^T = K`` (a Cholesky factor: the compliance keeps ``K`` positive definite).
+        Each force is a non-negative combination of *generators*: a height's push, or for a
+        vertex that may stick (``stick``) the pushes ``n +- friction t_a`` along each tangent
+        ``t_a``, the edges of a pyramid inside Coulomb's cone (so its friction stays within
+        ``friction`` times its normal force along each tangent, and it slides where that is
+        not enough). The dual, ``min 1/2 b^T A K A^T b - (A d)^T b`` over ``b >= 0`` (``A``
+        the generators over the rows, ``K`` the rows' compliance matrix, positive definite by
+        its compliance, ``d`` the gaps), is ``|L^T A^T b|^2 / 2 - (A d)^T b`` with ``L L^T = K``.
+        Returns the normal forces (p,), the tangential forces (p, dim) and the positions after.
         """
-        picked, dim, up = self.picked, self.dim, self.up
-        normal_rows = np.flatnonzero(near) * dim + up
-        tangent_rows = (np.flatnonzero(stick & near)[:, None] * dim + self.tangents).ravel()
-        rows = np.concatenate([normal_rows, tangent_rows, tangent_rows])
-        signs = np.concatenate([np.ones(normal_rows.size + tangent_rows.size), -np.ones(tangent_rows.size)])
-        HA = self._push_of(self.rows_of_picked[rows])  # (k, r): each row's push on z
-        K = (self._rows_of(self.rows_of_picked[rows]) @ HA.T) * np.outer(signs, signs)
+        sets, dim, up, mu = self.sets, self.dim, self.up, self.friction
+        p = self.picked.size
+        normal_only, sticking = np.flatnonzero(near & ~stick), np.flatnonzero(near & stick)
+        # the rows involved (heights of the near vertices, tangents of those that may stick) ...
+        rows = np.concatenate([np.flatnonzero(near) * dim + up, (sticking[:, None] * dim + self.tangents).ravel()])
+        column = np.full(p * dim, -1)
+        column[rows] = np.arange(rows.size)
+        # ... and the generators over them: a push, or a pyramid's edges n +- mu t_a
+        edges = (sticking[:, None, None] * dim + self.tangents[None, :, None]).repeat(2, axis=2)  # (s, t, 2)
+        generators = np.zeros((normal_only.size + edges.size, rows.size))
+        generators[np.arange(normal_only.size), column[normal_only * dim + up]] = 1.0
+        at = normal_only.size + np.arange(edges.size)
+        generators[at, column[np.repeat(sticking * dim + up, 2 * (dim - 1))]] = 1.0
+        generators[at, column[edges.ravel()]] = mu * np.tile([1.0, -1.0], edges.size // 2)
+        K = sets.reach[np.ix_(rows, rows)]
         # NNLS decides by comparing its rows: K is brought near 1 by an even power of two before
         # the factoring (exact, the square root too), so that the forces are the same in any units
         K = (K + K.T) / 2 + self.compliance * np.eye(rows.size)
         half = np.frexp(K.diagonal().max())[1] // 2
-        G = np.linalg.cholesky(np.ldexp(K, -2 * half))  # the factor of K times 2^-half
+        factor = generators @ np.linalg.cholesky(np.ldexp(K, -2 * half))  # times 2^-half
+        pushes = generators @ sets.pushes[rows]  # (g, r): each generator's push on z
         goal = self.target[rows].copy()
-        held = np.ones(rows.size, bool)
-        held[: normal_rows.size] = False  # a height is held where it is pushed
+        heights = np.arange(np.count_nonzero(near))  # the height rows, first
         for _ in range(self._refine + 1):
-            lam, x = self._least_distance_solve(G, half, HA, signs, goal - x_t[rows], z_t, z)
-            held[: normal_rows.size] = lam[: normal_rows.size] > 0.0
+            b, x = self._least_distance_solve(factor, half, pushes, generators @ (goal - x_t[rows]), z_t, z)
+            forces = generators.T @ b  # on the rows
             # the way the compliance let the ground give: taken back by aiming that much further (SetOperator.refined)
-            give = np.where(held, self.target[rows] - x[rows], 0.0)
+            give = np.where(forces[heights] > 0.0, self.target[rows[heights]] - x[rows[heights]], 0.0)
             if np.abs(give).max(initial=0.0) <= 0.1 * self.allowance:
                 break
-            goal += give
-        normal = np.zeros(picked.size)
-        normal[near] = lam[: normal_rows.size]
-        k = tangent_rows.size
-        tangential = np.zeros((picked.size, dim))
-        both = lam[normal_rows.size : normal_rows.size + k] - lam[normal_rows.size + k :]
-        tangential[np.ix_(stick & near, self.tangents)] = both.reshape(-1, dim - 1)
+            goal[heights] += give
+        on_rows = np.zeros(p * dim)
+        on_rows[rows] = forces
+        normal = on_rows[up::dim].copy()
+        tangential = on_rows.reshape(p, dim)
+        tangential[:, up] = 0.0
         return normal, tangential, x
 
-    def _least_distance_solve(self, G, half, HA, signs, gap, z_t, z):
-        """One least-distance solve (:meth:`_least_distance`) for the rows' gaps ``gap`` (k,); z in place.
+    def _least_distance_solve(self, factor, half, pushes, gap, z_t, z):
+        """One least-distance solve (:meth:`_least_distance`) for the generators' gaps ``gap`` (g,); z in place.
 
-        ``G`` is the factor of the rows' compliance matrix times ``2^-half``. Returns the rows'
-        non-negative forces (k,) and the picked vertices' coordinates after (picked dim,).
+        ``factor`` (g, k) times its transpose is the generators' compliance matrix times
+        ``2^-half``. Returns the generators' non-negative forces (g,) and the picked vertices'
+        coordinates after (picked dim,).
         """
-        # the gaps brought to [0.5, 1) by a power of two b (exact): the forces of (2^-half G, b gap)
-        # are b 4^half times those of (G, gap)
+        # the gaps brought to [0.5, 1) by a power of two b (exact): the forces of (2^-half factor,
+        # b gap) are b 4^half times those of (factor, gap)
         b = np.ldexp(1.0, -np.frexp(np.abs(gap).max(initial=1.0))[1])
-        gap = b * signs * gap
-        E = np.vstack([G.T, gap])
+        gap = b * gap
+        E = np.vstack([factor.T, gap])
         f = np.zeros(E.shape[0])
         f[-1] = 1.0
         u, _ = nnls(E, f, maxiter=50 * E.shape[1])
         scale = 1.0 - float(gap @ u)
-        lam = np.ldexp(u / (b * scale), -2 * half) if scale > 0.0 else np.zeros_like(u)
-        np.add(z_t, HA.T @ (signs * lam), out=z)
-        return lam, np.asarray(self.J @ z)
+        forces = np.ldexp(u / (b * scale), -2 * half) if scale > 0.0 else np.zeros_like(u)
+        np.add(z_t, pushes.T @ forces, out=z)
+        return forces, self.sets.positions(z)
 
     def _operator(self, active, stick, sliding, direction) -> SetOperator:
         """The solve for sets of pushed, sticking and sliding vertices (and the slides' ways).
