@@ -389,6 +389,21 @@ def test_a_beam_settling_flat_on_the_ground_is_not_kicked():
     assert worst <= ALLOWANCE
 
 
+def test_a_thin_plate_landing_flat_gains_no_energy():
+    # a plate resting on 45 vertices: a step run again for vertices it missed looked at a fresh spread
+    # 33 of them and left the end of the step to hold the rest: that kick gained 1.3e-3 of the energy
+    # (an audit). The run again keeps those the first run looked at: 5e-6 at most
+    mesh = sm.box3d(20, 20, 1, (1.0, 1.0, 0.02))
+    size = size_of(mesh)
+    sim = sm.ModalMuscle.from_mesh(
+        mesh, n_muscles=0, n_weights=16, n_clusters=20, mu=1e5, rho=1e3, h=0.01, gravity=[0.0, 0.0, -G],
+        ground=float(mesh.p[2].min()) - 0.05 * size, friction=0.0, damping_mass=2.0,
+    )  # fmt: skip
+    energy, kinetic, lowest = fall(sim, 0.6)
+    assert np.diff(energy).max() <= 1e-5 * np.abs(energy).max()
+    assert lowest.min() >= -ALLOWANCE and lowest[-1] < 1e-3  # on the ground
+
+
 @pytest.mark.parametrize("contact_model", ["coulomb", "reference"])
 def test_a_body_starting_deep_in_the_ground_is_refused(contact_model):
     # the contact would fling it out (a ghost started 30 % of its size deep rose 1.6 sizes)
