@@ -30,6 +30,8 @@ def _array(value, shape, name):
 
 
 def _positive_scalar(value, name, *, allow_zero=False):
+    if isinstance(value, (str, bytes, bool, np.bool_)):  # float() would take "0.5" and True
+        raise TypeError(f"{name} must be a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):

@@ -75,6 +75,12 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
     Traceback (most recent call last):
     ...
     ValueError: gravity [0, -9.8, 0] has no component along -z, but the up axis is z (up = 2): give up = 1 (y)...
+    >>> up_axis([8.49, -4.9], 2)  # an incline steeper than 45 degrees  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: gravity [8.49, -4.9] pulls most along +x, so the up axis is not the one it pulls along: give it (up = 1 for y...
+    >>> up_axis([8.49, -4.9], 2, up=1)
+    1
     """
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
@@ -88,6 +94,13 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
     down = int(np.argmax(np.abs(g)))
     if up is None:
         if g[down] > 0:
+            below = int(np.argmin(g))
+            if g[below] < 0:  # a steep incline: the ground's axis has the smaller pull
+                raise ValueError(
+                    f"gravity {_vector(g)} pulls most along +{_AXES[down]}, so the up axis is not the one it "
+                    f"pulls along: give it (up = {below} for {_AXES[below]}, which it pulls down along), or "
+                    f"gravity along -{_AXES[down]}"
+                )
             raise ValueError(
                 f"gravity {_vector(g)} pulls along +{_AXES[down]}, so no axis points up against it: give "
                 f"gravity along -{_AXES[down]} (for an outline traced in image coordinates, y down, mirror "

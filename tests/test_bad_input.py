@@ -101,6 +101,8 @@ def test_k_larger_than_possible():
         (dict(contact_model="reference", friction=0.5), r"friction: a setting of contact_model='coulomb'"),
         (dict(contact_model="sticky"), r"contact_model must be one of 'coulomb', 'reference', got 'sticky'"),
         (dict(friction=-1.0), r"friction must be non-negative"),
+        (dict(friction="0.5"), r"friction must be a number, got '0.5'"),  # float() took it
+        (dict(h=True), r"h must be a number, got True"),
         (dict(gravity=[0.0, np.inf]), "gravity must be finite"),
         (dict(up=5), r"up must be an axis index in 0..1"),
         (dict(backend="gpu"), "backend must be one of 'auto', 'numpy', 'numba', 'plain', got 'gpu'"),
