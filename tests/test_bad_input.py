@@ -140,3 +140,14 @@ def test_unknown_mesh_format(tmp_path):
     path.write_text("not a mesh")
     with pytest.raises(ValueError, match="cannot read mesh"):
         sm.load_mesh(path)
+
+
+def test_an_incline_steeper_than_45_degrees_asks_for_the_up_axis_by_name():
+    from skfem_modal.units import up_axis
+
+    # gravity pulls most along +x: the ground's axis is y, which it pulls down along (it said no axis points up)
+    with pytest.raises(ValueError, match=r"give it \(up = 1 for y, which it pulls down along\)"):
+        up_axis([8.49, -4.9], 2)
+    with pytest.raises(ValueError, match="so no axis points up against it"):  # nothing pulls down at all
+        up_axis([8.49, 4.9], 2)
+    assert up_axis([8.49, -4.9], 2, up=1) == 1
