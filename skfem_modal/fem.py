@@ -214,7 +214,8 @@ def stiffness_matrix(mesh, mu=1.0, lam=1.0, element: str = "P1") -> sps.csr_matr
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
     mu, lam : float or ndarray of shape (nT,)
-        Lame parameters, per element if arrays; ``mu > 0``, ``lam >= 0``.
+        Lame parameters, per element if arrays; ``mu > 0``, ``lam > -2 mu / dim`` (a positive
+        bulk modulus: a negative Poisson's ratio gives a negative ``lam``).
     element : {"P1", "P2"}
 
     Returns
@@ -236,9 +237,18 @@ def stiffness_matrix(mesh, mu=1.0, lam=1.0, element: str = "P1") -> sps.csr_matr
 
 def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
     nT = mesh.t.shape[1]
-    mu = _positive(mu, nT, "mu")
-    lam = _positive(lam, nT, "lam", allow_zero=True)
     dim = mesh.p.shape[0]
+    uniform = np.ndim(lam) == 0
+    mu = _positive(mu, nT, "mu")
+    lam = _per_element(lam, nT, "lam")
+    # a positive bulk modulus lam + 2 mu / dim: any Poisson's ratio in (-1, 0.5), negative ones too
+    bad = np.nonzero(~(lam + 2.0 * mu / dim > 0.0))[0]
+    if bad.size:
+        where = "" if uniform else f" at elements {bad[:10].tolist()}"
+        raise ValueError(
+            f"lam must be above -2 mu / {dim} (a positive bulk modulus, Poisson's ratio below 0.5), "
+            f"got {lam[bad[0]]} with mu {mu[bad[0]]}{where}"
+        )
     basis = scalar_basis(mesh, element)
     J = _jacobian_from_basis(basis, dim)
     C = _elasticity_tensor(basis.dx, mu, lam, dim)

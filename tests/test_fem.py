@@ -172,3 +172,21 @@ def test_material_checks_name_the_parameter():
         mass_matrix(mesh, rho=np.r_[np.ones(7), 0.0])
     with pytest.raises(ValueError, match="element must be one of"):
         stiffness_matrix(mesh, element="P3")
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_negative_poissons_ratio_is_a_material_with_a_negative_lam(dim):
+    # nu = -0.5 (auxetic) gives lam = -E/2 < 0, a positive bulk modulus: it was refused ("lam must be
+    # non-negative"), naming a parameter the user never gave
+    from skfem_modal import beam3d, linear_modal_analysis
+
+    mesh = beam2d(4.0, 1.0, 8, 2) if dim == 2 else beam3d(4.0, 1.0, 1.0, 8, 2, 2)
+    mu, lam = lame_parameters(1e5, -0.5)
+    assert lam == pytest.approx(-1e5 / 2)
+    K = stiffness_matrix(mesh, mu=mu, lam=lam)
+    assert np.linalg.eigvalsh(K.toarray()).min() > -1e-9 * abs(K).max()  # positive semi-definite
+    values, _ = linear_modal_analysis(mesh, 3 * (dim - 1) + 2, mu=mu, lam=lam)
+    assert values[-1] > 0
+    # below the bound the bulk modulus is negative: named, with the bound
+    with pytest.raises(ValueError, match=rf"lam must be above -2 mu / {dim} \(a positive bulk modulus"):
+        stiffness_matrix(mesh, mu=1.0, lam=-1.0)
