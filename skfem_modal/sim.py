@@ -116,6 +116,7 @@ def _fixed(name: str, doc: str):
             f"{name} is fixed when a simulator is built (the precomputed operators depend on it); build a new one"
         )
 
+    refuse.fixed = True  # for the list of settings one can assign (_nearest_setting)
     return property(get, refuse, doc=doc)
 
 
@@ -266,6 +267,28 @@ def _from_mesh(
     sim.timings = {**made.timings, **sim.timings}
     sim.weights = made.weights
     return sim
+
+
+#: The public attributes a simulator sets itself (its settings are properties)
+_ATTRIBUTES = frozenset({"dim", "mass", "timings", "iterations", "weights"})
+# settings named as elsewhere
+_ALIASES = {"dt": "h", "time_step": "h", "timestep": "h", "step_size": "h", "iterations_max": "max_iter"}
+
+
+def _nearest_setting(cls, name: str) -> str:
+    """'': or a hint naming the settings of ``cls`` a misspelt ``name`` may mean."""
+    import difflib
+
+    kinds = {a: getattr(cls, a) for a in dir(cls) if not a.startswith("_")}
+    settings = sorted(
+        a
+        for a, kind in kinds.items()
+        if isinstance(kind, property) and not getattr(kind.fset, "fixed", kind.fset is None)
+    )
+    near = [_ALIASES[name]] if name in _ALIASES else difflib.get_close_matches(name, settings, n=3)
+    if near:
+        return f": did you mean {' or '.join(map(repr, near))}?"
+    return f"; the settings one can assign are {', '.join(settings)}"
 
 
 class ModalMuscle:
@@ -492,6 +515,13 @@ class ModalMuscle:
         self._model = stage("system", lambda: Model(space, effects, h))
         stage("backends", self._rebuild)
         self._com = _com_rows(space, mass)
+
+    def __setattr__(self, name, value):
+        # every setting is a property (live, or read-only and raising): a misspelt one would otherwise
+        # become a new attribute that changes nothing (sim.dt = 0.5 left h as it was)
+        if not (name.startswith("_") or name in _ATTRIBUTES or hasattr(type(self), name)):
+            raise AttributeError(f"{type(self).__name__} has no setting {name!r}{_nearest_setting(type(self), name)}")
+        super().__setattr__(name, value)
 
     def __getstate__(self):
         # the backends are buffers and views made from the model: rebuilt on arrival

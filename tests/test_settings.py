@@ -163,3 +163,17 @@ def test_settings_are_checked_when_assigned(flat):
         sim.h = 1e9
     sim.gravity, sim.ground = [0.0, -9.8], float(flat["mesh"].p[1].min()) - 0.01
     np.testing.assert_array_equal(trajectory(sim), before)
+
+
+def test_a_misspelt_setting_is_refused_naming_the_one_meant():
+    # assigning a name that is no setting made a new attribute that changed nothing: sim.dt = 0.5 left h as it was
+    sim = ModalMuscle.from_mesh(caterpillar(nx=12, ny=6), n_muscles=1, n_weights=3, n_clusters=3, h=0.02)
+    with pytest.raises(AttributeError, match=r"ModalMuscle has no setting 'dt': did you mean 'h'\?"):
+        sim.dt = 0.5
+    with pytest.raises(AttributeError, match=r"no setting 'max_iters': did you mean 'max_iter'"):
+        sim.max_iters = 50
+    with pytest.raises(AttributeError, match=r"no setting 'colour'; the settings one can assign are .*\bh, max_iter\b"):
+        sim.colour = "red"
+    assert sim.h == 0.02 and not hasattr(sim, "dt")
+    sim.max_iter = 50  # the real ones still take
+    assert sim.max_iter == 50
