@@ -586,6 +586,16 @@ def _validate_table(schema: dict, data, path: str, errors: list[str]) -> dict:
     return out
 
 
+def _all_numbers(cells) -> bool:
+    """Whether every non-blank cell of a CSV row is a number."""
+    filled = [cell for cell in cells if cell.strip()]
+    try:
+        [float(cell) for cell in filled]
+    except ValueError:
+        return False
+    return bool(filled)
+
+
 def _read_table(path: str, count: int, errors: list[str]):
     """Activation table: (times (k,), values (k, count)), or None with an error recorded."""
     where = "muscles.table"
@@ -598,6 +608,12 @@ def _read_table(path: str, count: int, errors: list[str]):
         header = next(reader, None)
         if header is None:
             errors.append(f"{where}: {path!r} is empty")
+            return None
+        if _all_numbers(header):  # read as the header, the first row of values would be lost
+            errors.append(
+                f"{where}: {path!r} line 1 holds numbers, not a header: the table's first line names its "
+                f"columns (e.g. time,{','.join(f'a{k + 1}' for k in range(count))})"
+            )
             return None
         for line, row in enumerate(reader, start=2):
             if not any(cell.strip() for cell in row):

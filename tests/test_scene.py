@@ -156,6 +156,11 @@ def test_activation_table_is_interpolated(tmp_path):
     data["muscles"]["table"] = "short.csv"
     with pytest.raises(SceneError, match=r"short.csv' line 2 has 2 columns, expected 3"):
         Scene.from_dict(data, base_dir=str(tmp_path))
+    # no header: its first row was read as one and lost (activation 0.2 at t = 0 where the file says 0.1)
+    (tmp_path / "bare.csv").write_text("0,0.1,0.1\n1,0.2,0.2\n")
+    data["muscles"]["table"] = "bare.csv"
+    with pytest.raises(SceneError, match=r"bare.csv' line 1 holds numbers, not a header: .*\(e.g. time,a1,a2\)"):
+        Scene.from_dict(data, base_dir=str(tmp_path))
 
 
 def test_pinned_beam_stays_pinned_and_moves():
