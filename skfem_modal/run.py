@@ -31,6 +31,7 @@ from .interrupts import HeldSignals
 from .mesh import body_size, mesh_summary
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
+from .scene import Scene
 from .sim import SimulationError, simulate
 
 __all__ = ["run_scene", "Progress"]
@@ -192,6 +193,11 @@ def run_scene(
         The run completed, but its motion is not physical for the scene
         (see :mod:`skfem_modal.monitor`); ``summary["motion"]`` says why.
     """
+    if not isinstance(scene, Scene):
+        raise TypeError(
+            f"run_scene takes a Scene, got {type(scene).__name__}: "
+            "Scene.from_toml(path) or Scene.from_dict(data) makes one"
+        )
     every = scene.config["output"]["every"] if every is None else every
     if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
         raise ValueError(f"every must be a positive integer, got {every!r}")

@@ -510,6 +510,13 @@ def _coerce(kind: str, value, path: str, errors: list[str]):
         errors.append(f"{path}: expected {expected}, got {value!r} ({_type_name(value)})")
         return None
 
+    # numpy's numbers and arrays are a script's numbers and lists
+    if isinstance(value, np.generic):
+        value = value.item()
+    elif isinstance(value, (tuple, np.ndarray)) and kind in ("floats", "ints", "strs"):
+        value = np.asarray(value).tolist() if isinstance(value, np.ndarray) else list(value)
+        value = [v.item() if isinstance(v, np.generic) else v for v in value]
+
     is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if kind == "float":
         if not is_number or not math.isfinite(value):
@@ -683,7 +690,13 @@ class Scene:
 
         Its file paths are read from ``base_dir`` (default: the current
         directory; :func:`resolve_paths`), and held absolute in ``config``.
+        :meth:`to_dict`'s ``source`` is taken as the source (a run's
+        ``summary.json`` scene builds again).
         """
+        if isinstance(data, dict) and "source" in data:
+            data = dict(data)
+            given = data.pop("source")
+            source = given if source == "dict" and isinstance(given, str) else source
         errors: list[str] = []
         config = _validate_table(SCHEMA, resolve_paths(data, base_dir), "", errors)
         mesh = None
