@@ -816,6 +816,29 @@ def normalize_and_center(mesh):
     return type(mesh)(np.ascontiguousarray(x.T), mesh.t.copy(), sort_t=False)
 
 
+#: Elements a built-in shape may have, at most (a few GB to build and analyse)
+MAX_SHAPE_ELEMENTS = 10_000_000
+
+
+def _shape_checked(name: str, counts: dict, sizes: dict, elements=lambda: 0.0) -> None:
+    """Refuse a built-in shape's parameters, naming them: counts not integers, sizes not positive and
+    finite, or more than :data:`MAX_SHAPE_ELEMENTS` elements (``elements()``, an estimate before any work)."""
+    for key, value in counts.items():
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{name}: {key} must be an integer, got {value!r}")
+    for key, value in sizes.items():
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+            raise ValueError(f"{name}: {key} must be a number, got {value!r}")
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: {key} must be positive and finite, got {value!r}")
+    estimate = float(elements())
+    if not estimate <= MAX_SHAPE_ELEMENTS:
+        raise ValueError(
+            f"{name}: these parameters make about {estimate:.3g} elements, more than {MAX_SHAPE_ELEMENTS:.0e} "
+            "(tens of GB to build and analyse): use fewer cells"
+        )
+
+
 def caterpillar(
     nx: int = 70,
     ny: int = 34,
@@ -861,6 +884,9 @@ def caterpillar(
     >>> m.p.shape, m.t.shape
     ((2, 1719), (3, 3058))
     """
+    _shape_checked(
+        "caterpillar", {"nx": nx, "ny": ny, "n_legs": n_legs}, {"width": width, "height": height}, lambda: 2.0 * nx * ny
+    )
     if nx < 2 or ny < 2:
         raise ValueError(f"caterpillar: nx and ny must be at least 2, got nx={nx}, ny={ny}")
     if not 0 < body_fraction < 1:
@@ -915,8 +941,9 @@ def beam2d(length: float = 10.0, height: float = 1.0, nx: int = 80, ny: int = 8)
     mesh : skfem.MeshTri
         ``(nx + 1) * (ny + 1)`` vertices, ``2 * nx * ny`` triangles.
     """
-    if nx < 1 or ny < 1 or not (length > 0 and height > 0):
-        raise ValueError(f"beam2d: need positive sizes and cell counts, got {length}, {height}, {nx}, {ny}")
+    _shape_checked("beam2d", {"nx": nx, "ny": ny}, {"length": length, "height": height}, lambda: 2.0 * nx * ny)
+    if nx < 1 or ny < 1:
+        raise ValueError(f"beam2d: need positive cell counts, got nx={nx}, ny={ny}")
     return MeshTri.init_tensor(np.linspace(0.0, length, nx + 1), np.linspace(0.0, height, ny + 1))
 
 
@@ -937,8 +964,12 @@ def box3d(nx: int = 8, ny: int = 8, nz: int = 8, size: Sequence[float] = (1.0, 1
     -------
     mesh : skfem.MeshTet
     """
-    if min(nx, ny, nz) < 1 or min(size) <= 0:
-        raise ValueError(f"box3d: need positive sizes and cell counts, got {(nx, ny, nz)}, {tuple(size)}")
+    if isinstance(size, str) or not isinstance(size, Sequence | np.ndarray) or len(size) != 3:
+        raise ValueError(f"box3d: size must be 3 edge lengths, got {size!r}")
+    sizes = {f"size[{k}]": v for k, v in enumerate(size)}
+    _shape_checked("box3d", {"nx": nx, "ny": ny, "nz": nz}, sizes, lambda: 6.0 * nx * ny * nz)
+    if min(nx, ny, nz) < 1:
+        raise ValueError(f"box3d: need positive cell counts, got {(nx, ny, nz)}")
     return MeshTet.init_tensor(
         np.linspace(0.0, size[0], nx + 1),
         np.linspace(0.0, size[1], ny + 1),
@@ -1002,8 +1033,9 @@ def creature(
     >>> m.p.shape, m.t.shape
     ((3, 1180), (4, 4464))
     """
-    if min(length, width, body_height, leg_height, leg_size, cell) <= 0:
-        raise ValueError("creature: every size and the cell must be positive")
+    sizes = dict(length=length, width=width, body_height=body_height, leg_height=leg_height, leg_size=leg_size)
+    cells = lambda: (length / cell + 3) * (width / cell + 3) * ((leg_height + body_height) / cell + 2)  # noqa: E731
+    _shape_checked("creature", {}, {**sizes, "cell": cell}, lambda: 6.0 * cells())
     if 2 * leg_size >= min(length, width):
         raise ValueError(f"creature: two legs of size {leg_size} do not fit in length {length} and width {width}")
     xs = _axis_breaks(length, cell, [leg_size, length - leg_size])

@@ -336,3 +336,23 @@ def test_a_mesh_too_small_or_too_large_for_float64_is_named_with_its_size(scale)
     with pytest.raises(MeshError, match=re.escape(f"the mesh is {scale:.3g} across") + ".* rescale its coordinates"):
         make_mesh(mesh.p.T * scale, mesh.t.T)
     make_mesh(mesh.p.T * 1e-59, mesh.t.T)  # inside the range: accepted
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: beam2d(length=np.inf), "beam2d: length must be positive and finite, got inf"),  # NaN coordinates
+        (lambda: box3d(size=(1.0, np.nan, 1.0)), r"box3d: size\[1\] must be positive and finite, got nan"),
+        (lambda: box3d(size=(1.0, 2.0)), r"box3d: size must be 3 edge lengths, got \(1.0, 2.0\)"),
+        (lambda: caterpillar(width=-1.0), "caterpillar: width must be positive and finite, got -1.0"),  # accepted
+        (lambda: caterpillar(nx=3.5), "caterpillar: nx must be an integer, got 3.5"),  # numpy's own error
+        (lambda: caterpillar(nx="70"), "caterpillar: nx must be an integer, got '70'"),
+        (lambda: creature(cell=np.nan), "creature: cell must be positive and finite, got nan"),
+        # 10 TiB asked of numpy, or minutes of building, before any word
+        (lambda: creature(cell=1e-4), r"creature: these parameters make about 8.41e\+12 elements, more than 1e\+07"),
+        (lambda: beam2d(nx=10**7), r"beam2d: these parameters make about 1.6e\+08 elements"),
+    ],
+)
+def test_built_in_shapes_name_parameters_they_cannot_take(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
