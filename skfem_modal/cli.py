@@ -31,6 +31,8 @@ EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
 
 #: Elastic modes ``modes`` finds besides the rigid motions, unless -k says otherwise.
 ELASTIC_MODES = 6
+#: Parts of a mesh beyond which ``modes`` asks for -k rather than find every part's rigid motions
+MANY_PARTS = 100
 
 
 def parse_mesh_spec(spec: str, merge: bool = False):
@@ -135,7 +137,15 @@ def cmd_modes(args) -> int:
         f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
     )
     n_rigid = rigid_mode_count(mesh, fixed)
-    k = n_rigid + ELASTIC_MODES if args.k is None else args.k
+    k = args.k
+    if k is None:
+        if info["parts"] > MANY_PARTS:
+            raise ValueError(
+                f"{args.mesh} falls into {info['parts']} separate parts: their {n_rigid} rigid motions come before "
+                "any elastic mode (a triangle soup? --merge joins its coincident vertices); or ask for -k modes"
+            )
+        free = mesh.p.size - (0 if fixed is None else fixed.size * mesh.p.shape[0])
+        k = min(n_rigid + ELASTIC_MODES, free)  # a small mesh has fewer
     start = time.perf_counter()
     values, modes = linear_modal_analysis(
         mesh, k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element

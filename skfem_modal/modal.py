@@ -123,40 +123,62 @@ def rigid_motions(mesh, fixed=None, element: str = "P1") -> np.ndarray:
     return _rigid_motions(mesh, fixed, element)
 
 
-def _rigid_motions(mesh, fixed, element: str) -> np.ndarray:
+def _rigid_motions(mesh, fixed, element: str, count: int | None = None, M=None) -> np.ndarray:
+    """The canonical rigid motions, shape (n_nodes * dim, r); only the first ``count`` columns when given.
+
+    Each part's motions live on its own nodes: a part's block is made on them alone (and, with
+    the mass matrix ``M``, mass-orthonormalised on them alone: parts share no node, so that is
+    Gram-Schmidt in column order over them all), and parts past the ``count`` columns are not
+    made. A triangle soup of thousands of parts then costs its columns, not their square.
+    """
     x = node_positions(mesh, element)
     n, dim = x.shape
     parts = _node_parts(mesh, element)
     pinned = np.zeros(n, dtype=bool)
     if fixed is not None:
         pinned[fixed_nodes(mesh, fixed, element)] = True
-    columns = []
-    for part in range(parts.max() + 1):
-        inside = parts == part
-        c = x[inside] - x[inside].mean(axis=0)
-        fields = []
-        for axis in range(dim):
-            u = np.zeros((n, dim))
-            u[inside, axis] = 1.0
-            fields.append(u)
-        axes = [2] if dim == 2 else [0, 1, 2]
-        for axis in axes:
-            w = np.zeros(3)
-            w[axis] = 1.0
-            u = np.zeros((n, dim))
-            c3 = np.zeros((c.shape[0], 3))
-            c3[:, :dim] = c
-            u[inside] = np.cross(w, c3)[:, :dim]
-            fields.append(u)
-        block = np.stack([f.ravel() for f in fields], axis=1)
-        at_pins = block[vector_dofs(np.nonzero(pinned & inside)[0], dim)]
-        if at_pins.shape[0]:
-            # keep the combinations that vanish at this part's fixed nodes
-            _, s, vt = np.linalg.svd(at_pins)
-            rank = int((s > 1e-10 * max(1.0, s.max())).sum())
-            block = block @ vt[rank:].T
-        columns.append(block)
-    return np.hstack(columns) if columns else np.zeros((n * dim, 0))
+    order = np.argsort(parts, kind="stable")
+    ends = np.cumsum(np.bincount(parts))
+    blocks, made = [], 0
+    for start, end in zip(np.r_[0, ends[:-1]], ends):
+        if count is not None and made >= count:
+            break
+        nodes = order[start:end]
+        block = _part_motions(x[nodes], pinned[nodes])
+        rows = vector_dofs(nodes, dim)
+        if M is not None and block.shape[1]:
+            block = _m_orthonormalize(block, M[rows][:, rows])
+        blocks.append((rows, block))
+        made += block.shape[1]
+    R = np.zeros((n * dim, made))
+    column = 0
+    for rows, block in blocks:
+        R[rows, column : column + block.shape[1]] = block
+        column += block.shape[1]
+    return R if count is None else R[:, :count]
+
+
+def _part_motions(x, pinned) -> np.ndarray:
+    """One part's rigid motions on its own nodes ``x`` (m, dim): translations, then rotations about its
+    centroid, the combinations vanishing at its ``pinned`` nodes (m,) only; shape (m dim, r)."""
+    m, dim = x.shape
+    c = np.zeros((m, 3))
+    c[:, :dim] = x - x.mean(axis=0)
+    fields = [np.zeros((m, dim)) for _ in range(dim)]
+    for axis, u in enumerate(fields):
+        u[:, axis] = 1.0
+    for axis in [2] if dim == 2 else [0, 1, 2]:
+        w = np.zeros(3)
+        w[axis] = 1.0
+        fields.append(np.cross(w, c)[:, :dim])
+    block = np.stack([f.ravel() for f in fields], axis=1)
+    at_pins = block[vector_dofs(np.nonzero(pinned)[0], dim)]
+    if at_pins.shape[0]:
+        # keep the combinations that vanish at this part's fixed nodes
+        _, s, vt = np.linalg.svd(at_pins)
+        rank = int((s > 1e-10 * max(1.0, s.max())).sum())
+        block = block @ vt[rank:].T
+    return block
 
 
 def rigid_mode_count(mesh, fixed=None) -> int:
@@ -171,7 +193,20 @@ def rigid_mode_count(mesh, fixed=None) -> int:
     >>> rigid_mode_count(caterpillar())
     3
     """
-    return rigid_motions(mesh, fixed).shape[1]
+    check_mesh(mesh)
+    dim = mesh.p.shape[0]
+    per_part = 3 if dim == 2 else 6
+    parts = connected_parts(mesh)
+    if fixed is None:
+        return per_part * (int(parts.max()) + 1)
+    # only the parts with pins need their motions made
+    pinned = fixed_nodes(mesh, fixed)
+    touched = np.unique(parts[pinned])
+    free = per_part * (int(parts.max()) + 1 - touched.size)
+    x = mesh.p.T
+    mask = np.zeros(mesh.p.shape[1], dtype=bool)
+    mask[pinned] = True
+    return free + sum(_part_motions(x[parts == part], mask[parts == part]).shape[1] for part in touched)
 
 
 def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
@@ -273,7 +308,7 @@ def linear_modal_analysis(
     _fits_float64(mesh, mu, 0.0, rho)  # the eigenvalues scale as mu / rho: no infinite or vanishing ones
     dim = mesh.p.shape[0]
     K = _stiffness(mesh, mu, lam, element)
-    M = _mass(mesh, rho, mass == "lumped", element, True)
+    M = M_all = _mass(mesh, rho, mass == "lumped", element, True)
     n_dofs = K.shape[0]
     pinned = fixed_nodes(mesh, fixed, element) if fixed is not None else np.zeros(0, np.int64)
     free = np.setdiff1d(np.arange(n_dofs), vector_dofs(pinned, dim))
@@ -286,9 +321,9 @@ def linear_modal_analysis(
         M = M[free][:, free]
     Kf, Mf = K, M
 
-    R = _rigid_motions(mesh, fixed, element)[free]
-    n_rigid = R.shape[1]
-    rigid = _m_orthonormalize(R, Mf) if n_rigid else np.zeros((free.size, 0))
+    # mass-orthonormal part by part (a pinned DOF's row is zero in every motion that respects the pins)
+    n_rigid = rigid_mode_count(mesh, fixed) if element == "P1" else _rigid_motions(mesh, fixed, element).shape[1]
+    rigid = _rigid_motions(mesh, fixed, element, None if k > n_rigid else k, M_all)[free]
     values = np.zeros(k)
     vectors = np.zeros((free.size, k))
     # the rigid motions are known exactly: they are the first modes

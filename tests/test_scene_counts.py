@@ -149,3 +149,19 @@ def test_modes_and_info_merge_a_triangle_soup_on_the_command_line(tmp_path, caps
     assert "--merge is for mesh files; beam2d is a built-in shape" in capsys.readouterr().err
     assert main(["info", "--merge"]) == 2
     assert "--merge is for mesh files; a scene merges" in capsys.readouterr().err
+
+
+def test_modes_without_k_fits_a_small_mesh_and_asks_for_k_on_a_soup(tmp_path, capsys):
+    import meshio
+
+    # 8 DOFs: the default (the rigid motions and 6 elastic modes) asked for 9 and failed
+    assert main(["modes", "caterpillar:nx=2,ny=2", "--out", str(tmp_path / "small.vtu")]) == 0
+    assert "8 modes in" in capsys.readouterr().out
+    loose = soup(8)  # 128 triangles, none sharing a vertex: 384 rigid motions before any elastic mode
+    path = tmp_path / "soup.obj"
+    meshio.write_points_cells(str(path), np.vstack([loose.p, np.zeros(loose.p.shape[1])]).T, [("triangle", loose.t.T)])
+    assert main(["modes", str(path), "--out", str(tmp_path / "m.vtu")]) == 2
+    err = capsys.readouterr().err
+    assert "falls into 128 separate parts: their 384 rigid motions come before any elastic mode" in err
+    assert "--merge" in err
+    assert main(["modes", str(path), "-k", "4", "--out", str(tmp_path / "m.vtu")]) == 0
