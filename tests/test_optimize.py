@@ -408,3 +408,19 @@ def test_gait_transfer_replays_up_the_ladder(tmp_path, capsys):
     assert main(["transfer", str(tmp_path), "--full-space-limit", "100"]) == 0
     out = capsys.readouterr().out
     assert "| as searched | 408 |" in out and "| full space |" not in out  # over the limit: skipped
+    # the half-resolution copy's full space too, once it is over the limit (it ran whatever the limit)
+    assert main(["transfer", str(tmp_path), "--full-space-limit", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| half resolution, as searched |" in out and "full space" not in out
+
+
+def test_a_scene_without_a_ground_is_no_search_for_travel(tmp_path):
+    # floating, a gait moves the centre of mass by round-off: the search ranked it, transfer divided it
+    from skfem_modal.transfer import replay
+
+    floating = {k: v for k, v in TINY.items() if k not in ("ground", "gravity")}
+    with pytest.raises(ValueError, match="the scene has no ground: no gait can carry the body anywhere"):
+        run_search(floating, tmp_path / "search", generations=1, popsize=3)
+    assert not (tmp_path / "search").exists()
+    with pytest.raises(ValueError, match="the searched scene has no ground"):
+        replay(floating, {"amplitude": [0.1] * 4, "period": [1.0] * 4, "phase": [0.0] * 4}, steps=5, direction=[1, 0])
