@@ -368,12 +368,13 @@ def run_search(
 
     data = resolve_paths(data, base_dir)  # read the same by the workers and from best_gait.toml, from anywhere
     scene = Scene.from_dict(data)  # every scene error first
-    if scene.config["ground"] is None:
+    if scene.config["ground"] is None and scene.config["pinned"] is None:
         # nothing to push against: a gait moves the centre of mass no more than round-off (or as gravity
         # does, the same for every gait); the search would rank noise
         raise ValueError(
-            "the scene has no ground: no gait can carry the body anywhere (its centre of mass keeps its "
-            "momentum), so a search for travel has nothing to find; add a [ground] section (and [gravity])"
+            "the scene has no ground and no pins: no gait can carry the body anywhere (its centre of mass "
+            "keeps its momentum), so a search for travel has nothing to find; add a [ground] section (and "
+            "[gravity])"
         )
     m = scene.config["muscles"]["count"]
     space = space or GaitSpace(m)

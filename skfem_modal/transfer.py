@@ -108,10 +108,10 @@ def replay(
 
     say = progress or (lambda label: None)
     scene = Scene.from_dict(data, base_dir=base_dir)
-    if scene.config["ground"] is None:
+    if scene.config["ground"] is None and scene.config["pinned"] is None:
         raise ValueError(
-            "the searched scene has no ground: no gait carries the body anywhere, so its travel is round-off "
-            "and what survives of it means nothing"
+            "the searched scene has no ground and no pins: no gait carries the body anywhere, so its travel "
+            "is round-off and what survives of it means nothing"
         )
     n_elements = scene.mesh.t.shape[1]
     settings = {"steps": steps, "direction": direction, "objective": objective}

@@ -419,8 +419,8 @@ def test_a_scene_without_a_ground_is_no_search_for_travel(tmp_path):
     from skfem_modal.transfer import replay
 
     floating = {k: v for k, v in TINY.items() if k not in ("ground", "gravity")}
-    with pytest.raises(ValueError, match="the scene has no ground: no gait can carry the body anywhere"):
+    with pytest.raises(ValueError, match="the scene has no ground and no pins: no gait can carry the body anywhere"):
         run_search(floating, tmp_path / "search", generations=1, popsize=3)
     assert not (tmp_path / "search").exists()
-    with pytest.raises(ValueError, match="the searched scene has no ground"):
+    with pytest.raises(ValueError, match="the searched scene has no ground and no pins"):
         replay(floating, {"amplitude": [0.1] * 4, "period": [1.0] * 4, "phase": [0.0] * 4}, steps=5, direction=[1, 0])
