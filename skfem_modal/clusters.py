@@ -100,7 +100,17 @@ def spectral_clusters(mesh, weights, k: int, seed: int = 0) -> np.ndarray:
         W = W[:, None]
     if W.shape[0] != mesh.p.shape[1] or not np.all(np.isfinite(W)):
         raise ValueError(f"weights must be finite with shape ({mesh.p.shape[1]}, m), got {W.shape}")
-    return _per_part(mesh, average_onto_elements(mesh, W), k, lambda points, count: _kmeans(points, count, seed))
+    points = average_onto_elements(mesh, W)
+
+    def cluster(inside, count):
+        # weights that tell fewer of a part's elements apart than it has clusters (a part's own weights are
+        # constant on it when there are as many as parts: scipy's k-means++ then divided by zero and left
+        # one element in a cluster) split it by position instead
+        if _distinct(points[inside]) < count:
+            return _kmeans(mesh.p[:, mesh.t[:, inside]].mean(axis=1).T, count, seed)
+        return _kmeans(points[inside], count, seed)
+
+    return _per_part(mesh, np.arange(mesh.t.shape[1]), k, cluster)
 
 
 def rotation_clusters(mesh, B, k: int, *, mass, stiffness, modes: int = 8, seed: int = 0) -> np.ndarray:
@@ -271,6 +281,12 @@ def _weighted_kmeans(points: np.ndarray, weights: np.ndarray, k: int, seed: int,
         filled = mass > 0
         centres[filled] = sums[filled] / mass[filled, None]
     return _fill_empty(points, labels.astype(np.int64), k)
+
+
+def _distinct(points: np.ndarray) -> int:
+    """How many rows of ``points`` differ by more than round-off (a billionth of their largest entry)."""
+    scale = np.abs(points).max(initial=0.0) or 1.0
+    return np.unique(np.round(points / scale, 9), axis=0).shape[0]
 
 
 def _kmeans(points: np.ndarray, k: int, seed: int) -> np.ndarray:

@@ -88,3 +88,22 @@ def test_scene_key_cluster_by():
         Scene.from_dict({"subspace": {"cluster_by": "modes"}})
     with pytest.raises(ValueError, match="cluster_by must be one of 'weights', 'rotations', got 'modes'"):
         sm.ModalMuscle.from_mesh(sm.caterpillar(nx=8, ny=4), cluster_by="modes")
+
+
+def test_weights_that_cannot_tell_a_parts_elements_apart_split_it_by_position():
+    # two parts, two skinning weights: each weight is constant on a part, so k-means++ on them divided by
+    # zero (a RuntimeWarning) and gave each part a cluster of 1 element and one of all the rest
+    import warnings
+
+    from skfem_modal.clusters import spectral_clusters
+
+    one = sm.caterpillar(nx=16, ny=8)
+    n = one.p.shape[1]
+    two = sm.make_mesh(np.hstack([one.p, one.p + [[3.0], [0.0]]]).T, np.hstack([one.t, one.t + n]).T)
+    _, weights, _ = skinning_eigenmodes(two, 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        labels = spectral_clusters(two, weights, 4)
+    sizes = np.bincount(labels)
+    assert sizes.size == 4 and sizes.min() > 0.2 * one.t.shape[1]  # halves of each part, not 1 and the rest
+    assert np.unique(labels[: one.t.shape[1]]).size == 2  # and no cluster spans the two parts
