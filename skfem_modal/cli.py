@@ -101,8 +101,19 @@ def _check_vtu_out(path: str) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     while not os.path.exists(folder):  # created when the file is written
         folder = os.path.dirname(folder)
-    if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+    if not os.path.isdir(folder) or not _writable(folder):
         raise ValueError(f"--out {path}: {folder} is not a folder this user can write in")
+
+
+def _writable(folder: str) -> bool:
+    """Whether a file can be made in ``folder`` (tried: os.access says yes to root on a read-only one)."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
 
 
 def cmd_modes(args) -> int:

@@ -214,12 +214,22 @@ def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None
     """
     from .modal import natural_frequencies
 
+    if not os.fspath(path).lower().endswith(".vtu"):
+        raise ValueError(
+            f"export_modes writes VTK XML (.vtu), which ParaView reads by its suffix: name it NAME.vtu, got {path!r}"
+        )
     check_mesh(mesh)
     modes = np.asarray(modes, dtype=np.float64)
     if modes.ndim == 1:
         modes = modes[:, None]
     dim, n = mesh.p.shape
     if element is None:
+        if modes.ndim == 2 and modes.shape[0] not in (n * dim, scalar_basis(mesh, "P2").N * dim):
+            nodes = scalar_basis(mesh, "P2").N
+            raise ValueError(
+                f"modes must have shape ({n * dim}, k) for P1 or ({nodes * dim}, k) for P2 on this mesh, "
+                f"got {modes.shape}"
+            )
         element = "P1" if modes.shape[0] == n * dim else "P2"
     cell_type, cells = vtk_cells(mesh, element)
     points = mesh.p.T if element == "P1" else scalar_basis(mesh, element).doflocs.T

@@ -48,6 +48,13 @@ def test_export_rejects_wrong_shapes(tmp_path, cat_mesh):
         export_modes(tmp_path / "x.vtu", cat_mesh, np.zeros((3437, 2)), element="P1")
     with pytest.raises(ValueError, match="non-finite"):
         export_modes(tmp_path / "x.vtu", cat_mesh, np.full((3438, 1), np.nan))
+    # modes transposed: the shapes of both elements named (it said 'for P2')
+    with pytest.raises(ValueError, match=r"\(3438, k\) for P1 or \(\d+, k\) for P2 on this mesh, got \(2, 3438\)"):
+        export_modes(tmp_path / "x.vtu", cat_mesh, np.zeros((2, 3438)))
+    # VTU XML in a .vtk file (the command refused it, the function wrote it)
+    for name in ("x.vtk", "x"):
+        with pytest.raises(ValueError, match=r"export_modes writes VTK XML \(.vtu\)"):
+            export_modes(tmp_path / name, cat_mesh, np.zeros((3438, 1)))
     assert not list(tmp_path.iterdir())
 
 
@@ -105,6 +112,8 @@ def test_cli_modes_refuses_what_it_cannot_write_before_any_work(tmp_path, capsys
         (["--out", str(tmp_path / "a.vtk")], "modes writes a .vtu file"),
         (["--out", str(tmp_path)], "is a directory; give a file name"),
         (["--young", "1", "--poisson", "0.3", "--mu", "2"], "both give the material: give one pair"),
+        # a read-only file system: os.access says yes to root there, so the folder is tried
+        (["--out", "/sys/modes.vtu"], "/sys is not a folder this user can write in"),
     ]
     for extra, message in cases:
         assert main(["modes", "beam2d", *extra]) == 2
