@@ -16,6 +16,7 @@ from .clusters import CLUSTER_BY, cluster_count_problem, rotation_clusters, seed
 from .fem import _lumped_p1, _mass, _positive, scalar_basis
 from .mesh import connected_parts, sample_boundary
 from .modal import muscle_count_problem, muscle_modes
+from .modal import muscle_signs as checked_signs
 from .subspace import mass_orthonormalize, skinning_eigenmodes, weight_count_problem
 
 __all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters", "count_problems"]
@@ -231,7 +232,7 @@ def ingredients(
     """
     if cluster_by not in CLUSTER_BY:
         raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")
-    signs = _muscle_signs(muscle_signs, n_muscles)
+    signs = checked_signs(muscle_signs, n_muscles)
     counts = dict(n_weights=n_weights, cluster_weights=cluster_weights, n_clusters=n_clusters)
     problems = count_problems(
         mesh,
@@ -281,13 +282,3 @@ def ingredients(
         return D if signs is None else D * signs
 
     return Ingredients(B, muscles, labels, active, contacts, weights[:, :n_weights], timings)
-
-
-def _muscle_signs(muscle_signs, n_muscles):
-    """The muscles' signs as an array of +-1, shape (n_muscles,), or None."""
-    if muscle_signs is None or not n_muscles:
-        return None
-    signs = np.asarray(muscle_signs, dtype=np.float64)
-    if signs.shape != (n_muscles,) or not np.all(np.abs(signs) == 1):
-        raise ValueError(f"muscle_signs must be {n_muscles} values of +1 or -1, got {muscle_signs!r}")
-    return signs

@@ -485,6 +485,7 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
         raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
     if not n_muscles:
         return np.zeros((mesh.p.size, 0))
+    signs = muscle_signs(signs, n_muscles, "signs")
     problem = muscle_count_problem(mesh, n_muscles, pinned)
     if problem:
         raise ValueError(f"n_muscles: {n_muscles} {problem}")
@@ -493,4 +494,20 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
         mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
     )
     D = found[:, n_rigid:]
-    return D if signs is None else D * np.asarray(signs, dtype=np.float64)
+    return D if signs is None else D * signs
+
+
+def muscle_signs(signs, n_muscles: int, name: str = "muscle_signs"):
+    """Muscles' signs checked: an array of +-1, shape (n_muscles,), or None (as the modes come).
+
+    Raises
+    ------
+    ValueError
+        Not ``n_muscles`` values of +1 or -1 (``name`` says which argument).
+    """
+    if signs is None or not n_muscles:
+        return None
+    values = np.asarray(signs, dtype=np.float64) if not isinstance(signs, str) else np.zeros(0)
+    if values.shape != (n_muscles,) or not np.all(np.abs(values) == 1):
+        raise ValueError(f"{name} must be {n_muscles} values of +1 or -1, got {signs!r}")
+    return values

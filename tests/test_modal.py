@@ -277,3 +277,12 @@ def test_rigid_modes_part_by_part_are_gram_schmidt_over_all_parts():
     np.testing.assert_allclose(modes[:, :9], sign_convention(whole), atol=1e-12)
     np.testing.assert_allclose(linear_modal_analysis(three, 4)[1], modes[:, :4], atol=1e-12)  # only 4 made
     assert rigid_mode_count(three) == 9 and rigid_mode_count(three, [0, n + 1]) == 9 - 2 - 2
+
+
+@pytest.mark.parametrize("signs", [[1, 0], [1], [1, 2], "1,1"])
+def test_muscle_modes_name_signs_that_are_not_plus_or_minus_one(signs):
+    # [1, 0] made an all-zero muscle, [1] broadcast, [1, 2] doubled a mode: silently (from_mesh checked them)
+    from skfem_modal.modal import muscle_modes
+
+    with pytest.raises(ValueError, match=r"signs must be 2 values of \+1 or -1, got"):
+        muscle_modes(caterpillar(nx=12, ny=6), 2, signs=signs)
