@@ -69,9 +69,17 @@ def _labels(value, nT, name):
 
 
 def _vertices(value, n, name):
-    arr = np.unique(np.asarray(value))
+    """Vertex indices (unique, ascending), from indices or a boolean mask of the ``n`` vertices."""
+    arr = np.asarray(value)
+    if arr.dtype == bool:
+        if arr.shape != (n,):
+            raise ValueError(f"{name} as a boolean mask must have one value per vertex, shape ({n},), got {arr.shape}")
+        arr = np.flatnonzero(arr)
+        if not arr.size:
+            raise ValueError(f"{name}: the mask selects no vertex")
+    arr = np.unique(arr)
     if arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"{name} must be a non-empty array of vertex indices")
+        raise ValueError(f"{name} must be a non-empty array of vertex indices (or a boolean mask), got {value!r}")
     if arr[0] < 0 or arr[-1] >= n:
         raise ValueError(f"{name} must be vertex indices in 0..{n - 1}, got {arr[0]}..{arr[-1]}")
     return arr.astype(np.int64)

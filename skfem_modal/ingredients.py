@@ -151,6 +151,9 @@ def count_problems(
             problems.append((name, f"must be {problem}"))
     if contact_candidates is not None:
         indices = np.asarray(contact_candidates).ravel()
+        if not indices.size:
+            problems.append(("contact_candidates", "leave nothing to touch the ground: give at least one vertex index"))
+            return problems
         outside = indices[(indices < 0) | (indices >= n_vertices)] if np.issubdtype(indices.dtype, np.integer) else None
         if outside is None or outside.size:
             shown = "not integers" if outside is None else f"got {', '.join(map(str, outside[:5]))}"

@@ -31,6 +31,7 @@ only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
 from __future__ import annotations
 
 import inspect
+import sys
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -223,7 +224,8 @@ def _from_mesh(
     the ``reference`` one, as its tutorial), among ``contact_candidates``
     if given. With ``pinned``
     vertices the muscles are the modes of the body clamped there.
-    ``progress(stage)``, if given, is called before each stage. With
+    ``progress(stage)``, if given, is called before each stage (``True``:
+    each stage printed to stderr). With
     ``parallel`` the modal analysis runs in a second thread beside the
     subspace and clusters (the results do not change). ``cluster_by``:
     ``"weights"`` (spectral clusters of the skinning weights) or
@@ -252,7 +254,7 @@ def _from_mesh(
     _contact_settings(contact_model, friction, stickiness, push_out)
     contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
     _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
-    say = progress or (lambda stage: None)
+    say = _stage_reporter(progress)
     with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
         _fits_float64(mesh, mu, gamma, rho, h, gravity)
         warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2)  # the caller of from_mesh
@@ -260,6 +262,8 @@ def _from_mesh(
             g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
             _pulled_to_ground(g, ground, axis)
             _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis)
+        if pinned is not None:  # named as given (the modal analysis would say 'fixed')
+            arguments["pinned"] = _pins(pinned, None, mesh.p.shape[1])[0]
         made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
         say("simulator set-up")
         placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
@@ -267,6 +271,17 @@ def _from_mesh(
     sim.timings = {**made.timings, **sim.timings}
     sim.weights = made.weights
     return sim
+
+
+def _stage_reporter(progress):
+    """``progress`` as a function of a stage's name: a callable, True (printed to stderr), or None/False."""
+    if progress is None or progress is False:
+        return lambda stage: None
+    if progress is True:
+        return lambda stage: print(f"  {stage}", file=sys.stderr, flush=True)
+    if not callable(progress):
+        raise TypeError(f"progress must be a callable of a stage's name, True or None, got {progress!r}")
+    return progress
 
 
 #: The public attributes a simulator sets itself (its settings are properties)

@@ -90,3 +90,23 @@ def test_counts_of_the_wrong_type_are_named(name, value):
         sm.ModalMuscle.from_mesh(
             sm.beam2d(2.0, 0.5, 8, 2), **{"n_muscles": 1, "n_weights": 3, "n_clusters": 4, name: value}
         )
+
+
+def test_from_mesh_names_pins_candidates_and_progress_as_given():
+    import numpy as np
+
+    import skfem_modal as sm
+
+    mesh = sm.caterpillar(nx=12, ny=6)
+    kw = dict(n_muscles=1, n_weights=3, n_clusters=3)
+    left = mesh.p[0] == mesh.p[0].min()
+    assert sm.ModalMuscle.from_mesh(mesh, pinned=left, **kw).pinned.tolist() == np.flatnonzero(left).tolist()
+    with pytest.raises(ValueError, match=r"pinned must be vertex indices in 0..64, got 1000000"):  # said 'fixed'
+        sm.ModalMuscle.from_mesh(mesh, pinned=[10**6], **kw)
+    with pytest.raises(ValueError, match=r"pinned as a boolean mask must have one value per vertex, shape \(65,\)"):
+        sm.ModalMuscle.from_mesh(mesh, pinned=left[:5], **kw)
+    ground = dict(ground=float(mesh.p[1].min()), gravity=[0.0, -9.8])
+    with pytest.raises(ValueError, match="contact_candidates: 0 vertices leave nothing to touch the ground"):
+        sm.ModalMuscle.from_mesh(mesh, contact_candidates=[], **ground, **kw)
+    with pytest.raises(TypeError, match="progress must be a callable of a stage's name, True or None, got 'yes'"):
+        sm.ModalMuscle.from_mesh(mesh, progress="yes", **kw)  # True printed each stage; a bool was called
