@@ -8,6 +8,7 @@ setting is checked by one function wherever it is given.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sps
 
 from .acceleration import ACCELERATIONS
 from .contact import ALLOWANCE, MODELS
@@ -163,7 +164,8 @@ def _nonnegative(value, name):
 
 
 def _basis(B, N: int) -> np.ndarray:
-    """A subspace basis as a checked (N, r) array."""
+    """A subspace basis as a checked (N, r) array (a sparse one made dense: the subspace is dense)."""
+    B = B.toarray() if sps.issparse(B) else B
     B = np.asarray(B, dtype=np.float64)
     if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
         raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")

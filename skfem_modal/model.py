@@ -50,6 +50,19 @@ def motion_scale(space, mass, mass_matrix) -> float:
     return size * float(np.sqrt(body / np.mean(mass_matrix.diagonal())))
 
 
+def _full_rank(space, mass_matrix) -> None:
+    """Refuse a subspace whose columns depend on each other (its mass matrix ``B^T M B`` is singular)."""
+    if not space.dense:
+        return
+    values = np.linalg.eigvalsh(np.asarray(mass_matrix))
+    dependent = int(np.count_nonzero(values <= 1e-12 * values.max()))
+    if dependent:
+        raise ValueError(
+            f"B's {space.r} columns are not independent ({dependent} of them are combinations of the others, "
+            "e.g. a column repeated): B needs full column rank, as mass_orthonormalize(B, M) gives"
+        )
+
+
 class Model:
     """Precomputed operators of a simulator at one time step.
 
@@ -84,6 +97,7 @@ class Model:
     def __init__(self, space, effects, h):
         self.space = space
         self._set(effects)
+        _full_rank(space, self.inertia.mass_matrix)
         self.rest = space.coordinates(space.rest, self.inertia.mass)
         self.scale = motion_scale(space, self.inertia.mass, self.inertia.mass_matrix)
         self.h = float(h)

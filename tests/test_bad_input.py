@@ -151,3 +151,18 @@ def test_an_incline_steeper_than_45_degrees_asks_for_the_up_axis_by_name():
     with pytest.raises(ValueError, match="so no axis points up against it"):  # nothing pulls down at all
         up_axis([8.49, 4.9], 2)
     assert up_axis([8.49, -4.9], 2, up=1) == 1
+
+
+def test_a_hand_made_basis_is_named_when_its_columns_depend_and_taken_when_sparse():
+    import scipy.sparse as sps
+
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=1, n_weights=3, n_clusters=3)
+    args = dict(mu=1e5, gamma=1e5, rho=1e3, h=0.01)
+    # numpy's 'Singular matrix' from inside the set-up before
+    with pytest.raises(ValueError, match=r"B's 12 columns are not independent \(6 of them"):
+        ModalMuscle(sim.mesh, np.hstack([sim.B[:, :6], sim.B[:, :6]]), sim.D, sim.labels, **args)
+    # 'setting an array element with a sequence' before: the subspace is dense
+    sparse = ModalMuscle(sim.mesh, sps.csr_matrix(sim.B), sim.D, sim.labels, **args)
+    dense = ModalMuscle(sim.mesh, sim.B, sim.D, sim.labels, **args)
+    z, z_dot, _ = dense.rest_state()
+    np.testing.assert_array_equal(sparse.step(z, z_dot, [0.1]), dense.step(z, z_dot, [0.1]))
