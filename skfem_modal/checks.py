@@ -215,7 +215,7 @@ def _ground(ground, n: int, contact_vertices=None, **contact):
     return ground, None if contact_vertices is None else _vertices(contact_vertices, n, "contact_vertices")
 
 
-def _fits_float64(mesh, mu, gamma, rho, h=None, gravity=None) -> None:
+def _fits_float64(mesh, mu, gamma, rho, h=None, gravity=None, damping=(0.0, 0.0)) -> None:
     """The material, time step and gravity checked, then checked to make operators float64 can hold.
 
     See :func:`~skfem_modal.units.float_range_problems`; the error names
@@ -226,9 +226,12 @@ def _fits_float64(mesh, mu, gamma, rho, h=None, gravity=None) -> None:
     gamma = _positive(mu if gamma is None else gamma, nT, "gamma", allow_zero=True)
     h = None if h is None else _positive_scalar(h, "h")
     gravity = None if gravity is None else _array(gravity, (mesh.p.shape[0],), "gravity")
-    problems = float_range_problems(mesh, mu=mu, rho=rho, h=h, gravity=gravity, gamma=gamma)
+    a, b = damping
+    problems = float_range_problems(
+        mesh, mu=mu, rho=rho, h=h, gravity=gravity, gamma=gamma, damping_mass=a, damping_stiffness=b
+    )
     if problems:
-        values = dict(mu=mu, gamma=gamma, rho=rho, h=h, gravity=gravity)
+        values = dict(mu=mu, gamma=gamma, rho=rho, h=h, gravity=gravity, damping_mass=a, damping_stiffness=b)
         raise ValueError(
             "; ".join(f"{', '.join(_named(n, values[n]) for n in names)}: {text}" for names, text in problems)
             + " on this mesh"

@@ -412,7 +412,8 @@ class CoulombContact(_Ground):
         sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
         self.compliance = 1e-3 * float(reach.mean())
-        self._quiet = (0.1 * self.allowance / self.compliance) ** 2  # forces whose give needs no second solve
+        # forces whose give needs no second solve (a body too stiff or damped to give at all: every force)
+        self._quiet = min(0.1 * self.allowance / self.compliance, 1e150) ** 2
         self._refine = 0  # solves that take the give back: at the end of a step only
 
     def _rows_of(self, candidate_rows) -> np.ndarray:

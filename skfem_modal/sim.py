@@ -161,7 +161,9 @@ def _damping_setting(name: str, coefficient: str, doc: str):
     def put(self, value):
         coefficients = {"damping_mass": self.damping_mass, "damping_stiffness": self.damping_stiffness}
         coefficients[name] = _nonnegative(value, name)
-        self._damp(coefficients["damping_mass"], coefficients["damping_stiffness"])
+        damping = (coefficients["damping_mass"], coefficients["damping_stiffness"])
+        _fits_float64(self._mesh, self._mu, self._gamma, self._rho, self.h, self.gravity, damping)
+        self._damp(*damping)
 
     return property(get, put, doc=doc)
 
@@ -255,8 +257,9 @@ def _from_mesh(
     contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
     _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
     say = _stage_reporter(progress)
+    damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
     with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
-        _fits_float64(mesh, mu, gamma, rho, h, gravity)
+        _fits_float64(mesh, mu, gamma, rho, h, gravity, damping)
         warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2)  # the caller of from_mesh
         if ground is not None:
             g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
@@ -479,12 +482,12 @@ class ModalMuscle:
         labels = _labels(labels, nT, "labels")
         active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
         h = _positive_scalar(h, "h")
-        _fits_float64(mesh, mu, gamma, rho, h, gravity)
+        damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
+        _fits_float64(mesh, mu, gamma, rho, h, gravity, damping)
         self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
         self._backend = _backend_name(backend)
         gravity, self._up = _gravity_and_up(gravity, up, dim)
         self._contact = _contact_settings(contact_model, friction, stickiness, push_out)
-        damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
         contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
@@ -592,7 +595,8 @@ class ModalMuscle:
     @h.setter
     def h(self, value) -> None:
         value = _positive_scalar(value, "h")
-        _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity)
+        damping = (self.damping_mass, self.damping_stiffness)
+        _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity, damping)
         warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=2)  # who assigns h
         self._model.retime(value)
         self._rebuild()
@@ -1087,9 +1091,10 @@ def simulate(sim, steps: int, activation=None, state=None):
     ----------
     sim : ModalMuscle
     steps : int
-    activation : callable, optional
+    activation : callable or array_like, optional
         ``activation(t)`` gives the muscles' activation during the step that
-        starts at time ``t``, shape (m,); None: zero.
+        starts at time ``t``, shape (m,); an array, the same activation every
+        step; None: zero.
     state : tuple, optional
         ``(z, z_dot)`` to start from (``sim.rest_state()``'s three values do too: its zero
         activation is not used); default the rest state.
@@ -1123,6 +1128,9 @@ def simulate(sim, steps: int, activation=None, state=None):
     if not isinstance(state, (tuple, list)) or len(state) not in (2, 3):
         raise ValueError("state must be (z, z_dot), e.g. sim.rest_state()[:2]")
     z, z_dot = sim._state(state[0]), sim._state(state[1], "z_dot")
+    if activation is not None and not callable(activation):
+        constant = sim._activation(activation)  # checked now: shape, finite
+        activation = lambda t: constant  # noqa: E731
     return _steps(sim, int(steps), activation, z, z_dot)
 
 

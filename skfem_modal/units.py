@@ -243,7 +243,9 @@ def warn_scale(mesh, mu, rho, gravity=None, duration=None, what: str = "mesh", h
         warnings.warn(message, ScaleWarning, stacklevel=stacklevel + 1)
 
 
-def float_range_problems(mesh, *, mu, rho, h=None, gravity=None, gamma=None) -> list[tuple[tuple[str, ...], str]]:
+def float_range_problems(
+    mesh, *, mu, rho, h=None, gravity=None, gamma=None, damping_mass=0.0, damping_stiffness=0.0
+) -> list[tuple[tuple[str, ...], str]]:
     """What the simulator's operators could not hold in float64, by the arguments that make it so.
 
     The operators scale as: the time step's square ``h^2`` and its inverse;
@@ -264,6 +266,9 @@ def float_range_problems(mesh, *, mu, rho, h=None, gravity=None, gamma=None) -> 
     h : float, optional
     gravity : array_like, shape (dim,), optional
     gamma : float or ndarray, shape (nT,), optional
+    damping_mass, damping_stiffness : float
+        Rayleigh damping's coefficients (0: none): with ``h``, its operators
+        ``damping_mass x vertex mass / h`` and ``damping_stiffness x stiffness / h``.
 
     Returns
     -------
@@ -313,6 +318,14 @@ def float_range_problems(mesh, *, mu, rho, h=None, gravity=None, gamma=None) -> 
             (("h",), "the inverse of the time step squared, 1 / h^2", -2 * step),
             (("rho", "h"), "the inertia operator, vertex mass / h^2", mass - 2 * step),
         ]
+        if damping_mass > 0:
+            damped = _log_span(damping_mass) + mass - step
+            quantities.append((("damping_mass", "rho", "h"), "the damping, damping_mass x vertex mass / h", damped))
+        if damping_stiffness > 0:
+            damped = _log_span(damping_stiffness) + _log_span(mu) + (dim - 2) * size - step
+            quantities.append(
+                (("damping_stiffness", "mu", "h"), "the damping, damping_stiffness x stiffness / h", damped)
+            )
     g = np.zeros(1) if gravity is None else np.abs(np.asarray(gravity, dtype=np.float64))
     if g.max() > 0:
         g_log = np.log10(g.max()) + 0.5 * np.log10(np.sum((g / g.max()) ** 2))  # |g| without squaring 1e308

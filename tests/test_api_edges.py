@@ -110,3 +110,13 @@ def test_from_mesh_names_pins_candidates_and_progress_as_given():
         sm.ModalMuscle.from_mesh(mesh, contact_candidates=[], **ground, **kw)
     with pytest.raises(TypeError, match="progress must be a callable of a stage's name, True or None, got 'yes'"):
         sm.ModalMuscle.from_mesh(mesh, progress="yes", **kw)  # True printed each stage; a bool was called
+
+
+def test_simulate_takes_a_constant_activation():
+    # 'numpy.ndarray' object is not callable before
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=1, n_weights=3, n_clusters=3)
+    constant = [r.z for r in sm.simulate(sim, 4, 0.1 * sim.ceilings)]
+    called = [r.z for r in sm.simulate(sim, 4, lambda t: 0.1 * sim.ceilings)]
+    np.testing.assert_array_equal(constant, called)
+    with pytest.raises(ValueError, match=r"activation must have one value per muscle \(1\), got 2"):
+        sm.simulate(sim, 4, [0.1, 0.2])  # at the call, not at the first step

@@ -82,6 +82,8 @@ def test_the_cli_refuses_extreme_numbers_with_exit_2_and_writes_nothing(tmp_path
         (dict(h=1e300), r"h = 1e\+300: the time step squared"),
         (dict(mu=1e300, rho=1e-300), r"mu = 1e\+300, rho = 1e-300: the modes' squared angular frequencies"),
         (dict(h=1e-300, gravity=[0.0, -9.8]), r"h = 1e-300: the time step squared"),
+        # an OverflowError from deep in the contact's set-up before
+        (dict(damping_mass=1e307, gravity=[0.0, -9.8], ground=-2.0), r"damping_mass = 1e\+307, .*: the damping"),
     ],
 )
 def test_from_mesh_refuses_extreme_numbers_with_a_value_error(arguments, message):
@@ -94,6 +96,9 @@ def test_assigning_an_extreme_time_step_is_refused_and_the_old_one_stays():
     with pytest.raises(ValueError, match=r"h = 1e\+300: the time step squared"):
         sim.h = 1e300
     assert sim.h == 0.01
+    with pytest.raises(ValueError, match=r"damping_mass = 1e\+307, rho = 1000, h = 0.01: the damping"):
+        sim.damping_mass = 1e307
+    assert sim.damping_mass == 0.0
 
 
 def test_modes_refuse_frequencies_beyond_float64(capsys):
