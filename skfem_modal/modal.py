@@ -388,7 +388,8 @@ def _check_elastic(values, scale: float, n_rigid: int, pinned: bool) -> None:
 def natural_frequencies(eigenvalues) -> np.ndarray:
     """Natural frequencies in Hz, ``sqrt(lambda) / (2 pi)``.
 
-    Round-off negative eigenvalues of rigid modes give 0.
+    Negative eigenvalues give 0 (a rigid mode's round-off; :func:`linear_modal_analysis` refuses
+    one negative beyond round-off, which this function has no scale to tell).
 
     Parameters
     ----------
@@ -436,10 +437,16 @@ def actuation_limits(mesh, modes, max_s: float = 2.0, element: str | None = None
         D = D[:, None]
     dim, n = mesh.p.shape
     if element is None:
+        rows = {e: node_positions(mesh, e).size for e in ELEMENTS}
+        if D.ndim != 2 or D.shape[0] not in rows.values():
+            shapes = " or ".join(f"({count}, m) for {e}" for e, count in rows.items())
+            raise ValueError(f"modes must have shape {shapes} on this mesh, got {D.shape}")
         element = "P1" if D.shape[0] == n * dim else "P2"
     n_rows = node_positions(mesh, element).size
     if D.ndim != 2 or D.shape[0] != n_rows:
         raise ValueError(f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}")
+    if not np.all(np.isfinite(D)):
+        raise ValueError("modes must be finite")
     return ceilings_of_gradients(_jacobian(mesh, element) @ D, dim, max_s)
 
 

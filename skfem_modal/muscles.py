@@ -137,5 +137,23 @@ def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
     >>> sine_gait(0.25, [2.0], [1.0], [0.0]).tolist()
     [2.0]
     """
-    amplitudes = np.asarray(amplitudes, dtype=np.float64)
-    return amplitudes * np.sin(2.0 * np.pi * (t / np.asarray(periods, float) + np.asarray(phases, float)))
+    try:
+        values = [np.asarray(v, dtype=np.float64) for v in (amplitudes, periods, phases)]
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"amplitudes, periods and phases must be numbers, got {amplitudes!r}, {periods!r}, {phases!r}"
+        ) from None
+    amplitudes, periods, phases = values
+    if not amplitudes.shape == periods.shape == phases.shape:
+        raise ValueError(
+            f"amplitudes, periods and phases must have one value per muscle each, got shapes "
+            f"{amplitudes.shape}, {periods.shape} and {phases.shape}"
+        )
+    if not np.all(periods > 0.0):  # NaN too
+        raise ValueError(f"periods must be positive, got {periods.tolist()}")
+    a = amplitudes * np.sin(2.0 * np.pi * (t / periods + phases))
+    if not np.all(np.isfinite(a)):
+        raise ValueError(
+            f"the gait must be finite: amplitudes {amplitudes.tolist()}, phases {phases.tolist()}, t {t!r}"
+        )
+    return a

@@ -120,3 +120,26 @@ def test_simulate_takes_a_constant_activation():
     np.testing.assert_array_equal(constant, called)
     with pytest.raises(ValueError, match=r"activation must have one value per muscle \(1\), got 2"):
         sm.simulate(sim, 4, [0.1, 0.2])  # at the call, not at the first step
+
+
+@pytest.mark.parametrize(
+    "gait, message",
+    [
+        (([1.0, 2.0], [1.0, 0.0], [0.0, 0.0]), r"periods must be positive, got \[1.0, 0.0\]"),  # NaN and a warning
+        (([1.0], [-1.0], [0.0]), r"periods must be positive, got \[-1.0\]"),  # ran backwards silently
+        (([1.0, 2.0], [1.0, 1.0], None), r"got shapes \(2,\), \(2,\) and \(\)"),  # NaN
+        (([1.0, 2.0], [1.0], [0.0, 0.0]), r"one value per muscle each, got shapes \(2,\), \(1,\) and \(2,\)"),
+    ],
+)
+def test_sine_gait_names_what_it_cannot_take(gait, message):
+    with pytest.raises(ValueError, match=message):
+        sm.sine_gait(0.3, *gait)
+
+
+def test_actuation_limits_name_transposed_and_non_finite_modes():
+    mesh = sm.caterpillar(nx=12, ny=6)
+    _, modes = sm.linear_modal_analysis(mesh, 5)
+    with pytest.raises(ValueError, match=r"\(130, m\) for P1 or \(406, m\) for P2 on this mesh, got \(5, 130\)"):
+        sm.actuation_limits(mesh, modes.T)  # said 'for P2'
+    with pytest.raises(ValueError, match="modes must be finite"):  # gave inf
+        sm.actuation_limits(mesh, np.full_like(modes, np.nan))
