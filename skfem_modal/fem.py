@@ -134,6 +134,9 @@ def lame_parameters(young: float, poisson: float) -> tuple[float, float]:
     >>> lame_parameters(2.5, 0.25)
     (1.0, 1.0)
     """
+    for name, value in (("Young's modulus", young), ("Poisson's ratio", poisson)):
+        if isinstance(value, (str, bytes, bool, np.bool_)) or not np.isscalar(value):
+            raise TypeError(f"{name} must be a number, got {value!r}")
     if not (np.isfinite(young) and young > 0):
         raise ValueError(f"Young's modulus must be positive and finite, got {young}")
     if not -1.0 < poisson < 0.5:

@@ -78,13 +78,28 @@ __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRe
 def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> LocalGlobal:
     """The local/global driver of these limits, each checked."""
     return LocalGlobal(
-        _count(max_iter, "max_iter"),
+        _iterations(max_iter),
         _nonnegative(tol, "tol"),
         _nonnegative(rtol, "rtol"),
         etol=_nonnegative(etol, "etol"),
         warm_start=_flag(warm_start, "warm_start"),
         acceleration=_acceleration_name(acceleration, full_space),
     )
+
+
+#: Iterations a step may take, at most: a backend keeps every iterate of a step (about 20 kB each for the
+#: 3D numpy backend with 20 clusters: a billion asked for 179 GiB at the first step)
+MAX_ITERATIONS = 100_000
+
+
+def _iterations(value) -> int:
+    """``max_iter`` checked: a positive integer, at most :data:`MAX_ITERATIONS`."""
+    count = _count(value, "max_iter")
+    if count > MAX_ITERATIONS:
+        raise ValueError(
+            f"max_iter must be at most {MAX_ITERATIONS} (a backend keeps each iteration of a step), got {count}"
+        )
+    return count
 
 
 def _element_weights(mesh, mu, gamma, rho):
@@ -608,7 +623,7 @@ class ModalMuscle:
 
     @max_iter.setter
     def max_iter(self, value) -> None:
-        self._solver.max_iter = _count(value, "max_iter")
+        self._solver.max_iter = _iterations(value)
         self.reset()
 
     tol = _driver_setting(
@@ -878,6 +893,8 @@ class ModalMuscle:
         r = self._space.r
         if z.shape != (r,):
             raise ValueError(f"{name} must have shape ({r},), the subspace's coordinates, got {z.shape}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError(f"{name} must be finite, got NaN or infinity in it")
         return z
 
     def positions(self, z) -> np.ndarray:
@@ -951,7 +968,16 @@ class ModalMuscle:
         a = self._activation(a)
         # overflow in a blown-up state is reported as a SimulationError, not as warnings
         with np.errstate(over="ignore", invalid="ignore"):
-            z_next, self.iterations = self._solver.step(self._backends, z, z_dot, a, self._model.contact)
+            try:
+                z_next, self.iterations = self._solver.step(self._backends, z, z_dot, a, self._model.contact)
+            except SimulationError:
+                # a state given non-finite is the caller's, not the step's (checked only then: it costs a step)
+                for name, value in (("z", z), ("z_dot", z_dot)):
+                    if not np.all(np.isfinite(value)):
+                        raise SimulationError(
+                            f"the state is non-finite as given: {name} holds NaN or infinity"
+                        ) from None
+                raise
         if velocity:
             return z_next, (z_next - z) / self._model.h
         return z_next

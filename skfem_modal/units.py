@@ -201,6 +201,10 @@ def scale_mismatch(
     more iterations (max_iter), or warm_start = true (not under the reference contact; it follows a spinning
     or rolling body, not a stiff one tipping over a corner, whose steps can then gain energy).
     """
+    for name, value in (("mu", mu), ("rho", rho)):
+        value = np.asarray(value, dtype=np.float64)
+        if not (value.size and np.all(np.isfinite(value)) and np.all(value > 0)):
+            raise ValueError(f"{name} must be positive and finite, got {value.tolist()}")
     size = body_size(mesh)
     scales = material_length_scales(mu, rho, gravity, duration, h)
     step = scales.pop("step", None)

@@ -143,3 +143,24 @@ def test_actuation_limits_name_transposed_and_non_finite_modes():
         sm.actuation_limits(mesh, modes.T)  # said 'for P2'
     with pytest.raises(ValueError, match="modes must be finite"):  # gave inf
         sm.actuation_limits(mesh, np.full_like(modes, np.nan))
+
+
+def test_raw_errors_of_numbers_are_named():
+    from skfem_modal.units import scale_mismatch
+
+    with pytest.raises(TypeError, match="Young's modulus must be a number, got '1e5'"):
+        sm.lame_parameters("1e5", 0.3)
+    with pytest.raises(TypeError, match="Poisson's ratio must be a number, got None"):
+        sm.lame_parameters(1e5, None)
+    with pytest.raises(ValueError, match=r"mu must be positive and finite, got 0.0"):  # ZeroDivisionError
+        scale_mismatch(sm.beam2d(), 0.0, 1e3)
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=1, n_weights=3, n_clusters=3)
+    with pytest.raises(ValueError, match=r"max_iter must be at most 100000"):  # a MemoryError at the first step
+        sim.max_iter = 10**9
+    z, z_dot, _ = sim.rest_state()
+    z[0] = np.nan
+    with pytest.raises(sm.SimulationError, match="the state is non-finite as given: z holds NaN"):
+        sim.step(z, z_dot)  # 'the state became non-finite'
+    for call in (lambda: sim.positions(z), lambda: sim.com(z)):
+        with pytest.raises(ValueError, match="z must be finite, got NaN or infinity in it"):
+            call()  # NaN positions

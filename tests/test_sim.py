@@ -298,7 +298,7 @@ def test_non_finite_state_raises(tutorial):
     z, z_dot, a = sim.rest_state()
     z_dot = z_dot.copy()
     z_dot[0] = np.nan
-    with pytest.raises(SimulationError, match="non-finite"):
+    with pytest.raises(SimulationError, match="the state is non-finite as given: z_dot holds NaN or infinity"):
         sim.step(z, z_dot, a)
 
 
