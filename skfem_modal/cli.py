@@ -39,7 +39,8 @@ def parse_mesh_spec(spec: str, merge: bool = False):
     """A mesh from a command-line spec: a file path, or ``NAME[:key=value,...]``.
 
     ``caterpillar:nx=280,ny=136`` builds the built-in caterpillar with those
-    parameters; anything that is not a built-in name is read as a file
+    parameters (a list in brackets: ``box3d:size=[4,1,1]``); anything that is
+    not a built-in name is read as a file
     (``merge``: its coincident vertices merged, as for a triangle soup).
     """
     from .mesh import BUILTIN_SHAPES, builtin_mesh, load_mesh
@@ -49,11 +50,17 @@ def parse_mesh_spec(spec: str, merge: bool = False):
     name, _, params = spec.partition(":")
     if name in BUILTIN_SHAPES:
         kwargs = {}
-        for item in filter(None, params.split(",")):
-            key, eq, value = item.partition("=")
+        # commas part the parameters, but not inside brackets: box3d:nx=4,size=[1,2,3]
+        for item in filter(None, re.split(r",(?![^\[]*\])", params)):
+            key, eq, value = (part.strip() for part in item.partition("="))
             if not eq:
                 raise ValueError(f"mesh parameter {item!r} in {spec!r} must look like key=value")
-            kwargs[key.strip()] = _number(value.strip(), f"mesh parameter {key.strip()!r}")
+            if key in kwargs:
+                raise ValueError(f"mesh parameter {key!r} is given twice in {spec!r}")
+            if value.startswith("[") and value.endswith("]"):
+                kwargs[key] = [_number(v.strip(), f"mesh parameter {key!r}") for v in value[1:-1].split(",")]
+            else:
+                kwargs[key] = _number(value, f"mesh parameter {key!r}")
         if merge:
             raise ValueError(f"--merge is for mesh files; {name} is a built-in shape (its vertices are shared)")
         return builtin_mesh(name, **kwargs)

@@ -149,3 +149,11 @@ def test_a_scene_is_known_by_its_suffix_in_any_case(tmp_path, capsys):
     assert "scene: creature crawl" in capsys.readouterr().out
     assert main(["modes", str(upper)]) == 2
     assert "is a scene; this command takes a mesh" in capsys.readouterr().err
+
+
+def test_a_shape_spec_takes_a_list_and_refuses_a_parameter_twice(capsys):
+    # 'box3d:size=[1,2,3]' said "must be a number, got '[1'"; 'nx=5,nx=6' took the last silently
+    assert main(["info", "box3d:nx=4,size=[1,2,3],ny=2"]) == 0
+    assert "bounds: [0.0, 0.0, 0.0] .. [1.0, 2.0, 3.0]" in capsys.readouterr().out
+    assert main(["info", "caterpillar:nx=5,nx=6"]) == 2
+    assert "mesh parameter 'nx' is given twice in 'caterpillar:nx=5,nx=6'" in capsys.readouterr().err
