@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import functools
+import io
 import json
 import os
 import re
@@ -86,13 +87,31 @@ def read_run(run_dir) -> dict:
         ``frames`` (list of (time, path)).
     """
     run_dir = os.fspath(run_dir)
-    with open(os.path.join(run_dir, "summary.json")) as f:
-        summary = json.load(f)
+    path = os.path.join(run_dir, "summary.json")
+    try:
+        with open(path) as f:
+            summary = json.load(f)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"cannot read {path}: {err} (not the JSON a run writes: cut or edited?)") from None
+    # a row a step (and the rest state): a file cut short says fewer
+    expected = summary.get("steps_completed", summary.get("steps")) if isinstance(summary, dict) else None
 
     def table(name):
-        with open(os.path.join(run_dir, name), newline="") as f:
-            rows = list(csv.reader(f))
-        data = np.array([[float(v) for v in row] for row in rows[1:]]) if len(rows) > 1 else np.zeros((0, len(rows[0])))
+        where = os.path.join(run_dir, name)
+        with open(where, newline="") as f:
+            text = f.read()
+        if not text.endswith("\n"):  # a run ends every row: the last one was cut (its number too, maybe)
+            raise ValueError(f"{where} ends in the middle of a row: cut or edited? (run it again)")
+        rows = list(csv.reader(io.StringIO(text)))
+        try:
+            data = np.array([[float(v) for v in row] for row in rows[1:]]).reshape(-1, len(rows[0]))
+        except ValueError:
+            raise ValueError(f"{where} holds rows that are not {len(rows[0])} numbers: cut or edited?") from None
+        if isinstance(expected, int) and data.shape[0] != expected + 1:
+            raise ValueError(
+                f"{where} holds {data.shape[0]} rows, where summary.json's {expected} steps make {expected + 1}: "
+                "the run's files are cut or from another run (run it again)"
+            )
         return rows[0], data
 
     _, com = table("com.csv")

@@ -106,6 +106,28 @@ def test_the_largest_side_allowed_is_drawn(run_copy, backend):
     assert (np.ptp(image, axis=2) > 40).sum() > 50
 
 
+@pytest.mark.parametrize("damage", ["summary", "cut rows", "cut number"])
+def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, damage):
+    # a broken summary.json gave json's own message without the file; a com.csv cut to its first rows drew
+    summary, com = run_copy / "summary.json", run_copy / "com.csv"
+    if damage == "summary":
+        summary.write_text(summary.read_text()[:40])
+    else:
+        text = com.read_text()
+        com.write_text(text[: text.index("\n", text.index("\n") + 1) + 1] if damage == "cut rows" else text[:-8])
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--backend", "matplotlib"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    expected = {
+        "summary": f"cannot read {summary}: ",
+        "cut rows": f"{com} holds 1 rows, where summary.json's",
+        "cut number": f"{com} ends in the middle of a row",
+    }
+    assert expected[damage] in err
+    assert sorted(os.listdir(run_copy)) == before
+
+
 @pytest.mark.parametrize("damage", ["missing", "truncated", "not a frame"])
 def test_a_missing_or_broken_frame_is_named_in_one_line(run_copy, capsys, damage):
     frame = run_copy / "frames" / "frame_00004.vtu"
