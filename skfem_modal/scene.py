@@ -484,6 +484,8 @@ def resolve_paths(data: dict, base_dir: str | None = None) -> dict:
 
 #: The simulated time of a scene that gives neither time.duration nor time.steps.
 DEFAULT_DURATION = 4.5
+#: Steps a scene may run, at most (at a millisecond a step, more than a day)
+MAX_STEPS = 100_000_000
 #: A duration within this fraction of a whole number of steps is that number (0.1 / 0.01 is 10.000000000000002).
 _WHOLE = 1e-9
 
@@ -1098,6 +1100,12 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
     t = config["time"]
     if t["steps"] is not None and t["duration"] is not None:
         errors.append("time: give duration or steps, not both")
+    elif valid("time.step", "time.duration", "time.steps"):
+        duration = DEFAULT_DURATION if t["duration"] is None else t["duration"]
+        count = t["steps"] if t["steps"] is not None else duration / t["step"]
+        if count > MAX_STEPS:  # a step of 1e-9 meant 4.5e9 steps, days of running, without a word
+            what = "time.steps" if t["steps"] is not None else f"time.step = {t['step']:g} over {duration:g}"
+            errors.append(f"time: {what} makes {count:.3g} steps, more than {MAX_STEPS:.0e}: give a larger step")
     ground = config["ground"]
     if ground is not None and ground["height"] is not None and ground["offset"] is not None:
         errors.append("ground: give height or offset, not both")

@@ -246,3 +246,11 @@ def test_a_runs_scene_builds_again_and_numpy_numbers_are_numbers(tmp_path):
 def test_run_scene_names_what_it_takes(given):
     with pytest.raises(TypeError, match=r"run_scene takes a Scene, got (str|dict): Scene.from_toml\(path\)"):
         run_scene(given, None)
+
+
+def test_a_run_of_billions_of_steps_is_named():
+    # time.step = 1e-9 made 4.5e9 steps with the default duration, days of running, without a word
+    with pytest.raises(SceneError, match=r"time: time.step = 1e-09 over 4.5 makes 4.5e\+09 steps, more than 1e\+08"):
+        Scene.from_dict({"mesh": {"shape": "caterpillar"}, "time": {"step": 1e-9}})
+    with pytest.raises(SceneError, match=r"time: time.steps makes 1e\+09 steps"):
+        Scene.from_dict({"mesh": {"shape": "caterpillar"}, "time": {"steps": 10**9}})
