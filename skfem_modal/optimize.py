@@ -410,30 +410,33 @@ def run_search(
     clock = time.perf_counter()
     trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock
-    if state is None:
-        gait = scene.config["muscles"]["gait"]
-        state = _new_state(settings, space.point(gait) if gait is not None else np.full(3 * m, 0.5))
-        os.makedirs(out_dir, exist_ok=True)
-        for path in earlier:
-            os.remove(path)
-    elif state["history"]:
-        _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
     recipe = {"data": data, "base_dir": None, **trial_settings}
-    bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
-    last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
+    bar = None
     try:
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
-        ) as rollouts:
+        ) as rollouts:  # a scheduler that does not answer: before the folder is made
+            if state is None:
+                gait = scene.config["muscles"]["gait"]
+                state = _new_state(settings, space.point(gait) if gait is not None else np.full(3 * m, 0.5))
+                os.makedirs(out_dir, exist_ok=True)
+                for path in earlier:
+                    os.remove(path)
+            elif state["history"]:
+                _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
+            bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
+            last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
             while state["generation"] < last:
                 state = _generation(state, rollouts, space)
                 _save(paths, data, state)
                 bar.update()
     except KeyboardInterrupt:
-        bar.close()
+        if bar:
+            bar.close()
         raise SearchInterrupted(_restore(paths, data, objective), generations, out_dir) from None
     except WorkersLost as lost:
-        bar.close()
+        if bar:
+            bar.close()
         raise SearchWorkersLost(str(lost), _restore(paths, data, objective), generations, out_dir) from lost
     bar.close()
     _write_plot(paths["plot"], state["history"], objective)

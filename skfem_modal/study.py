@@ -579,7 +579,10 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
             from dask.distributed import Client
         except ImportError:
             raise ValueError("--scheduler needs dask.distributed: pip install 'skfem_modal[distributed]'") from None
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, ValueError, TypeError) as err:  # no port, no such host, nothing answering
+            raise ValueError(f"--scheduler {scheduler}: no dask scheduler answers there ({err})") from None
 
         def close_client(cancel=False):
             # stopping on an error: a lost scheduler's reconnection, cancelled here, would log a raw traceback
@@ -718,14 +721,14 @@ def run_study(
     cfg = PRESETS[preset]
     out_dir = os.fspath(out_dir)
     clear_earlier_study(out_dir, overwrite, how=how)
-    os.makedirs(out_dir, exist_ok=True)
     left_out = _left_out(scene.config["ground"])
     say = print if progress else (lambda *a, **k: None)
     close = None
-    if executor is None:
+    if executor is None:  # a scheduler that does not answer: before the folder is made
         executor, close = make_executor(workers, scheduler, initializer=None if scheduler else _quiet_worker)
     started = time.perf_counter()
     try:
+        os.makedirs(out_dir, exist_ok=True)
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
         scenes = {f: resolution_scene(data, f) for f in resolutions}
         references = _run_references(executor, scenes, base_dir, cfg["steps"], say)

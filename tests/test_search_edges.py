@@ -421,3 +421,13 @@ def test_transfer_prints_the_tilt_and_survives_means_the_same_for_a_backward_sea
         assert float(row["survives"]) == pytest.approx(float(row["travel"]) / -searched, rel=1e-15)  # along +x
         assert f"| {float(row['max_tilt_degrees']):.1f} |" in line
     assert f"the search's own travel is {searched:.4g}, backwards" in printed[-2]
+
+
+@pytest.mark.parametrize("command", ["study", "optimize"])
+def test_a_scheduler_address_that_does_not_answer_is_named_and_leaves_no_folder(command, tmp_path, capsys):
+    # dask's bare 'missing port number in address' and an empty output folder left behind before
+    out = tmp_path / "out"
+    extra = ["--quick"] if command == "study" else ["--generations", "1", "--popsize", "3"]
+    assert main([command, *extra, "--scheduler", "bogus", "--out", str(out)]) == 2
+    assert "--scheduler bogus: no dask scheduler answers there (missing port number" in capsys.readouterr().err
+    assert not out.exists()
