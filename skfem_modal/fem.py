@@ -314,6 +314,9 @@ def mass_matrix(mesh, rho=1.0, lumped: bool = True, element: str = "P1", vector:
     >>> float(mass_matrix(beam2d(2.0, 1.0, 4, 2), rho=3.0, vector=False).sum())
     6.0
     """
+    for name, flag in (("lumped", lumped), ("vector", vector)):
+        if not isinstance(flag, (bool, np.bool_)):  # lumped=None gave the consistent matrix silently
+            raise TypeError(f"{name} must be True or False, got {flag!r}")
     check_mesh(mesh)
     return _mass(mesh, rho, lumped, element, vector)
 

@@ -645,6 +645,8 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         :func:`check_mesh`; non-finite coordinates are named before anything
         else reads them).
     """
+    if not isinstance(merge, (bool, np.bool_)):
+        raise TypeError(f"merge must be True or False, got {merge!r}")
     path = os.fspath(path)
     if os.path.isdir(path):
         raise IsADirectoryError(f"mesh file {path!r} is a folder")

@@ -43,14 +43,20 @@ class FullSpaceSimulator(ModalMuscle):
     """
 
     def __init__(self, mesh, D, *, max_iter=2000, tol=0.0, rtol=1e-10, **kwargs):
-        super().__init__(
-            mesh,
-            None,
-            D,
-            np.arange(mesh.t.shape[1]),
-            max_iter=max_iter,
-            tol=tol,
-            rtol=rtol,
-            backend="plain",
-            **kwargs,
-        )
+        try:
+            super().__init__(
+                mesh,
+                None,
+                D,
+                np.arange(mesh.t.shape[1]),
+                max_iter=max_iter,
+                tol=tol,
+                rtol=rtol,
+                backend="plain",
+                **kwargs,
+            )
+        except TypeError as err:
+            # an argument misspelt or missing: Python names the class it went to; name this one
+            if "ModalMuscle.__init__()" in str(err):
+                raise TypeError(str(err).replace("ModalMuscle.__init__()", "FullSpaceSimulator()")) from None
+            raise

@@ -438,6 +438,8 @@ def read_scene_file(path) -> dict:
         Not valid TOML; the message names the file and where.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(f"scene file {path!r} is a folder: give the .toml file in it")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"scene file not found: {path!r}")
     with open(path, "rb") as f:

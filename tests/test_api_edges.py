@@ -164,3 +164,9 @@ def test_raw_errors_of_numbers_are_named():
     for call in (lambda: sim.positions(z), lambda: sim.com(z)):
         with pytest.raises(ValueError, match="z must be finite, got NaN or infinity in it"):
             call()  # NaN positions
+
+
+def test_the_full_space_simulator_names_itself_for_a_misspelt_argument():
+    mesh = sm.caterpillar(nx=8, ny=4)
+    with pytest.raises(TypeError, match=r"^FullSpaceSimulator\(\) got an unexpected keyword argument 'gama'"):
+        sm.FullSpaceSimulator(mesh, None, mu=1.0, gama=1.0, rho=1.0, h=0.01)  # said ModalMuscle.__init__()

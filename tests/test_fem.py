@@ -190,3 +190,10 @@ def test_a_negative_poissons_ratio_is_a_material_with_a_negative_lam(dim):
     # below the bound the bulk modulus is negative: named, with the bound
     with pytest.raises(ValueError, match=rf"lam must be above -2 mu / {dim} \(a positive bulk modulus"):
         stiffness_matrix(mesh, mu=1.0, lam=-1.0)
+
+
+@pytest.mark.parametrize("flags", [dict(lumped=None), dict(lumped="yes"), dict(vector="no")])
+def test_mass_matrix_flags_are_true_or_false(flags):
+    # read by truthiness before: lumped=None gave the consistent matrix, vector="no" the vector one
+    with pytest.raises(TypeError, match=r"(lumped|vector) must be True or False, got"):
+        mass_matrix(beam2d(1.0, 1.0, 2, 2), **flags)

@@ -48,3 +48,10 @@ def test_a_duration_between_steps_is_rounded_up_with_a_warning_naming_both_keys(
         ]
     else:
         assert said == []
+
+
+def test_a_folder_given_as_the_scene_is_named_a_folder(tmp_path, capsys):
+    from skfem_modal.cli import main
+
+    assert main(["run", str(tmp_path)]) == 2  # it said 'scene file not found'
+    assert f"scene file {str(tmp_path)!r} is a folder: give the .toml file in it" in capsys.readouterr().err
