@@ -151,8 +151,9 @@ def count_problems(
             problems.append((name, f"must be {problem}"))
     if contact_candidates is not None:
         indices = np.asarray(contact_candidates).ravel()
-        if not indices.size:
-            problems.append(("contact_candidates", "leave nothing to touch the ground: give at least one vertex index"))
+        nothing = "select no boundary vertex of the mesh: nothing could touch the ground"
+        if not indices.size:  # of no dtype in particular
+            problems.append(("contact_candidates", nothing))
             return problems
         outside = indices[(indices < 0) | (indices >= n_vertices)] if np.issubdtype(indices.dtype, np.integer) else None
         if outside is None or outside.size:
@@ -162,7 +163,6 @@ def count_problems(
         try:
             sample_boundary(mesh, None, contact_candidates)
         except ValueError:
-            nothing = "select no boundary vertex of the mesh: nothing could touch the ground"
             problems.append(("contact_candidates", nothing))
     return problems
 

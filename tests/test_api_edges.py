@@ -106,7 +106,7 @@ def test_from_mesh_names_pins_candidates_and_progress_as_given():
     with pytest.raises(ValueError, match=r"pinned as a boolean mask must have one value per vertex, shape \(65,\)"):
         sm.ModalMuscle.from_mesh(mesh, pinned=left[:5], **kw)
     ground = dict(ground=float(mesh.p[1].min()), gravity=[0.0, -9.8])
-    with pytest.raises(ValueError, match="contact_candidates: 0 vertices leave nothing to touch the ground"):
+    with pytest.raises(ValueError, match="contact_candidates: 0 vertices select no boundary vertex of the mesh"):
         sm.ModalMuscle.from_mesh(mesh, contact_candidates=[], **ground, **kw)
     with pytest.raises(TypeError, match="progress must be a callable of a stage's name, True or None, got 'yes'"):
         sm.ModalMuscle.from_mesh(mesh, progress="yes", **kw)  # True printed each stage; a bool was called
