@@ -584,10 +584,10 @@ class CoulombContact(_Ground):
                 self._keep -= 1
                 self._pick(self._previous, self.z_start)
             else:
-                # a step run again for vertices it missed keeps those its first run looked at: holding
-                # the missed ones with a fresh spread few instead (a thin plate resting on 45 vertices
+                # a step run again for vertices it missed keeps those its first run held: holding the
+                # missed ones with a fresh spread few instead (a thin plate resting on 45 vertices
                 # looked at 33 in its second run) left the end of the step to hold the rest, a kick
-                again = self._previous if self._missed.size else np.zeros(0, np.int64)
+                again = self._previous[self.touching[self._previous]] if self._missed.size else self._missed
                 self._pick(np.union1d(np.union1d(self._near(z), self._missed), again), self.z_start)
                 self._keep = _KEEP
         if not self.picked.size:

@@ -392,9 +392,8 @@ def test_a_beam_settling_flat_on_the_ground_is_not_kicked():
 def test_a_thin_plate_landing_flat_gains_no_energy():
     # a plate resting on 45 vertices: a step run again for vertices it missed looked at a fresh spread
     # 33 of them and left the end of the step to hold the rest: that kick gained 1.3e-3 of the energy
-    # (an audit). The run again keeps those the first run looked at: 5e-6 at most on the default install's
-    # path, 6e-5 on numba's (its round-off lands 400 vertices on other branches of the active set, one step
-    # ending in its least-distance fallback)
+    # (an audit). The run again keeps those the first run held: 1.4e-5 at most on the default install's
+    # path, 4.3e-5 on numba's (its round-off lands 400 vertices on other branches of the active set)
     mesh = sm.box3d(20, 20, 1, (1.0, 1.0, 0.02))
     size = size_of(mesh)
     sim = sm.ModalMuscle.from_mesh(
