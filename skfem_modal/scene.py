@@ -957,10 +957,13 @@ class Scene:
         muscles = self.config["muscles"]
         gait = muscles["gait"]
         if self._table is None and gait is not None and muscles["count"]:
-            from .muscles import sine_gait
+            from .muscles import _sine
 
             phase = np.zeros(muscles["count"]) if gait["phase"] is None else gait["phase"]
-            return sine_gait(t, np.asarray(gait["amplitude"]) * ceilings, gait["period"], phase)
+            amplitudes = np.asarray(gait["amplitude"], dtype=np.float64) * ceilings
+            return _sine(
+                t, amplitudes, np.asarray(gait["period"], dtype=np.float64), np.asarray(phase, dtype=np.float64)
+            )
         return self.activation_fractions(t) * ceilings
 
     def activation_fractions(self, t: float) -> np.ndarray:

@@ -584,6 +584,12 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
         except (OSError, ValueError, TypeError) as err:  # no port, no such host, nothing answering
             raise ValueError(f"--scheduler {scheduler}: no dask scheduler answers there ({err})") from None
 
+        # A lost scheduler makes the client's sender log its closed connection,
+        # traceback and all, at INFO level; the search names the loss itself.
+        batched = logging.getLogger("distributed.batched")
+        batched_level = batched.level
+        batched.setLevel(logging.WARNING)
+
         def close_client(cancel=False):
             # stopping on an error: a lost scheduler's reconnection, cancelled here, would log a raw traceback
             logger = logging.getLogger("distributed.client")
@@ -594,6 +600,7 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
                 client.close()
             finally:
                 logger.setLevel(level)
+                batched.setLevel(batched_level)
 
         return client.get_executor(), close_client
     import multiprocessing
