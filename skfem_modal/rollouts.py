@@ -54,7 +54,7 @@ from .mesh import body_size
 from .muscles import sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
-from .study import WorkersLost, lost_workers, make_executor
+from .study import WorkersLost, dask_client, lost_workers, make_executor
 from .threads import limited_blas_threads
 
 __all__ = ["OBJECTIVES", "Trial", "Rollouts", "rollout", "body_rotation_rows"]
@@ -279,13 +279,6 @@ def rollout(task: dict) -> dict:
     return score
 
 
-def _dask_client(executor):
-    """The dask client behind an executor, or None."""
-    if executor is None or not type(executor).__module__.startswith("distributed"):
-        return None
-    return getattr(executor, "_client", None)
-
-
 class Rollouts:
     """Runs gaits of one trial on an executor, the precompute sent once to each worker.
 
@@ -315,7 +308,7 @@ class Rollouts:
         clock = time.perf_counter()
         self._close, self._scattered = None, None
         self.blas_threads = blas_threads
-        client = _dask_client(executor)
+        client = dask_client(executor)
         self.recipe = None
         if executor is not None and client is None:
             if recipe is None:
@@ -326,7 +319,7 @@ class Rollouts:
             self._scattered = self.handle = client.scatter(trial, broadcast=True, hash=False)
         elif scheduler:
             self.executor, self._close = make_executor(workers, scheduler)
-            self._scattered = self.handle = _dask_client(self.executor).scatter(trial, broadcast=True, hash=False)
+            self._scattered = self.handle = dask_client(self.executor).scatter(trial, broadcast=True, hash=False)
         else:
             self.handle = uuid.uuid4().hex
             payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
@@ -356,7 +349,7 @@ class Rollouts:
         try:
             return list(self.executor.map(rollout, tasks))
         except Exception as error:
-            said = lost_workers(error)
+            said = lost_workers(error, self.executor)
             if said is None:
                 raise
             raise WorkersLost(said) from error

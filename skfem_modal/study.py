@@ -62,6 +62,7 @@ __all__ = [
     "make_executor",
     "WorkersLost",
     "lost_workers",
+    "dask_client",
     "run_study",
 ]
 
@@ -638,7 +639,21 @@ class WorkersLost(RuntimeError):
     """An executor lost its workers (a process killed, the dask scheduler gone): the tasks they had are lost."""
 
 
-def lost_workers(error: BaseException) -> str | None:
+def dask_client(executor):
+    """The dask client behind an executor (``client.get_executor()``), or None for any other executor.
+
+    Examples
+    --------
+    >>> from concurrent.futures import ThreadPoolExecutor
+    >>> dask_client(ThreadPoolExecutor(1)) is None
+    True
+    """
+    if executor is None or not type(executor).__module__.startswith("distributed"):
+        return None
+    return getattr(executor, "_client", None)
+
+
+def lost_workers(error: BaseException, executor=None) -> str | None:
     """What ``error``, raised by an executor's task, says happened to the workers, in words; None for other errors.
 
     A local pool's worker process that dies (killed by the out-of-memory
@@ -646,6 +661,14 @@ def lost_workers(error: BaseException) -> str | None:
     cancels the tasks of a lost scheduler connection, and of data that died
     with its workers (``FutureCancelledError``), and gives up on a task that
     killed its workers (``KilledWorker``).
+
+    Parameters
+    ----------
+    error : BaseException
+    executor : concurrent.futures.Executor, optional
+        The executor that ran the task: a dask client no longer connected
+        to its scheduler tells a lost scheduler (the tasks submitted while
+        it tried to reconnect are cancelled with no reason when it gives up).
 
     Examples
     --------
@@ -661,7 +684,10 @@ def lost_workers(error: BaseException) -> str | None:
     if isinstance(error, BrokenExecutor):
         return "a worker process of the local pool died (killed: by the out-of-memory killer, say)"
     reason = getattr(error, "reason", None)
-    if dask and (reason == "scheduler-connection-lost" or type(error).__name__ == "CommClosedError"):
+    client = dask_client(executor)
+    disconnected = client is not None and client.status != "running"
+    lost = reason == "scheduler-connection-lost" or type(error).__name__ == "CommClosedError"
+    if dask and (lost or (isinstance(error, CancelledError) and disconnected)):
         return "the connection to the dask scheduler was lost"
     if dask and isinstance(error, CancelledError):
         return f"the dask cluster cancelled the tasks ({reason}: its workers died, and the data they held)"
@@ -748,7 +774,7 @@ def run_study(
         say("step times: " + ", ".join(f"{r['label']} {r['step_ms']:.3f} ms" for r in rows))
         modal_rows = modal_convergence(tuple(cfg["modal"]))
     except Exception as error:
-        said = lost_workers(error)
+        said = lost_workers(error, executor)
         if said is None:
             raise
         raise WorkersLost(f"the study lost its workers: {said}; a study keeps no checkpoint: run it again") from None

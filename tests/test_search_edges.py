@@ -162,6 +162,17 @@ def test_what_dask_says_of_lost_workers(error, said):
     assert found is None if said is None else found.startswith(said)
 
 
+@pytest.mark.parametrize("status, said", [("running", "the dask cluster cancelled"), ("closed", "the connection")])
+def test_tasks_cancelled_for_no_reason_are_a_lost_scheduler_once_the_client_gave_up(status, said):
+    """Tasks submitted while the client tried to reconnect are cancelled with reason 'unknown' when it gives up."""
+    pytest.importorskip("distributed", reason="dask is in the distributed extra")
+    from distributed.client import FutureCancelledError
+
+    executor = type("ClientExecutor", (), {"__module__": "distributed.cfexecutor"})()
+    executor._client = SimpleNamespace(status=status)
+    assert study.lost_workers(FutureCancelledError("rollout-1", None), executor).startswith(said)
+
+
 def test_ctrl_c_in_the_first_generation_says_nothing_was_checkpointed(tiny_scene, tmp_path, capsys, monkeypatch):
     def interrupted(*args):
         raise KeyboardInterrupt
