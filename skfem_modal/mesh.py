@@ -968,26 +968,34 @@ def box3d(nx: int = 8, ny: int = 8, nz: int = 8, size: Sequence[float] = (1.0, 1
     """
     if isinstance(size, str) or not isinstance(size, Sequence | np.ndarray) or len(size) != 3:
         raise ValueError(f"box3d: size must be 3 edge lengths, got {size!r}")
-    sizes = {f"size[{k}]": v for k, v in enumerate(size)}
-    _shape_checked("box3d", {"nx": nx, "ny": ny, "nz": nz}, sizes, lambda: 6.0 * nx * ny * nz)
-    if min(nx, ny, nz) < 1:
-        raise ValueError(f"box3d: need positive cell counts, got {(nx, ny, nz)}")
-    return MeshTet.init_tensor(
-        np.linspace(0.0, size[0], nx + 1),
-        np.linspace(0.0, size[1], ny + 1),
-        np.linspace(0.0, size[2], nz + 1),
-    )
+    return _tet_box("box3d", {"nx": nx, "ny": ny, "nz": nz}, {f"size[{k}]": v for k, v in enumerate(size)})
+
+
+def _tet_box(name: str, counts: dict, sizes: dict):
+    """:func:`box3d`'s tetrahedra, the parameters checked under the names ``name`` gives them (3 of each)."""
+    _shape_checked(name, counts, sizes, lambda: 6.0 * float(np.prod(list(counts.values()), dtype=float)))
+    if min(counts.values()) < 1:
+        raise ValueError(f"{name}: need positive cell counts, got {', '.join(f'{k}={v}' for k, v in counts.items())}")
+    return MeshTet.init_tensor(*(np.linspace(0.0, size, n + 1) for n, size in zip(counts.values(), sizes.values())))
 
 
 def beam3d(length: float = 10.0, width: float = 1.0, height: float = 1.0, nx: int = 40, ny: int = 4, nz: int = 4):
-    """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra.
+    """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra (a :func:`box3d`).
+
+    Parameters
+    ----------
+    length, width, height : float
+        Beam size (x along the beam).
+    nx, ny, nz : int
+        Cells along x, y and z (each split into 6 tetrahedra).
 
     Returns
     -------
     mesh : skfem.MeshTet
         ``(nx+1)(ny+1)(nz+1)`` vertices and ``6 nx ny nz`` tetrahedra.
     """
-    return box3d(nx, ny, nz, (length, width, height))
+    sizes = {"length": length, "width": width, "height": height}
+    return _tet_box("beam3d", {"nx": nx, "ny": ny, "nz": nz}, sizes)
 
 
 def _axis_breaks(extent: float, cell: float, cuts: Sequence[float]) -> np.ndarray:

@@ -122,7 +122,10 @@ class Model:
     def assemble(self) -> None:
         """(Re)build the system of the current time step and effects."""
         h, space = self.h, self.space
-        H = sum(m for m in (e.matrix(h) for e in self.effects) if m is not None)
+        with np.errstate(over="ignore", invalid="ignore"):  # a term out of range is named below
+            terms = {e.name: m for e in self.effects if (m := e.matrix(h)) is not None}
+            H = sum(terms.values())
+        _check_in_range(H, terms)
         parts = [e.rhs(h) for e in self.effects]
         r = space.r
         self.Pz = sum((p[0] for p in parts if p[0] is not None), 0 * H)
@@ -131,7 +134,7 @@ class Model:
         try:
             self.system = space.factor(H)
         except ValueError:
-            raise ValueError(self._singular_why(H)) from None
+            raise ValueError(self._singular_why(H, terms)) from None
         if space.dense:
             self.C = self.system.solve(np.hstack([self.Pz, self.Pv, self.f[:, None]]))
             self.W = self.system.solve(self.G.T)
@@ -151,16 +154,20 @@ class Model:
             self.assemble()
             raise
 
-    def _singular_why(self, H) -> str:
-        """Why the system matrix could not be factored, in words."""
+    def _singular_why(self, H, terms: dict) -> str:
+        """Why the system matrix could not be factored, in words (``terms``: each effect's part of ``H``)."""
         M = self.inertia.mass_matrix
         mass = float(np.abs(M.diagonal()).max()) / self.h**2
         stiff = float(np.abs(H.diagonal()).max())
         if mass < 1e-12 * stiff:
+            others = {name: _largest_entry(m) for name, m in terms.items() if name != "inertia"}
+            name = max(others, key=others.get)
+            what = "the stiffness" if name in ("elasticity", "muscles") else f"the {name} term"
             return (
                 f"the system matrix is singular to working precision: with h = {self.h:g} the inertia term "
-                f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of the stiffness ({stiff:.3g}), which leaves "
-                "a free body's rigid motions undetermined; use a smaller time step, or pin the body"
+                f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of {what} (up to {others[name]:.3g}), which "
+                "leaves a free body's rigid motions undetermined; use a smaller time step, or pin the body"
+                + ("" if what == "the stiffness" else f", or make the {name} coefficients smaller")
             )
         return "the reduced system matrix is not positive definite: check that B has full column rank"
 
@@ -196,3 +203,27 @@ class Model:
             E += e
             grad = grad + g
         return (float(E), np.asarray(grad)) if gradient else float(E)
+
+
+def _largest_entry(matrix) -> float:
+    """The largest magnitude of a dense or sparse matrix's entries (inf or nan if any is)."""
+    values = matrix.data if hasattr(matrix, "tocsr") else np.asarray(matrix)
+    return float(np.abs(values).max()) if values.size else 0.0
+
+
+def _check_in_range(H, terms: dict) -> None:
+    """Raise, naming each effect's share, if the system matrix ``H`` overflows float64 or comes near it.
+
+    The factorisation adds ``H`` to its transpose: entries within a factor of 4 of float64's
+    largest would overflow there (to a 'singular' matrix, blaming the wrong term).
+    """
+    largest = _largest_entry(H)
+    limit = np.finfo(np.float64).max / 4
+    if largest <= limit:
+        return
+    shares = ", ".join(f"{name} {_largest_entry(m):.3g}" for name, m in terms.items())
+    reach = f"reach {largest:.3g}" if np.isfinite(largest) else "overflow"
+    raise ValueError(
+        f"the system matrix's entries {reach}, beyond what float64 computes with (at most {limit:.3g}): "
+        f"its terms' largest entries are {shares}; make the largest term's coefficients smaller"
+    )

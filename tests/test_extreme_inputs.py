@@ -5,6 +5,7 @@ Each is refused before any work with a message naming the key or argument
 """
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -131,6 +132,22 @@ def test_a_stiffness_of_1e200_now_reaches_the_named_system_check():
     """
     with pytest.raises(ValueError, match=r"singular to working precision: with h = 0.01 the inertia term"):
         ModalMuscle.from_mesh(sm.caterpillar(nx=40, ny=20), **FAST, mu=1e200, rho=1e3, h=0.01)
+
+
+def test_damping_too_large_for_float64_is_named_with_each_term_before_any_warning():
+    """Damping coefficients within the float range check's estimate but whose system matrix overflows.
+
+    The factorisation's symmetrisation overflowed (a RuntimeWarning) into a 'singular' matrix
+    blamed on the stiffness.
+    """
+    mesh = sm.caterpillar(nx=20, ny=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(ValueError, match=r"entries overflow, .*muscles \S+, damping inf; make the largest term"):
+            ModalMuscle.from_mesh(mesh, **FAST, damping_stiffness=1e300)
+        # smaller, it still swamps the inertia: the damping is named, not the stiffness
+        with pytest.raises(ValueError, match=r"of the damping term \(up to .*make the damping coefficients smaller"):
+            ModalMuscle.from_mesh(mesh, **FAST, damping_stiffness=1e290)
 
 
 # ---------------------------------------------------------- pinning everything

@@ -344,6 +344,11 @@ def test_a_mesh_too_small_or_too_large_for_float64_is_named_with_its_size(scale)
         (lambda: beam2d(length=np.inf), "beam2d: length must be positive and finite, got inf"),  # NaN coordinates
         (lambda: box3d(size=(1.0, np.nan, 1.0)), r"box3d: size\[1\] must be positive and finite, got nan"),
         (lambda: box3d(size=(1.0, 2.0)), r"box3d: size must be 3 edge lengths, got \(1.0, 2.0\)"),
+        (lambda: box3d(0, 2, 2), "box3d: need positive cell counts, got nx=0, ny=2, nz=2"),
+        # a beam's own parameters, not those of the box it is made as
+        (lambda: beam3d(width=-1.0), "beam3d: width must be positive and finite, got -1.0"),
+        (lambda: beam3d(nz=0), "beam3d: need positive cell counts, got nx=40, ny=4, nz=0"),
+        (lambda: beam3d(nx=2.5), "beam3d: nx must be an integer, got 2.5"),
         (lambda: caterpillar(width=-1.0), "caterpillar: width must be positive and finite, got -1.0"),  # accepted
         (lambda: caterpillar(nx=3.5), "caterpillar: nx must be an integer, got 3.5"),  # numpy's own error
         (lambda: caterpillar(nx="70"), "caterpillar: nx must be an integer, got '70'"),
