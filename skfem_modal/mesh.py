@@ -980,7 +980,9 @@ def _tet_box(name: str, counts: dict, sizes: dict):
 
 
 def beam3d(length: float = 10.0, width: float = 1.0, height: float = 1.0, nx: int = 40, ny: int = 4, nz: int = 4):
-    """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra (a :func:`box3d`).
+    """A 3D beam ``[0, length] x [0, width] x [0, height]`` of tetrahedra.
+
+    The :func:`box3d` of these sizes and counts, its parameters named as here.
 
     Parameters
     ----------

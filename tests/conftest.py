@@ -1,5 +1,7 @@
 """Shared fixtures: the tutorial's caterpillar and the reference numbers."""
 
+import signal
+
 import numpy as np
 import pytest
 
@@ -20,6 +22,19 @@ REFERENCE = {
     "crawl_com_dx": -4.438,
     "crawl_com_y_range": (-0.130, 0.244),
 }
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ctrl_c_as_in_a_terminal():
+    """Ctrl-C raises KeyboardInterrupt here and in the processes the tests start.
+
+    A suite started in the background by a shell without job control (``pytest &``
+    in a script) inherits SIGINT ignored, and so would every search a test
+    interrupts: the Ctrl-C tests would wait for runs that never hear it.
+    """
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
 
 
 @pytest.fixture(scope="session")
