@@ -70,7 +70,7 @@ from .model import Model
 from .solver import TOL, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
-from .units import up_axis, warn_scale
+from .units import outside_stacklevel, up_axis, warn_scale
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -324,6 +324,32 @@ def _nearest_setting(cls, name: str) -> str:
     return f"; the settings one can assign are {', '.join(settings)}"
 
 
+def _warn_if_idle(solver, contact, *settings) -> None:
+    """Warn of each of ``settings`` (``acceleration``, ``warm_start``) that is on but does nothing under ``contact``.
+
+    A setting that does nothing must say so: ``solver`` is the simulator's driver, ``contact`` its
+    model's contact effect (None: no ground, every setting works).
+    """
+    if contact is None:
+        return
+    if "acceleration" in settings and solver.acceleration != "none":
+        warnings.warn(
+            f"acceleration={solver.acceleration!r} has no effect under ground contact (a projection, not "
+            "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay plain"
+            + ("" if contact.reads_iterates else "; warm_start=True speeds them up there (docs/contact.md)"),
+            UserWarning,
+            stacklevel=outside_stacklevel(),
+        )
+    if "warm_start" in settings and solver.warm_start and contact.reads_iterates:
+        warnings.warn(
+            "warm_start=True has no effect under the reference contact (its rule reads the iterates, so they "
+            "start from the step's start state): the iterations are those without it; contact_model='coulomb' "
+            "warm-starts them (docs/contact.md)",
+            UserWarning,
+            stacklevel=outside_stacklevel(),
+        )
+
+
 class ModalMuscle:
     """Reduced modal-muscle dynamics in a subspace (or on every DOF), in 2D or 3D.
 
@@ -520,7 +546,7 @@ class ModalMuscle:
         self._n_clusters = self._model.elasticity.n_clusters
         self._n_active_clusters = int(active_labels.max()) + 1 if self._n_muscles else 0
         self.iterations = 0
-        self._warn_if_idle("acceleration", "warm_start")
+        _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
 
     def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
         """Make the effects in order (calling ``D`` if a callable), the model and the backends, each stage timed."""
@@ -612,7 +638,7 @@ class ModalMuscle:
         value = _positive_scalar(value, "h")
         damping = (self.damping_mass, self.damping_stiffness)
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity, damping)
-        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=2)  # who assigns h
+        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=outside_stacklevel())  # who assigns h
         self._model.retime(value)
         self._rebuild()
 
@@ -642,7 +668,7 @@ class ModalMuscle:
     @warm_start.setter
     def warm_start(self, value) -> None:
         self._solver.warm_start = _flag(value, "warm_start")
-        self._warn_if_idle("warm_start")
+        _warn_if_idle(self._solver, self._model.contact, "warm_start")
 
     @property
     def acceleration(self) -> str:
@@ -652,30 +678,7 @@ class ModalMuscle:
     @acceleration.setter
     def acceleration(self, value) -> None:
         self._solver.acceleration = _acceleration_name(value, full_space=self._B is None)
-        self._warn_if_idle("acceleration")
-
-    def _warn_if_idle(self, *settings) -> None:
-        """Warn of each of ``settings`` (``acceleration``, ``warm_start``) that is on but does nothing here."""
-        # a setting that does nothing must say so
-        contact = self._model.contact
-        if contact is None:
-            return
-        if "acceleration" in settings and self._solver.acceleration != "none":
-            warnings.warn(
-                f"acceleration={self._solver.acceleration!r} has no effect under ground contact (a projection, not "
-                "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay plain"
-                + ("" if contact.reads_iterates else "; warm_start=True speeds them up there (docs/contact.md)"),
-                UserWarning,
-                stacklevel=3,
-            )
-        if "warm_start" in settings and self._solver.warm_start and contact.reads_iterates:
-            warnings.warn(
-                "warm_start=True has no effect under the reference contact (its rule reads the iterates, so they "
-                "start from the step's start state): the iterations are those without it; contact_model='coulomb' "
-                "warm-starts them (docs/contact.md)",
-                UserWarning,
-                stacklevel=3,
-            )
+        _warn_if_idle(self._solver, self._model.contact, "acceleration")
 
     @property
     def residual(self) -> float:
@@ -747,7 +750,7 @@ class ModalMuscle:
         self._contact = _contact_settings(value, None, None, None)
         if self._model.contact is not None:
             self._new_contact("contact_model")
-            self._warn_if_idle("warm_start")
+            _warn_if_idle(self._solver, self._model.contact, "warm_start")
 
     friction = _contact_setting(
         "friction",
@@ -793,7 +796,7 @@ class ModalMuscle:
             self._contact_vertices = boundary_vertices(self._mesh)
         self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
         if contact is None:
-            self._warn_if_idle("acceleration", "warm_start")
+            _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
 
     @property
     def up(self) -> int:

@@ -11,6 +11,8 @@ local/global iterations: said the same way.
 
 from __future__ import annotations
 
+import os
+import sys
 import warnings
 
 import numpy as np
@@ -234,6 +236,21 @@ def scale_mismatch(
             "then gain energy)."
         )
     return None
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def outside_stacklevel() -> int:
+    """The ``stacklevel`` that makes a warning issued by the caller name the first line outside this package.
+
+    For warnings of what a user did (assigned a setting, say): however many of the package's frames
+    stand between (a property setter behind ``__setattr__``), the warning points at the user's line.
+    """
+    frame, level = sys._getframe(1), 1
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def warn_scale(mesh, mu, rho, gravity=None, duration=None, what: str = "mesh", h=None, stacklevel: int = 2) -> None:

@@ -284,3 +284,23 @@ def test_a_warm_start_under_the_reference_contact_is_said_to_do_nothing():
         True,
     ]
     assert "has no effect under ground contact" in str(said[0].message)
+
+
+def test_a_setting_s_warning_names_the_line_that_assigned_it():
+    """Behind ``__setattr__`` and a property setter, the warning still points at the user's line, not at sim.py."""
+    mesh = sm.caterpillar(nx=16, ny=8)
+    kw = dict(n_muscles=2, n_weights=4, n_clusters=6, h=0.01, gravity=[0.0, -9.8], n_contacts=16)
+    sim = sm.ModalMuscle.from_mesh(mesh, ground=float(mesh.p[1].min()) - 0.005, contact_model="reference", **kw)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        sim.acceleration = "anderson"
+        sim.warm_start = True
+        sim.h = 0.5  # too large for this material: a ScaleWarning
+        sm.ModalMuscle.from_mesh(mesh, ground=-9.0, contact_model="reference", acceleration="newton", **kw)
+    assert [(w.category.__name__, w.filename) for w in said] == [
+        ("UserWarning", __file__),
+        ("UserWarning", __file__),
+        ("ScaleWarning", __file__),
+        ("UserWarning", __file__),
+    ]
+    assert len({w.lineno for w in said}) == 4
