@@ -13,7 +13,7 @@ import scipy.sparse as sps
 from .acceleration import ACCELERATIONS
 from .contact import ALLOWANCE, MODELS
 from .fem import _positive
-from .mesh import body_size
+from .mesh import part_sizes
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
 
@@ -271,12 +271,14 @@ def _clear_of_ground(mesh, ground, up: int) -> None:
     """
     if ground is None:
         return
-    lowest = float(mesh.p[up].min())
-    size = body_size(mesh)
-    depth = ground - lowest
-    if depth > ALLOWANCE * size:
+    sizes = part_sizes(mesh)  # each part of a mesh as large as itself
+    relative = (ground - mesh.p[up]) / sizes
+    deepest = int(np.argmax(relative))
+    if relative[deepest] > ALLOWANCE:
+        lowest, depth = float(mesh.p[up, deepest]), ground - float(mesh.p[up, deepest])
+        which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of a smaller part)"
         raise ValueError(
-            f"the body starts inside the ground: its lowest vertex ({'xyz'[up]} = {lowest:.6g}) is {depth:.4g} "
-            f"({100 * depth / size:.3g} % of its size) below the ground at {ground:.6g}; the contact would fling it "
-            "out. Put the ground at or below the body's lowest point (a scene's [ground] offset >= 0)"
+            f"the body starts inside the ground: {which} ({'xyz'[up]} = {lowest:.6g}) is {depth:.4g} "
+            f"({100 * relative[deepest]:.3g} % of its size) below the ground at {ground:.6g}; the contact would fling "
+            "it out. Put the ground at or below the body's lowest point (a scene's [ground] offset >= 0)"
         )

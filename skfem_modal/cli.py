@@ -224,10 +224,14 @@ def cmd_run(args) -> int:
     say(f"centre of mass travel {travel}")
     if summary["ground"]:
         ground = summary["ground"]
-        say(
-            f"deepest any vertex went below the ground ({ground['model']} contact): "
-            f"{ground['worst_penetration']:.3g} ({100 * ground['worst_penetration_relative']:.2g} % of the body's size)"
+        share = 100 * ground["worst_penetration_relative"]
+        of = (
+            f"{share:.2g} % of the body's size"
+            if summary["mesh"]["parts"] == 1
+            else f"relative to the size of each vertex's own part, at most {share:.2g} %"
         )
+        deepest = ground["worst_penetration"]
+        say(f"deepest any vertex went below the ground ({ground['model']} contact): {deepest:.3g} ({of})")
     if args.render:
         return _render(args.out, args, say)
     say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")

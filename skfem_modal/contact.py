@@ -50,7 +50,7 @@ from scipy.optimize import nnls
 from ._contact_sets import Picked, SetOperator
 from ._fast import dot
 from .effects import Effect
-from .mesh import body_size, boundary_vertices
+from .mesh import boundary_vertices, connected_labels, part_sizes
 from .solver import SimulationError
 
 __all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE"]
@@ -105,11 +105,20 @@ class _Ground(Effect):
 
     def _plane(self, space, ground, up):
         self.dim, self.up, self.ground = space.dim, up, float(ground)
-        self.boundary = space.heights(boundary_vertices(space.mesh), up)
+        boundary = boundary_vertices(space.mesh)
+        self.boundary = space.heights(boundary, up)
+        self.sizes = part_sizes(space.mesh)  # (n,): what each vertex's depth is relative to
+        self.boundary_sizes = self.sizes[boundary]
 
-    def penetration(self, z) -> float:
-        """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``."""
-        return max(0.0, self.ground - float(self.boundary(np.asarray(z, float)).min()))
+    def penetration(self, z, relative: bool = False) -> float:
+        """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``.
+
+        ``relative``: the deepest relative to the size of the vertex's own part (:func:`~skfem_modal.mesh.part_sizes`).
+        """
+        depth = self.ground - self.boundary(np.asarray(z, float))
+        if relative:
+            depth /= self.boundary_sizes
+        return max(0.0, float(depth.max()))
 
     def missed(self, z) -> bool:
         """Whether the step's iterations should run again, seeing more vertices (see the Coulomb model)."""
@@ -369,8 +378,12 @@ class CoulombContact(_Ground):
         self.space, self.vertices = space, np.asarray(vertices)
         self.friction = float(friction)
         self.heights_of = space.heights(self.vertices, up)
-        self.size = body_size(space.mesh)
-        self.tol = 1e-9 * self.size
+        # each candidate's lengths relative to its own part: bodies far apart in one mesh are each held
+        # as close to the ground as one alone (relative to the whole mesh, a part 60 sizes away let
+        # a body sink 30 times the allowance)
+        self.size = self.sizes[self.vertices]  # (p,)
+        self.part = connected_labels(space.mesh)[self.vertices]  # (p,): the part of the mesh each is in
+        self.tol = 1e-9 * float(self.size.min())
         self.allowance = ALLOWANCE * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
         p = self.vertices.size
@@ -413,7 +426,7 @@ class CoulombContact(_Ground):
         reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
         self.compliance = 1e-3 * float(reach.mean())
         # forces whose give needs no second solve (a body too stiff or damped to give at all: every force)
-        self._quiet = min(0.1 * self.allowance / self.compliance, 1e150) ** 2
+        self._quiet = min(0.1 * float(self.allowance.min()) / self.compliance, 1e150) ** 2
         self._refine = 0  # solves that take the give back: at the end of a step only
 
     def _rows_of(self, candidate_rows) -> np.ndarray:
@@ -490,9 +503,11 @@ class CoulombContact(_Ground):
 
     def _check_clear(self, z) -> None:
         """Raise if a state has a vertex deeper below the ground than the allowance (see :meth:`start_step`)."""
-        depth = self.ground - float(self.heights_of(z).min())
-        if depth > self.allowance:
-            share = 100 * depth / self.size
+        depths = self.ground - self.heights_of(z)
+        deepest = int(np.argmax(depths / self.size))
+        depth = float(depths[deepest])
+        if depth > self.allowance[deepest]:
+            share = 100 * depth / self.size[deepest]
             raise ValueError(
                 f"the state starts inside the ground: a boundary vertex is {depth:.4g} ({share:.3g} % "
                 f"of the body's size) below the ground at {self.ground:.6g}, more than the contact's allowance "
@@ -516,6 +531,19 @@ class CoulombContact(_Ground):
         return self._spread(near, low)
 
     def _spread(self, near, low) -> np.ndarray:
+        """At most a few dozen of the near vertices of each part of the mesh (:meth:`_spread_part`).
+
+        Bodies apart in one mesh are each looked at as one alone (spread over their common box, a
+        body had as few vertices as the gap left cells for, and sagged between them).
+        """
+        parts = self.part[near]
+        if not parts.size or parts.min() == parts.max():
+            return self._spread_part(near, low)
+        order = np.argsort(parts, kind="stable")
+        groups = np.split(near[order], np.flatnonzero(np.diff(parts[order])) + 1)
+        return np.concatenate([self._spread_part(group, low) for group in groups])
+
+    def _spread_part(self, near, low) -> np.ndarray:
         """At most a few dozen of the near vertices, spread over the body, the touching ones first.
 
         The heights of neighbouring vertices nearly repeat each other (a subspace moves them
@@ -568,7 +596,7 @@ class CoulombContact(_Ground):
         # margin: left there by an earlier step's end) climbs out by at most what gravity moves
         # a body in a step: lifted onto the ground at once, a tiny step would kick it up, adding
         # energy; a deeper one (the end of a step holding one that sagged) comes into that band
-        band = self.ground - 0.9 * self.allowance
+        band = self.ground - 0.9 * self.allowance[picked]
         heights = self.start[:, self.up] + self.climb
         self.target[self.up :: dim] = np.minimum(np.maximum(heights, band, out=heights), self.ground, out=heights)
         self.floor = self.target[self.up :: dim] - self.tol  # a vertex below it joins the pushed ones
@@ -796,7 +824,7 @@ class CoulombContact(_Ground):
             forces = generators.T @ b  # on the rows
             # the way the compliance let the ground give: taken back by aiming that much further (SetOperator.refined)
             give = np.where(forces[heights] > 0.0, self.target[rows[heights]] - x[rows[heights]], 0.0)
-            if np.abs(give).max(initial=0.0) <= 0.1 * self.allowance:
+            if np.abs(give).max(initial=0.0) <= 0.1 * float(self.allowance.min()):
                 break
             goal[heights] += give
         on_rows = np.zeros(p * dim)

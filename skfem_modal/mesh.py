@@ -22,6 +22,7 @@ from skfem.element import ElementTetP1, ElementTriP1
 __all__ = [
     "MeshError",
     "body_size",
+    "part_sizes",
     "make_mesh",
     "check_mesh",
     "validated",
@@ -451,6 +452,38 @@ def body_size(mesh) -> float:
     2.0
     """
     return float(np.ptp(mesh.p, axis=1).max())
+
+
+def connected_labels(mesh) -> np.ndarray:
+    """The connected part of each vertex (elements sharing a vertex are connected), unchecked, shape (n,).
+
+    :func:`connected_parts` for a mesh already checked (numbered as scipy's graph search finds them).
+    """
+    return _parts(mesh.t, mesh.p.shape[1])
+
+
+def part_sizes(mesh) -> np.ndarray:
+    """Each vertex's part size: the largest extent along an axis of the connected part it is in.
+
+    What a vertex's relative lengths refer to: two bodies far apart in one
+    mesh are each as large as themselves, not as the distance between them.
+
+    Returns
+    -------
+    sizes : ndarray, shape (n,)
+
+    Examples
+    --------
+    >>> two = MeshTri(np.array([[0.0, 1, 0, 10, 12, 10], [0, 0, 1, 0, 0, 2]]), np.array([[0, 3], [1, 4], [2, 5]]))
+    >>> part_sizes(two).tolist()
+    [1.0, 1.0, 1.0, 2.0, 2.0, 2.0]
+    """
+    labels = connected_labels(mesh)
+    low = np.full((labels.max() + 1, mesh.p.shape[0]), np.inf)
+    high = np.full_like(low, -np.inf)
+    np.minimum.at(low, labels, mesh.p.T)
+    np.maximum.at(high, labels, mesh.p.T)
+    return (high - low).max(axis=1)[labels]
 
 
 def make_mesh(points, elements, *, what: str = "mesh"):
@@ -1174,7 +1207,7 @@ def connected_parts(mesh) -> np.ndarray:
         Part index of each vertex, numbered 0.. in order of first vertex.
     """
     check_mesh(mesh)
-    labels = _parts(mesh.t, mesh.p.shape[1])
+    labels = connected_labels(mesh)
     # renumber parts by their first vertex so labels do not depend on the solver
     _, first = np.unique(labels, return_index=True)
     order = np.argsort(first)

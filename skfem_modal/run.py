@@ -28,7 +28,7 @@ import numpy as np
 
 from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
-from .mesh import body_size, mesh_summary
+from .mesh import mesh_summary, part_sizes
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
 from .scene import Scene
@@ -209,7 +209,10 @@ def run_scene(
     summary = _summary_start(scene, sim, precompute=time.perf_counter() - started)
     files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every)
     gravity = scene.config["gravity"]
-    log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0}
+    log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0, "relative": 0.0}
+    sizes = part_sizes(sim.mesh)
+    # depths relative to each vertex's own part; with all parts alike in size, one pass gives both
+    log["size"] = float(sizes[0]) if sizes.min() == sizes.max() else None
     log["monitor"] = MotionMonitor(sim, None if gravity is None else gravity["acceleration"])
     bar = Progress(scene.n_steps, "steps", enabled=progress)
     status, error, failure = "completed", None, None
@@ -302,7 +305,10 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     An error while writing the files leaves the log, and so the summary, at the step before.
     """
     com = sim.com(z)
-    depth = sim.penetration(z) if done is not None and sim.ground is not None else 0.0
+    relative = depth = 0.0
+    if done is not None and sim.ground is not None:
+        relative = sim.penetration(z, relative=True)
+        depth = relative * log["size"] if log["size"] is not None else sim.penetration(z)
     if files is not None:
         files.write(step, z, a, com)
     log["com"].append(com)
@@ -312,6 +318,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         log["residuals"].append(done.residual)
         # every boundary vertex, every step: the deepest any went below the ground
         log["penetration"] = max(log["penetration"], depth)
+        log["relative"] = max(log["relative"], relative)
         log["monitor"].update(step, z, a)
 
 
@@ -326,7 +333,7 @@ def _measured(sim, log: dict) -> dict:
             "height": sim.ground,
             "model": sim.contact_model,
             "worst_penetration": worst,
-            "worst_penetration_relative": worst / body_size(sim.mesh),
+            "worst_penetration_relative": log["relative"],  # of each vertex's own part
         }
     return {
         "iterations": {

@@ -771,10 +771,14 @@ class ModalMuscle:
         "Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise).",
     )
 
-    def penetration(self, z) -> float:
-        """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground)."""
+    def penetration(self, z, relative: bool = False) -> float:
+        """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground).
+
+        ``relative``: the deepest relative to the size of the vertex's own connected part (in a mesh of
+        several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
+        """
         contact = self._model.contact
-        return 0.0 if contact is None else contact.penetration(self._state(z))
+        return 0.0 if contact is None else contact.penetration(self._state(z), relative)
 
     @property
     def ground(self):
