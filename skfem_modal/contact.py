@@ -110,12 +110,19 @@ class _Ground(Effect):
         self.sizes = part_sizes(space.mesh)  # (n,): what each vertex's depth is relative to
         self.boundary_sizes = self.sizes[boundary]
 
+    def depths(self, z) -> np.ndarray:
+        """How deep each boundary vertex is below the ground (negative above it), for a state ``z``, shape (nb,).
+
+        ``boundary_sizes`` (nb,) has the size of each one's own part (:func:`~skfem_modal.mesh.part_sizes`).
+        """
+        return self.ground - self.boundary(np.asarray(z, float))
+
     def penetration(self, z, relative: bool = False) -> float:
         """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``.
 
-        ``relative``: the deepest relative to the size of the vertex's own part (:func:`~skfem_modal.mesh.part_sizes`).
+        ``relative``: the deepest relative to the size of the vertex's own part.
         """
-        depth = self.ground - self.boundary(np.asarray(z, float))
+        depth = self.depths(z)
         if relative:
             depth /= self.boundary_sizes
         return max(0.0, float(depth.max()))

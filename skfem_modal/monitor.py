@@ -21,6 +21,16 @@ Measured on the examples and the default crawl: spread
 ratios 0.74-1.33, pushes below 0.04 body sizes; with ``time.step = 1000`` the
 built-in crawl's push reaches 4.9e6 body sizes.
 
+A body can also stay put in the air: a contact that holds it up with
+nothing under it (the reference contact at a large step keeps its points
+where the step started them, above the ground: the tutorial's caterpillar
+hangs there at h = 0.3). Given the lowest boundary vertex's height over the
+ground each step, the monitor calls it *hovering* when for
+:data:`HOVER_STEPS` steps in a row the body is clear of the ground by more
+than :data:`HOVER_CLEARANCE` of its size, barely moves, and something other
+than gravity holds it up (a push upwards of at least half a step of free
+fall), with no pins and no mass-proportional damping (drag) to do it.
+
 A third measure says when the muscles themselves are the cause: the largest
 commanded activation as a fraction of its muscle's ceiling. Beyond 1 the
 muscles ask for more deformation than ``max_s`` (a gait amplitude of 20
@@ -36,12 +46,16 @@ import warnings
 
 import numpy as np
 
-__all__ = ["MotionMonitor", "MotionWarning", "CeilingWarning", "SPREAD_LIMIT", "PUSH_LIMIT"]
+__all__ = ["MotionMonitor", "MotionWarning", "CeilingWarning", "SPREAD_LIMIT", "PUSH_LIMIT", "HOVER_STEPS"]
 
 #: A spread this many times the rest spread (or this many times smaller) is not physical.
 SPREAD_LIMIT = 3.0
 #: Forces other than gravity moving the centre of mass this many body sizes in one step are not physical.
 PUSH_LIMIT = 1.0
+#: Steps in a row a body held still in the air (see the module's text) counts as hovering.
+HOVER_STEPS = 3
+#: Clear of the ground by this much of its size, a body is in the air (the Coulomb contact's allowance is 2e-4).
+HOVER_CLEARANCE = 1e-3
 
 
 class MotionWarning(RuntimeWarning):
@@ -98,12 +112,19 @@ class MotionMonitor:
         self.first_problem_step = {}
         self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
         self.ceiling_fraction = 0.0  # the largest |activation| / ceiling commanded
+        # pins or drag may hold a body up in the air: then nothing is hovering
+        held = np.size(sim.pinned) > 0 or sim.damping_mass > 0
+        fall = math.sqrt(float(self._gravity_step @ self._gravity_step))
+        self._up = None if held or fall == 0.0 else -self._gravity_step / fall
+        self._fall = fall  # how far free fall moves a body in a step (its second difference)
+        self._hovering = 0  # steps in a row held still in the air
+        self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
 
     def _spread(self, z) -> float:
         mean = self._mean @ z
         return math.sqrt(max(float(z @ (self._gram @ z) - mean @ mean), 0.0))
 
-    def update(self, step: int, z, a=None) -> None:
+    def update(self, step: int, z, a=None, clearance=None) -> None:
         """Take the state after ``step`` steps.
 
         Parameters
@@ -112,6 +133,9 @@ class MotionMonitor:
         z : ndarray, shape (r,)
         a : ndarray, shape (m,), optional
             The step's muscle activations (mode amplitudes), to compare with the ceilings.
+        clearance : float, optional
+            How far the lowest boundary vertex is above the ground (negative: below it), with a
+            ground: to tell a body held in the air.
         """
         self._commanded(step, a)
         com = self._com(z)
@@ -130,6 +154,19 @@ class MotionMonitor:
             self.first_problem_step.setdefault("push", step)
         if not 1.0 / SPREAD_LIMIT <= ratio <= SPREAD_LIMIT:
             self.first_problem_step.setdefault("spread", step)
+        if clearance is not None and self._up is not None:
+            self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
+
+    def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:
+        """Count the steps in a row the body stays still, clear of the ground, held up by something."""
+        still = math.sqrt(float(change @ change)) < self._fall
+        if clear > HOVER_CLEARANCE and still and lift > 0.5 * self._fall:
+            self._hovering += 1
+            if self._hovering == HOVER_STEPS and "hover" not in self.first_problem_step:
+                self.first_problem_step["hover"] = step - HOVER_STEPS + 1
+                self.hover_clearance = clear
+        else:
+            self._hovering = 0
 
     def _commanded(self, step: int, a) -> None:
         """The step's activations against the ceilings."""
@@ -178,6 +215,14 @@ class MotionMonitor:
             texts.append(
                 f"from step {step} (t = {step * self.h:g}) forces other than gravity moved the centre of mass up to "
                 f"{self.push:.3g} body sizes in one step: the motion is not resolved"
+            )
+        if "hover" in self.first_problem_step:
+            step = self.first_problem_step["hover"]
+            texts.append(
+                f"from step {step} (t = {step * self.h:g}) the body stayed in the air, {self.hover_clearance:.3g} "
+                "body sizes above the ground, held up against gravity with nothing under it (the reference "
+                "contact at a large time step keeps its points where each step started them): the Coulomb contact "
+                '(ground.model = "coulomb") or a smaller time.step lands it'
             )
         if "non_finite" in self.first_problem_step:
             step = self.first_problem_step["non_finite"]

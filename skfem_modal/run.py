@@ -28,7 +28,7 @@ import numpy as np
 
 from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
-from .mesh import mesh_summary, part_sizes
+from .mesh import mesh_summary
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
 from .scene import Scene
@@ -210,9 +210,6 @@ def run_scene(
     files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every)
     gravity = scene.config["gravity"]
     log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0, "relative": 0.0}
-    sizes = part_sizes(sim.mesh)
-    # depths relative to each vertex's own part; with all parts alike in size, one pass gives both
-    log["size"] = float(sizes[0]) if sizes.min() == sizes.max() else None
     log["monitor"] = MotionMonitor(sim, None if gravity is None else gravity["acceleration"])
     bar = Progress(scene.n_steps, "steps", enabled=progress)
     status, error, failure = "completed", None, None
@@ -306,9 +303,12 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     """
     com = sim.com(z)
     relative = depth = 0.0
-    if done is not None and sim.ground is not None:
-        relative = sim.penetration(z, relative=True)
-        depth = relative * log["size"] if log["size"] is not None else sim.penetration(z)
+    clearance = None
+    contact = sim.model.contact
+    if done is not None and contact is not None:
+        depths = contact.depths(z)  # every boundary vertex: one pass for all three
+        depth, clearance = max(0.0, float(depths.max())), -float(depths.max())
+        relative = max(0.0, float((depths / contact.boundary_sizes).max()))  # of each vertex's own part
     if files is not None:
         files.write(step, z, a, com)
     log["com"].append(com)
@@ -319,7 +319,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         # every boundary vertex, every step: the deepest any went below the ground
         log["penetration"] = max(log["penetration"], depth)
         log["relative"] = max(log["relative"], relative)
-        log["monitor"].update(step, z, a)
+        log["monitor"].update(step, z, a, clearance)
 
 
 def _measured(sim, log: dict) -> dict:

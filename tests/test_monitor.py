@@ -181,3 +181,48 @@ def default_crawl_summary():
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
         return run_scene(Scene.default(), None)
+
+
+def _hover_scene(model, **ground):
+    return Scene.from_dict(
+        {
+            "mesh": {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}},
+            "subspace": {"weights": 6, "clusters": 8},
+            "muscles": {"count": 0},
+            "gravity": {"acceleration": [0.0, -9.8]},
+            "ground": {"model": model, "offset": 0.05, **ground},
+            "time": {"step": 0.3, "steps": 10},
+        }
+    )
+
+
+def test_a_body_held_in_the_air_by_the_contact_is_reported_hovering(tmp_path, capsys):
+    """The reference contact at h = 0.3 keeps its points where each step started them, 0.05 above the ground.
+
+    The run said "completed", physical, with nothing under the body (issue: the caterpillar never lands).
+    """
+    with pytest.warns(MotionWarning, match=r"from step 1 \(t = 0.3\) the body stayed in the air, 0.025 body sizes"):
+        motion = run_scene(_hover_scene("reference"), None)["motion"]
+    assert not motion["physical"] and motion["first_problem_step"] == {"hover": 1}
+    # the Coulomb contact lands it at the same step: nothing said
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        landed = run_scene(_hover_scene("coulomb"), None)["motion"]
+    assert landed["physical"] and landed["largest_push_body_sizes"] > 0.1  # the ground stopped a fall of 0.44 sizes
+
+
+def test_a_body_pinned_in_the_air_or_falling_through_drag_is_not_hovering():
+    rest = beam2d(2.0, 0.5, 8, 2).p.T
+    for kw in ({"pinned": [0, 1]}, {"damping_mass": 50.0}):
+        sim = ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01, **kw)
+        monitor = MotionMonitor(sim, gravity=[0.0, -9.8])
+        for step in range(1, 10):  # held still, 0.1 above the ground, against gravity
+            monitor.update(step, state_of(sim, rest), clearance=0.1)
+        assert monitor.finish(warn=False)["first_problem_step"] == {}
+    # the same for a free body is hovering, from its first still step; a body on the ground is not
+    sim = ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01)
+    for clearance, expected in ((0.1, {"hover": 1}), (1e-4, {})):
+        monitor = MotionMonitor(sim, gravity=[0.0, -9.8])
+        for step in range(1, 10):
+            monitor.update(step, state_of(sim, rest), clearance=clearance)
+        assert monitor.finish(warn=False)["first_problem_step"] == expected
