@@ -576,17 +576,27 @@ def _seed(text: str) -> int:
     return value
 
 
-def _picture_size(text: str) -> tuple[int, int]:
-    from .plot import picture_size_problem
-
+def _size(text: str, problem_of) -> tuple[int, int]:
     width, x, height = text.lower().partition("x")
     if not (x and width.isdigit() and height.isdigit()):
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}")
     size = int(width), int(height)
-    problem = picture_size_problem(size)
+    problem = problem_of(size)
     if problem:
         raise argparse.ArgumentTypeError(problem)
     return size
+
+
+def _picture_size(text: str) -> tuple[int, int]:
+    from .plot import picture_size_problem
+
+    return _size(text, picture_size_problem)
+
+
+def _window_size(text: str) -> tuple[int, int]:
+    from .play import window_size_problem
+
+    return _size(text, window_size_problem)
 
 
 def cmd_play(args) -> int:
@@ -774,7 +784,7 @@ def _play_options(p) -> None:
     )
     p.add_argument("--screenshot", metavar="PATH", help="save the last frame as a PNG")
     p.add_argument("--off-screen", action="store_true", help="render without a window (needs --frames)")
-    p.add_argument("--size", type=_picture_size, default=(960, 600), metavar="WxH", help="window size in pixels")
+    p.add_argument("--size", type=_window_size, default=(960, 600), metavar="WxH", help="window size in pixels")
     p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
     p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
 

@@ -24,10 +24,31 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display"]
+__all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display", "window_size_problem"]
 
 
 _RECENT = 60  # frames the frame rate and the step time are measured over
+#: The smallest window: room for the sliders, their labels and the status line
+MIN_WINDOW = (200, 150)
+
+
+def window_size_problem(size) -> str | None:
+    """What is wrong with a window size (width, height) in pixels, or None.
+
+    >>> window_size_problem((960, 600)) is None
+    True
+    >>> window_size_problem((16, 16))
+    'window size must be at least 200 x 150 pixels (and at most 8192 a side), got 16 x 16'
+    """
+    from .plot import MAX_PICTURE_SIDE
+
+    width, height = (int(v) for v in size)
+    if width < MIN_WINDOW[0] or height < MIN_WINDOW[1] or max(width, height) > MAX_PICTURE_SIDE:
+        return (
+            f"window size must be at least {MIN_WINDOW[0]} x {MIN_WINDOW[1]} pixels (and at most "
+            f"{MAX_PICTURE_SIDE} a side), got {width} x {height}"
+        )
+    return None
 
 
 class PlayError(RuntimeError):
@@ -437,9 +458,10 @@ def play(
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
     if off_screen and frames is None:
         raise ValueError("off-screen play needs a number of frames (--frames N): nothing can be seen or clicked")
+    problem = window_size_problem(window_size)
+    if problem:
+        raise ValueError(problem)
     width, height = (int(v) for v in window_size)
-    if width < 200 or height < 150:
-        raise ValueError(f"window size must be at least 200 x 150 pixels, got {width} x {height}")
     if screenshot is not None and not os.fspath(screenshot).lower().endswith(".png"):
         raise ValueError(f"screenshot must be a .png file, got {os.fspath(screenshot)!r}")
     target = _load(target)

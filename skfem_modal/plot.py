@@ -352,6 +352,10 @@ _BAR_LABEL_SIZE = 12
 DEFAULT_SIZE = (1280, 720)
 
 
+#: matplotlib's smallest dpi: its smallest text (10 points) is then 1.4 pixels high
+_MIN_DPI = 10.0
+
+
 def _text_scale(size) -> float:
     """How much larger than at :data:`DEFAULT_SIZE` text and lines are drawn: a picture looks the same at any size."""
     return min(size[0] / DEFAULT_SIZE[0], size[1] / DEFAULT_SIZE[1])
@@ -477,8 +481,9 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     faces = _surface(frames[0].cells) if view.dim == 3 else None
     light = camera.towards + 0.6 * camera.screen_up + 0.3 * camera.right
     light /= np.linalg.norm(light)
-    # text and lines are in points: a dpi in proportion to the size keeps them in proportion too
-    dpi = 100.0 * _text_scale(size)
+    # text and lines are in points: a dpi in proportion to the size keeps them in proportion too, but
+    # not below what draws the smallest text a pixel high (FreeType refuses less: a 48 x 48 picture crashed)
+    dpi = max(100.0 * _text_scale(size), _MIN_DPI)
     # matplotlib truncates inches * dpi to whole pixels: a hundredth of a pixel over keeps the size given
     inches = [pixels / dpi if int(pixels / dpi * dpi) == pixels else (pixels + 0.01) / dpi for pixels in size]
     fig = plt.figure(figsize=inches, dpi=dpi)

@@ -578,3 +578,14 @@ def test_the_screenshot_shows_the_last_frames_own_status(display, tmp_path):
     picture = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     status_rows = picture[:40] != np.load(stale)[:40]  # the top of the window: the status line
     assert status_rows.any(axis=2).mean() > 0.001  # the saved status line is not the stale one
+
+
+@pytest.mark.parametrize("size", ["16x16", "199x600", "200x149", "8193x600"])
+def test_the_command_refuses_the_window_sizes_play_refuses(size, capsys):
+    """--size took 16 to 8192 a side (the pictures' range), then play refused below 200 x 150 (an audit)."""
+    with pytest.raises(SystemExit) as usage:
+        main(["play", "--size", size, "--frames", "2", "--off-screen"])
+    assert usage.value.code == 2
+    width, height = size.split("x")
+    said = "argument --size: window size must be at least 200 x 150 pixels (and at most 8192 a side)"
+    assert f"{said}, got {width} x {height}" in capsys.readouterr().err

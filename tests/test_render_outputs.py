@@ -106,6 +106,17 @@ def test_the_largest_side_allowed_is_drawn(run_copy, backend):
     assert (np.ptp(image, axis=2) > 40).sum() > 50
 
 
+@pytest.mark.parametrize("backend", ["matplotlib", "pyvista"])
+@pytest.mark.parametrize("size", [(16, 16), (1280, 16), (16, 720)])
+def test_the_smallest_sides_allowed_are_drawn(run_copy, backend, size):
+    """matplotlib's text at 16 x 16 was under a pixel high: FreeType's 'invalid ppem value', a traceback (an audit)."""
+    if backend == "pyvista":
+        needs_gl()
+    argv = ["render", str(run_copy), "-q", "--backend", backend, "--size", "{}x{}".format(*size), "--max-frames", "2"]
+    assert main(argv) == 0
+    assert pixels(run_copy / "last_frame.png").shape == (size[1], size[0], 3)
+
+
 @pytest.mark.parametrize("damage", ["summary", "cut rows", "cut number"])
 def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, damage):
     # a broken summary.json gave json's own message without the file; a com.csv cut to its first rows drew
