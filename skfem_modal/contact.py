@@ -107,7 +107,8 @@ class _Ground(Effect):
         self.dim, self.up, self.ground = space.dim, up, float(ground)
         boundary = boundary_vertices(space.mesh)
         self.boundary = space.heights(boundary, up)
-        self.sizes = part_sizes(space.mesh)  # (n,): what each vertex's depth is relative to
+        self.parts = connected_labels(space.mesh)  # (n,): the connected part each vertex is in
+        self.sizes = part_sizes(space.mesh, self.parts)  # (n,): what each vertex's depth is relative to
         self.boundary_sizes = self.sizes[boundary]
 
     def depths(self, z) -> np.ndarray:
@@ -389,7 +390,7 @@ class CoulombContact(_Ground):
         # as close to the ground as one alone (relative to the whole mesh, a part 60 sizes away let
         # a body sink 30 times the allowance)
         self.size = self.sizes[self.vertices]  # (p,)
-        self.part = connected_labels(space.mesh)[self.vertices]  # (p,): the part of the mesh each is in
+        self.part = self.parts[self.vertices]  # (p,)
         self.tol = 1e-9 * float(self.size.min())
         self.allowance = ALLOWANCE * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)

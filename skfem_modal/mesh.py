@@ -462,11 +462,12 @@ def connected_labels(mesh) -> np.ndarray:
     return _parts(mesh.t, mesh.p.shape[1])
 
 
-def part_sizes(mesh) -> np.ndarray:
+def part_sizes(mesh, labels=None) -> np.ndarray:
     """Each vertex's part size: the largest extent along an axis of the connected part it is in.
 
     What a vertex's relative lengths refer to: two bodies far apart in one
     mesh are each as large as themselves, not as the distance between them.
+    ``labels`` (n,): the parts (:func:`connected_labels`), if already known.
 
     Returns
     -------
@@ -478,7 +479,7 @@ def part_sizes(mesh) -> np.ndarray:
     >>> part_sizes(two).tolist()
     [1.0, 1.0, 1.0, 2.0, 2.0, 2.0]
     """
-    labels = connected_labels(mesh)
+    labels = connected_labels(mesh) if labels is None else labels
     low = np.full((labels.max() + 1, mesh.p.shape[0]), np.inf)
     high = np.full_like(low, -np.inf)
     np.minimum.at(low, labels, mesh.p.T)

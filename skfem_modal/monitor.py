@@ -46,7 +46,15 @@ import warnings
 
 import numpy as np
 
-__all__ = ["MotionMonitor", "MotionWarning", "CeilingWarning", "SPREAD_LIMIT", "PUSH_LIMIT", "HOVER_STEPS"]
+__all__ = [
+    "MotionMonitor",
+    "MotionWarning",
+    "CeilingWarning",
+    "SPREAD_LIMIT",
+    "PUSH_LIMIT",
+    "HOVER_STEPS",
+    "HOVER_CLEARANCE",
+]
 
 #: A spread this many times the rest spread (or this many times smaller) is not physical.
 SPREAD_LIMIT = 3.0
