@@ -393,6 +393,10 @@ class CoulombContact(_Ground):
         self.part = self.parts[self.vertices]  # (p,)
         self.tol = 1e-9 * float(self.size.min())
         self.allowance = ALLOWANCE * self.size
+        # per candidate, made once (the ground of a contact does not move): the lowest height a step may
+        # leave it at, and below which it counts as near the ground
+        self._lowest = self.ground - self.allowance
+        self._near_level = self.ground + 0.005 * self.size
         self.tangents = np.array([a for a in range(self.dim) if a != up], dtype=np.int64)
         p = self.vertices.size
         # (dim, p): where the picking spreads; a coordinate a row (reductions along rows are
@@ -535,7 +539,7 @@ class CoulombContact(_Ground):
         if self.z_dot is not None:
             low += 2.0 * self.h * np.minimum(heights[2], 0.0)
         np.minimum(low, heights[0], out=low)
-        near = np.flatnonzero((low < self.ground + 0.005 * self.size) | self.touching)
+        near = np.flatnonzero((low < self._near_level) | self.touching)
         return self._spread(near, low)
 
     def _spread(self, near, low) -> np.ndarray:
@@ -652,7 +656,7 @@ class CoulombContact(_Ground):
         """
         heights = self.heights_of(z)
         self._checked = (z.copy(), heights)  # the end of the step needs them too
-        below = self._unpicked(np.flatnonzero(heights < self.ground - self.allowance))
+        below = self._unpicked(np.flatnonzero(heights < self._lowest))
         self._missed = self._spread(below, heights)  # a flat face's sag: a spread few hold it all
         return bool(self._missed.size)
 
@@ -677,7 +681,7 @@ class CoulombContact(_Ground):
             same = checked is not None and np.array_equal(checked[0], z)
             heights = checked[1] if same else self.heights_of(z)
             checked = None
-            below = np.flatnonzero(heights < self.ground - self.allowance)
+            below = np.flatnonzero(heights < self._lowest)
             if not below.size:
                 self._end = z.copy()
                 return
