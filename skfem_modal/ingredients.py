@@ -100,9 +100,17 @@ def element_clusters(
         labels = rotation_clusters(mesh, B, n_clusters, mass=mass, stiffness=mu, seed=seed)
     else:
         labels = spectral_clusters(mesh, weights, n_clusters, seed=seed)
+    return labels, active_clusters(mesh, weights, n_active_clusters, seed)
+
+
+def active_clusters(mesh, weights, n_active_clusters: int = 1, seed: int = 0):
+    """The muscle clusters of the elements (shape (nT,)), or None for one: at least one per connected part.
+
+    Separate bodies never share a muscle rotation. ``weights`` (n, k): the skinning weights the
+    clusters are spectral clusters of (:func:`element_clusters`' ``weights``).
+    """
     n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
-    active = spectral_clusters(mesh, weights, n_active, seed=seed) if n_active > 1 else None
-    return labels, active
+    return spectral_clusters(mesh, weights, n_active, seed=seed) if n_active > 1 else None
 
 
 def count_problems(

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mesh import check_mesh
 from .sim import ModalMuscle
 
 __all__ = ["FullSpaceSimulator"]
@@ -43,6 +44,8 @@ class FullSpaceSimulator(ModalMuscle):
     """
 
     def __init__(self, mesh, D, *, max_iter=2000, tol=0.0, rtol=1e-10, **kwargs):
+        if not hasattr(mesh, "t"):
+            check_mesh(mesh)  # not a mesh at all (its points, say): named before its elements are counted
         try:
             super().__init__(
                 mesh,

@@ -343,17 +343,21 @@ def time_steps(tasks: list[dict], *, rounds: int = 3, steps: int = 60) -> list[f
     return best
 
 
-def _left_out(ground: dict | None) -> dict:
+def _left_out(ground: dict | None, mesh_file: bool = False) -> dict:
     """The settings a study leaves out for a scene with this ground (validated ``[ground]``), and why.
 
     Under ground contact no accelerated iterate is taken (a projection, not an
     energy, holds the body up); under the reference contact no warm start
     either (its rule reads where each iterate came from). A row with them
-    would be a plain run under another label.
+    would be a plain run under another label. A mesh from a file has one
+    resolution: no sweep of resolutions.
     """
+    left = {}
+    if mesh_file:
+        left["resolution"] = "the mesh resolution sweep, which needs a built-in shape (a mesh file has one)"
     if ground is None:
-        return {}
-    left = {"acceleration": "Anderson and Newton iterations have no effect under ground contact"}
+        return left
+    left["acceleration"] = "Anderson and Newton iterations have no effect under ground contact"
     if ground["model"] == "reference":
         left["warm_start"] = "a warm start has no effect under the reference contact"
     return left
@@ -754,7 +758,7 @@ def run_study(
     cfg = PRESETS[preset]
     out_dir = os.fspath(out_dir)
     clear_earlier_study(out_dir, overwrite, how=how)
-    left_out = _left_out(scene.config["ground"])
+    left_out = _left_out(scene.config["ground"], mesh_file=bool(data.get("mesh", {}).get("file")))
     say = print if progress else (lambda *a, **k: None)
     close = None
     if executor is None:  # a scheduler that does not answer: before the folder is made
@@ -875,8 +879,9 @@ def _write_report(out_dir, rows, modal_rows, front, lines, meta) -> dict:
             f"{ref['iterations']:.0f} iterations a step, {1e3 * ref['seconds_per_step']:.1f} ms a step"
         )
     if meta["left_out"]:
-        md += ["", "Not run for this scene: " + "; ".join(meta["left_out"].values()) + " (rows with them would be "
-               "plain runs under another label)."]  # fmt: skip
+        plain = {"acceleration", "warm_start"} & set(meta["left_out"])
+        why = " (rows with them would be plain runs under another label)" if plain else ""
+        md += ["", "Not run for this scene: " + "; ".join(meta["left_out"].values()) + why + "."]
     md += ["", "## Recommendation", ""] + [f"- {line}" for line in lines]
     md += ["", "## Error against milliseconds per step", ""]
     md.append(

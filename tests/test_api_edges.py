@@ -170,3 +170,9 @@ def test_the_full_space_simulator_names_itself_for_a_misspelt_argument():
     mesh = sm.caterpillar(nx=8, ny=4)
     with pytest.raises(TypeError, match=r"^FullSpaceSimulator\(\) got an unexpected keyword argument 'gama'"):
         sm.FullSpaceSimulator(mesh, None, mu=1.0, gama=1.0, rho=1.0, h=0.01)  # said ModalMuscle.__init__()
+
+
+def test_the_full_space_simulator_given_points_for_a_mesh_names_the_mesh():
+    mesh = sm.caterpillar(nx=8, ny=4)
+    with pytest.raises(TypeError, match=r"^mesh: expected a linear skfem.MeshTri or skfem.MeshTet, got ndarray"):
+        sm.FullSpaceSimulator(mesh.p, None, mu=1.0, rho=1.0, h=0.01)  # AttributeError: no attribute 't'

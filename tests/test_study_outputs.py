@@ -73,6 +73,25 @@ def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extr
     assert json.loads((tmp_path / "study.json").read_text())["meta"]["left_out"] == left_out
 
 
+def test_a_study_of_a_mesh_file_says_it_sweeps_no_resolutions(tmp_path, tiny, monkeypatch):
+    """The sweep of mesh resolutions needs a built-in shape: left out, and said so (it was silent; an audit)."""
+    import meshio
+
+    from skfem_modal.mesh import caterpillar
+
+    mesh = caterpillar(nx=16, ny=8)
+    meshio.write(tmp_path / "cat.vtu", meshio.Mesh(mesh.p.T, [("triangle", mesh.t.T)]))
+    monkeypatch.setitem(study.PRESETS, "tiny", {**TINY, "resolution": [0.5, 1.0]})
+    report = study.run_study({**FLOATING, "mesh": {"file": str(tmp_path / "cat.vtu")}}, tmp_path / "s", preset="tiny")
+    assert report["left_out"] == {
+        "resolution": "the mesh resolution sweep, which needs a built-in shape (a mesh file has one)"
+    }
+    assert not any(r["label"].startswith("resolution") for r in report["rows"])
+    text = (tmp_path / "s" / "study.md").read_text()
+    said = "Not run for this scene: the mesh resolution sweep, which needs a built-in shape (a mesh file has one)."
+    assert said in text
+
+
 def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, capsys):
     out = tmp_path / "study"
     assert main(["study", "--quick", "--out", str(out)]) == 0
