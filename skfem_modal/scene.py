@@ -929,13 +929,15 @@ class Scene:
         ref : skfem_modal.reference.FullSpaceSimulator
         """
         from .ingredients import active_clusters, skinning_subspace
+        from .mesh import connected_labels
         from .modal import muscle_modes
         from .reference import FullSpaceSimulator
 
         c = self.config
         sub = c["subspace"]
         active = None
-        if c["muscles"]["count"]:
+        several = max(sub["active_clusters"], int(connected_labels(self.mesh).max()) + 1) > 1
+        if c["muscles"]["count"] and several:
             # the reduced model's muscle clusters (a mesh of two bodies has two: with one, the reference's
             # muscles were another model's, and a study's error 12.5 % where it is 4.3 %)
             weights = skinning_subspace(self.mesh, sub["weights"], sub["cluster_weights"])[0]
