@@ -70,6 +70,14 @@ def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extr
         assert not any(r["warm_start"] for r in report["rows"])
     text = (tmp_path / "study.md").read_text()
     assert ("Not run for this scene: " + "; ".join(left_out.values())) in text if left_out else "Not run" not in text
+    # on the ground, the rows are single runs of a branching motion: said beside the recommendation (an audit)
+    chaotic = "a row can stand far from its sweep's trend"
+    assert (
+        (chaotic in report["recommendation"][-1])
+        if extra
+        else not any(chaotic in line for line in report["recommendation"])
+    )
+    assert (chaotic in text) == bool(extra)
     assert json.loads((tmp_path / "study.json").read_text())["meta"]["left_out"] == left_out
 
 
