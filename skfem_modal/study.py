@@ -556,6 +556,14 @@ _CHAOTIC = (
 )
 
 
+# said of a scene with pins (an audit of examples/beam_pinned.toml: 35.6 % at 10 weights, 6.3 % at 16;
+# 26-36 % whatever the clusters and iterations)
+_PINNED = (
+    "With pins, part of what the table calls solver error is the pins' stiff hold on a small subspace "
+    "(locking), which more clusters or iterations barely reduce: compare the weights sweep."
+)
+
+
 def _quiet_worker() -> None:
     """Pool initializer: no warnings from the workers (raw, once per process); the caller says them.
 
@@ -809,6 +817,8 @@ def run_study(
     lines = recommend(rows)
     if scene.config["ground"] is not None:
         lines.append(_CHAOTIC)
+    if scene.config["pinned"] is not None:
+        lines.append(_PINNED)
     paths = _write_report(out_dir, rows, modal_rows, front, lines, meta)
     return {
         "rows": rows,

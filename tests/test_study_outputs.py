@@ -100,6 +100,13 @@ def test_a_study_of_a_mesh_file_says_it_sweeps_no_resolutions(tmp_path, tiny, mo
     assert said in text
 
 
+def test_a_study_with_pins_says_what_only_more_weights_reduce(tmp_path, tiny):
+    """The pins' hold on a small subspace counted as solver error; clusters and iterations barely move it."""
+    report = study.run_study({**FLOATING, "pinned": {"where": ["x == min"]}}, tmp_path, preset="tiny")
+    assert report["recommendation"][-1].startswith("With pins, part of what the table calls solver error")
+    assert "compare the weights sweep" in (tmp_path / "study.md").read_text()
+
+
 def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, capsys):
     out = tmp_path / "study"
     assert main(["study", "--quick", "--out", str(out)]) == 0
