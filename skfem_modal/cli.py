@@ -709,7 +709,7 @@ def _study_options(p) -> None:
     p.add_argument(
         "--overwrite", action="store_true", help="replace an earlier study in --out (only its files are removed)"
     )
-    p.add_argument("--quick", action="store_true", help="the short preset (under two minutes on 2 cores)")
+    p.add_argument("--quick", action="store_true", help="the short preset (about a minute on 2 cores)")
     _pool_options(p, 1, "processes of the local pool (1: clean timings)", "sweep")
 
 
