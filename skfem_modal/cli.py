@@ -533,7 +533,12 @@ class _HelpWithDefaults(argparse.HelpFormatter):
     def _get_help_string(self, action):
         text = action.help or ""
         default = action.default
-        if not action.option_strings or "default" in text or default in (None, False, argparse.SUPPRESS):
+        # by identity: a default of 0 (--seed) is worth saying, though 0 == False
+        if (
+            not action.option_strings
+            or "default" in text
+            or any(default is no for no in (None, False, argparse.SUPPRESS))
+        ):
             return text
         shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else "%(default)s"
         return f"{text} (default: {shown})"
@@ -784,7 +789,7 @@ def _play_options(p) -> None:
     )
     p.add_argument("--screenshot", metavar="PATH", help="save the last frame as a PNG")
     p.add_argument("--off-screen", action="store_true", help="render without a window (needs --frames)")
-    p.add_argument("--size", type=_window_size, default=(960, 600), metavar="WxH", help="window size in pixels")
+    p.add_argument("--size", type=_window_size, default="960x600", metavar="WxH", help="window size in pixels")
     p.add_argument("--no-gait", action="store_true", help="start with the sliders driving the muscles")
     p.add_argument("--no-follow", action="store_true", help="keep the camera still as the body travels")
 

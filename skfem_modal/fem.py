@@ -148,7 +148,11 @@ def lame_parameters(young: float, poisson: float) -> tuple[float, float]:
 
 def _per_element(value, n_elements: int, name: str) -> np.ndarray:
     """A material parameter as a per-element array, checked positive or zero."""
-    arr = np.asarray(value, dtype=np.float64)
+    given = np.asarray(value)
+    if given.dtype.kind not in "iuf":  # numpy would read "1e5" as a number, True as 1
+        what = repr(value) if given.ndim == 0 else f"an array of {given.dtype}"
+        raise TypeError(f"{name} must be a number, or one number per element, got {what}")
+    arr = given.astype(np.float64)
     if arr.ndim == 0:
         arr = np.full(n_elements, float(arr))
     elif arr.shape != (n_elements,):

@@ -115,6 +115,20 @@ def test_simulator_parameters(kwargs, message):
         ModalMuscle(GOOD, B, None, np.zeros(16, int), **{**base, **kwargs})
 
 
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(mu="1e5"), r"mu must be a number, or one number per element, got '1e5'"),
+        (dict(rho=True), r"rho must be a number, or one number per element, got True"),
+        (dict(gamma=np.array(["1", "2"])), r"gamma must be a number, or one number per element, got an array of <U1"),
+    ],
+)
+def test_material_given_as_text_is_named(kwargs, message):
+    """numpy reads "1e5" as a number: from_mesh then failed in numpy's mean, naming no parameter (an audit)."""
+    with pytest.raises(TypeError, match=message):
+        ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=2, n_weights=3, n_clusters=4, **kwargs)
+
+
 def test_labels_and_arrays_of_the_wrong_kind():
     B = np.ones((GOOD.p.size, 1))
     kw = dict(mu=1.0, gamma=1.0, rho=1.0, h=0.1)

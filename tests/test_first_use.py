@@ -249,7 +249,7 @@ def test_version_and_defaults_in_help(capsys):
         main(["--version"])
     assert info.value.code == 0 and capsys.readouterr().out == f"skfem-modal {sm.__version__}\n"
     helps = {}
-    for command in ("modes", "optimize"):
+    for command in ("modes", "optimize", "play"):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         helps[command] = " ".join(capsys.readouterr().out.split())
@@ -260,5 +260,8 @@ def test_version_and_defaults_in_help(capsys):
         "generation (default: 12)",
         "(default: 0.3 2.0)",
         "ceiling (default: 1.0)",
+        "(0 to 4294967294) (default: 0)",  # a default of 0 was left unsaid (0 == False; an audit)
     ):
         assert shown in helps["optimize"]
+    # said as the option takes it (it said "960 600", which --size refuses)
+    assert "window size in pixels (default: 960x600)" in helps["play"]
