@@ -453,7 +453,7 @@ def cmd_optimize(args) -> int:
     direction = _direction(args.direction, scene.dim)
     space = GaitSpace(scene.config["muscles"]["count"], args.amplitude_max, *args.period_range)
     say = _say(args)
-    say(
+    banner = (
         f"CMA-ES over {3 * space.m} gait parameters ({args.objective} along {direction.tolist()}): "
         f"{args.generations} generations of {args.popsize}, seed {args.seed}, writing to {args.out}"
     )
@@ -479,6 +479,7 @@ def cmd_optimize(args) -> int:
             scheduler=args.scheduler,
             blas_threads=args.blas_threads,
             progress=not args.quiet,
+            announce=lambda: say(banner),  # once every setting is checked: an error is said alone
         )
     except SearchStop as stop:
         # said even with --quiet: the one thing a stopped search's user needs
@@ -542,6 +543,20 @@ class _HelpWithDefaults(argparse.HelpFormatter):
             return text
         shown = " ".join(map(str, default)) if isinstance(default, (tuple, list)) else "%(default)s"
         return f"{text} (default: {shown})"
+
+
+def _popsize(text: str) -> int:
+    value = _positive_int(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"expected at least 2 (CMA-ES ranks the candidates), got {text!r}")
+    return value
+
+
+def _jitter(text: str) -> float:
+    value = _non_negative_float(text)
+    if value >= 0.5:  # a copy's period could then be scaled to zero or below
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 0.5), got {text!r}")
+    return value
 
 
 def _positive_int(text: str) -> int:
@@ -721,7 +736,7 @@ def _study_options(p) -> None:
 def _optimize_options(p) -> None:
     p.add_argument("scene", nargs="?", help="scene .toml (default: the built-in caterpillar crawl)")
     p.add_argument("--generations", type=_positive_int, default=20, help="CMA-ES generations")
-    p.add_argument("--popsize", type=_positive_int, default=12, help="candidates per generation")
+    p.add_argument("--popsize", type=_popsize, default=12, help="candidates per generation (at least 2)")
     p.add_argument("--seed", type=_seed, default=0, help="the same seed gives the same search (0 to 4294967294)")
     p.add_argument("--steps", type=_positive_int, help="rollout length in steps (default: the scene's)")
     p.add_argument(
@@ -768,9 +783,7 @@ def _optimize_options(p) -> None:
         default=1,
         help="rollouts per candidate: its gait and jittered copies, fitness their mean",
     )
-    p.add_argument(
-        "--jitter", type=_non_negative_float, default=0.01, help="relative size of the copies' changes (below 0.5)"
-    )
+    p.add_argument("--jitter", type=_jitter, default=0.01, help="relative size of the copies' changes (below 0.5)")
     p.add_argument("--out", default="search", help="output directory")
     resume = p.add_mutually_exclusive_group()
     resume.add_argument("--resume", action="store_true", help="continue the search checkpointed in --out")

@@ -290,6 +290,7 @@ def run_search(
     blas_threads: int | None = 1,
     progress: bool = False,
     stop_after: int | None = None,
+    announce=None,
 ) -> dict:
     """Search the gait that travels furthest, with CMA-ES.
 
@@ -338,6 +339,9 @@ def run_search(
         Show a progress bar of the generations (a resumed search continues its count).
     stop_after : int, optional
         Stop after this many generations of this call (to test resuming).
+    announce : callable, optional
+        Called with no arguments once everything is checked, before any work
+        (the command line says what it searches there: an error comes first).
 
     Returns
     -------
@@ -406,7 +410,8 @@ def run_search(
             f"{out_dir} holds a search ({listed(out_dir, earlier)}): {again}start again with --overwrite "
             "(overwrite=True; only its files are replaced)"
         )
-
+    if announce is not None:
+        announce()
     clock = time.perf_counter()
     trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock

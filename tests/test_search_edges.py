@@ -298,12 +298,26 @@ def test_body_rotation_rows_do_not_depend_on_the_blas_threads(cat_mesh):
         ("--tip-limit", ["inf"], "argument --tip-limit: expected a finite number >= 0, got 'inf'"),
         ("--tip-weight", ["-1"], "argument --tip-weight: expected a finite number >= 0, got '-1'"),
         ("--jitter", ["nan"], "argument --jitter: expected a finite number >= 0, got 'nan'"),
+        # named as the option, before the search's banner (said "jitter"/"popsize", after it; an audit)
+        ("--jitter", ["0.5"], "argument --jitter: expected a number in [0, 0.5), got '0.5'"),
+        ("--popsize", ["1"], "argument --popsize: expected at least 2 (CMA-ES ranks the candidates), got '1'"),
     ],
 )
 def test_option_values_are_finite_before_any_work(tiny_scene, tmp_path, capsys, option, values, said):
     with pytest.raises(SystemExit) as usage:
         main(["optimize", tiny_scene, option, *values, "--out", str(tmp_path / "s")])
-    assert usage.value.code == 2 and said in capsys.readouterr().err
+    out = capsys.readouterr()
+    assert usage.value.code == 2 and said in out.err and out.out == ""
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_search_refused_by_the_library_is_said_without_its_banner(tmp_path, capsys):
+    """The banner ("CMA-ES over ...") came before the error, as if the search had begun (an audit)."""
+    scene = tmp_path / "float.toml"
+    scene.write_text('[mesh]\nshape = "caterpillar"\n[mesh.params]\nnx = 16\nny = 8\n')
+    assert main(["optimize", str(scene), "--generations", "1", "--out", str(tmp_path / "s")]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and "the scene has no ground and no pins" in out.err
     assert not (tmp_path / "s").exists()
 
 
