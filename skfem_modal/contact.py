@@ -435,7 +435,9 @@ class CoulombContact(_Ground):
         self._operators, self._last, self._made_for = {}, None, np.zeros(0, np.int64)
         # the compliance: a thousandth of a vertex's height row's own, e H^-1 e, on average
         sample = np.arange(0, self.vertices.size, max(1, self.vertices.size // 64)) * self.dim + self.up
-        reach = np.einsum("ij,ij->i", self._rows_of(sample), self._push_of(sample))
+        rows = self._rows_of(sample)
+        # not kept as pushes: those are each made alone (_push_of)
+        reach = np.einsum("ij,ji->i", rows, np.asarray(self.system.solve(np.ascontiguousarray(rows.T))))
         self.compliance = 1e-3 * float(reach.mean())
         # forces whose give needs no second solve (a body too stiff or damped to give at all: every force)
         self._quiet = min(0.1 * float(self.allowance.min()) / self.compliance, 1e150) ** 2
@@ -448,13 +450,19 @@ class CoulombContact(_Ground):
         return rows.toarray() if sps.issparse(rows) else rows
 
     def _push_of(self, candidate_rows) -> np.ndarray:
-        """``H^-1 B_row^T`` of candidate rows, shape (k, r), each made once."""
-        missing = candidate_rows[~self._made[candidate_rows]]
-        if missing.size:
-            missing = np.unique(missing)
-            made = self.system.solve(np.ascontiguousarray(self._rows_of(missing).T))
-            self._pushes[missing] = np.asarray(made).T
-            self._made[missing] = True
+        """``H^-1 B_row^T`` of candidate rows, shape (k, r), each made once.
+
+        A vertex's rows are solved together and alone: a solve of several columns rounds each by
+        the others (BLAS blocks them), so a push made in a batch differed in the last digits with
+        whatever else was missing then, and a run with its history (a fresh simulator, one
+        unpickled, one run before) differed in the 13th digit of a search's travel.
+        """
+        dim = self.dim
+        for vertex in np.unique(candidate_rows[~self._made[candidate_rows]] // dim):
+            rows = np.arange(vertex * dim, (vertex + 1) * dim)
+            made = self.system.solve(np.ascontiguousarray(self._rows_of(rows).T))
+            self._pushes[rows] = np.asarray(made).T
+            self._made[rows] = True
         return self._pushes[candidate_rows]
 
     def __getstate__(self):
