@@ -100,12 +100,14 @@ class MotionMonitor:
     """
 
     def __init__(self, sim, gravity=None):
-        B = np.asarray(sim.B)
-        dim = sim.dim
-        n = B.shape[0] // dim
-        self._mean = B.reshape(n, dim, -1).mean(axis=0)  # (dim, r): the vertices' mean position
-        self._gram = B.T @ B / n  # (r, r): z^T G z is the mean squared distance from the origin
-        self._com = sim.com
+        dim = self.dim = sim.dim
+        self._mean = self._gram = None  # the full space's state is the positions themselves
+        if sim.B is not None:
+            B = np.asarray(sim.B)
+            n = B.shape[0] // dim
+            self._mean = B.reshape(n, dim, -1).mean(axis=0)  # (dim, r): the vertices' mean position
+            self._gram = B.T @ B / n  # (r, r): z^T G z is the mean squared distance from the origin
+        self._com_rows = np.asarray(sim.com_rows)  # (dim, r)
         self.h = float(sim.h)
         z_rest = sim.rest_state()[0]
         rest = sim.positions(z_rest)
@@ -113,7 +115,7 @@ class MotionMonitor:
         self.rest_spread = self._spread(z_rest)
         g = np.zeros(dim) if gravity is None else np.asarray(gravity, dtype=np.float64)
         self._gravity_step = self.h**2 * g  # the second difference of free fall
-        self._previous = self._com(z_rest)
+        self._previous = self._com_rows @ z_rest
         self._velocity_step = np.zeros(dim)  # the last step's change of the centre of mass
         self.spread_ratio = [1.0, 1.0]  # least and largest
         self.push = 0.0  # largest, in body sizes
@@ -129,8 +131,17 @@ class MotionMonitor:
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
 
     def _spread(self, z) -> float:
-        mean = self._mean @ z
-        return math.sqrt(max(float(z @ (self._gram @ z) - mean @ mean), 0.0))
+        return float(self._spreads(z[None])[0])
+
+    def _spreads(self, states) -> np.ndarray:
+        """The root-mean-square distance of the vertices from their mean, of each state (T, r): shape (T,)."""
+        if self._gram is None:
+            x = states.reshape(states.shape[0], -1, self.dim)
+            x = x - x.mean(axis=1, keepdims=True)
+            return np.sqrt(np.einsum("tnd,tnd->t", x, x) / x.shape[1])
+        mean = states @ self._mean.T
+        squared = np.einsum("ij,ij->i", states @ self._gram, states) - np.einsum("ij,ij->i", mean, mean)
+        return np.sqrt(np.maximum(squared, 0.0))
 
     def update(self, step: int, z, a=None, clearance=None) -> None:
         """Take the state after ``step`` steps.
@@ -146,7 +157,7 @@ class MotionMonitor:
             ground: to tell a body held in the air.
         """
         self._commanded(step, a)
-        com = self._com(z)
+        com = self._com_rows @ z
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
         push = math.sqrt(float(excess @ excess)) / self.size
@@ -164,6 +175,33 @@ class MotionMonitor:
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
+
+    def run_problems(self, states) -> dict:
+        """The first steps of a run from rest whose push or spread is not physical, all at once.
+
+        What :meth:`update` finds step by step (``push`` and ``spread``; not the
+        ceilings or hovering), from the run's states in one pass: a rollout keeps its
+        states and asks once, at its end. Leaves the monitor as it was.
+
+        Parameters
+        ----------
+        states : ndarray, shape (T + 1, r)
+            The rest state (zero velocity), then the state after each step.
+
+        Returns
+        -------
+        first_problem_step : dict
+            ``push`` and ``spread`` (1-based steps), each where it was first seen; empty if none was.
+        """
+        states = np.asarray(states, dtype=np.float64)
+        change = np.diff(states @ self._com_rows.T, axis=0)  # (T, dim): the centre of mass's motion a step
+        excess = change - self._gravity_step
+        excess[1:] -= change[:-1]
+        push = np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
+        ratio = self._spreads(states[1:]) / self.rest_spread
+        within = (ratio >= 1.0 / SPREAD_LIMIT) & (ratio <= SPREAD_LIMIT)
+        found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(~within)}
+        return {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
 
     def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:
         """Count the steps in a row the body stays still, clear of the ground, held up by something."""

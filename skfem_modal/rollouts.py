@@ -51,6 +51,7 @@ import warnings
 import numpy as np
 
 from .mesh import body_size
+from .monitor import MotionMonitor
 from .muscles import sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
@@ -139,6 +140,8 @@ class Trial:
         self.tip_limit, self.tip_weight = float(tip_limit), float(tip_weight)
         self.size = body_size(sim.mesh)
         self.rotation_rows = body_rotation_rows(sim)
+        # a gait that blows the body up (finite) would score by how far it flung it
+        self.monitor = MotionMonitor(sim, sim.gravity)
         self._lock = threading.Lock()
 
     @classmethod
@@ -174,7 +177,12 @@ class Trial:
         score : dict
             ``fitness``, ``travel``, ``alignment``, ``max_tilt`` (radians),
             ``penalty``, ``finite`` (False: the run went non-finite, the
-            measures are NaN) and ``mean_iterations`` (local/global, a step).
+            measures are NaN), ``physical`` (False: it went non-finite, or
+            its body spread or was pushed beyond what the motion monitor
+            allows, :meth:`MotionMonitor.run_problems`) and
+            ``mean_iterations`` (local/global, a step). A run that is not
+            physical scores ``fitness`` -1000 body sizes, whatever it
+            travelled: a gait that flings a body apart must not win.
         """
         sim = self.sim
         amplitudes = np.asarray(gait["amplitude"], float) * sim.ceilings
@@ -182,18 +190,20 @@ class Trial:
         z = sim.rest_state()[0]
         frames = np.empty((self.steps + 1, self.rotation_rows.shape[0]))
         frames[0] = self.rotation_rows @ z
+        states = np.empty((self.steps + 1, z.size))
+        states[0] = z
         start = sim.com(z)
         iterations = 0
+        fail = -1e3 * self.size
         with self._lock:  # a dask worker may run several tasks at once on its one copy
             sim.reset()  # each rollout as a new simulator's: the same on any worker, and in a replay
             try:
                 for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases)):
                     frames[record.step] = self.rotation_rows @ record.z
+                    states[record.step] = record.z
                     iterations += record.iterations
-                    z = record.z
             except SimulationError:
                 nan = float("nan")
-                fail = -1e3 * self.size
                 return {
                     "fitness": fail,
                     "travel": nan,
@@ -201,9 +211,14 @@ class Trial:
                     "max_tilt": nan,
                     "penalty": nan,
                     "finite": False,
+                    "physical": False,
                     "mean_iterations": nan,
                 }
-        return {**self.score(sim.com(z) - start, frames), "mean_iterations": iterations / self.steps}
+        score = self.score(sim.com(states[-1]) - start, frames)
+        score["physical"] = not self.monitor.run_problems(states)
+        if not score["physical"]:
+            score["fitness"] = fail
+        return {**score, "mean_iterations": iterations / self.steps}
 
     def score(self, displacement, frames) -> dict:
         """Score a run from its centre of mass's displacement and its body frames.

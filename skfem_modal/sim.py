@@ -912,6 +912,13 @@ class ModalMuscle:
         """Centre of mass of a state ``z``, shape (r,), read straight from it: returns shape (dim,)."""
         return self._com @ self._state(z)
 
+    @property
+    def com_rows(self) -> np.ndarray:
+        """The centre of mass as a linear map of the state (``com(z) = com_rows @ z``), shape (dim, r), read-only."""
+        rows = self._com.view()
+        rows.flags.writeable = False
+        return rows
+
     def muscle_amplitudes(self, z) -> np.ndarray:
         """Realised modal amplitudes: the mass-weighted projection of ``B z - X`` on each muscle.
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from conftest import die
 
+import skfem_modal as sm
 from skfem_modal import optimize, rollouts, study
 from skfem_modal.cli import _joined_signed_values, main
 from skfem_modal.monitor import CeilingWarning
@@ -456,3 +457,41 @@ def test_a_scheduler_address_that_does_not_answer_is_named_and_leaves_no_folder(
     assert main([command, *extra, "--scheduler", "bogus", "--out", str(out)]) == 2
     assert "--scheduler bogus: no dask scheduler answers there (missing port number" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_gait_that_flings_the_body_apart_scores_as_a_failed_rollout():
+    """A finite blow-up scored by how far it flung the body: amplitude 1e12 gave fitness +8.8e11, and a
+    search with --amplitude-max 30 returned a gait that tore the body to 3.5 times its size (an audit)."""
+    data = {
+        "mesh": {"shape": "caterpillar", "params": {"nx": 28, "ny": 14}},
+        "material": {"mu": 1e6, "gamma": 1e6, "rho": 1e3},
+        "subspace": {"weights": 4, "clusters": 8},
+        "muscles": {"count": 2},
+        "time": {"step": 0.01, "steps": 80},
+        "gravity": {"acceleration": [0.0, -9.8]},
+        "ground": {"offset": 0.1, "friction": 0.5},
+    }
+    trial = rollouts.Trial.from_scene(data, steps=80, direction=[1.0, 0.0])
+    scores = {
+        amplitude: trial.run({"amplitude": [amplitude] * 2, "period": [1.0, 0.8], "phase": [0.0, 0.25]})
+        for amplitude in (0.4, 30.0, 1e12)
+    }
+    assert scores[0.4]["physical"] and abs(scores[0.4]["fitness"] - scores[0.4]["travel"]) < 1e-12
+    for amplitude in (30.0, 1e12):
+        score = scores[amplitude]
+        assert score["finite"] and not score["physical"] and score["fitness"] == -1e3 * trial.size
+        assert abs(score["travel"]) > 5.0  # it did fling it (1.3e11 at 1e12)
+    # the rollout's check at its end finds what the run's monitor finds step by step
+    sim = trial.sim
+    for amplitude in (0.4, 30.0):
+        monitor = type(trial.monitor)(sim, sim.gravity)
+        sim.reset()
+        z = sim.rest_state()[0]
+        states = [z]
+        gait = lambda t, a=amplitude: sm.sine_gait(t, a * sim.ceilings, [1.0, 0.8], [0.0, 0.25])  # noqa: E731
+        for record in sm.simulate(sim, 80, gait):
+            monitor.update(record.step, record.z)
+            states.append(record.z)
+        found = {k: v for k, v in monitor.first_problem_step.items() if k in ("push", "spread")}
+        assert trial.monitor.run_problems(np.array(states)) == found
+        assert bool(found) == (amplitude == 30.0)
