@@ -490,8 +490,8 @@ def cmd_optimize(args) -> int:
     say(
         f"best: travel {best['travel']:.4g}, alignment {best['alignment']:.3g} (fitness {best['fitness']:.4g}"
         + (f", travel spread {best['travel_spread']:.3g} over {args.samples} samples" if args.samples > 1 else "")
-        + f") in generation {best['generation']}; "
-        f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
+        + (f") in generation {best['generation']}; " if best["generation"] else ") in the gait it started from; ")
+        + f"{result['rollouts']} rollouts in {result['seconds']:.1f} s"
     )
     play = f"skfem-modal run {result['best_scene']} --out OUT"
     say(f"wrote {result['best_scene']} (play it: {play}), {result['history_csv']}")

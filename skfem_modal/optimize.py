@@ -423,7 +423,9 @@ def run_search(
         ) as rollouts:  # a scheduler that does not answer: before the folder is made
             if state is None:
                 gait = scene.config["muscles"]["gait"]
-                state = _new_state(settings, space.point(gait) if gait is not None else np.full(3 * m, 0.5))
+                start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
+                own = space.gait(start) if gait is None else _scene_gait(gait, m)
+                state = _scored_start(_new_state(settings, start), rollouts, own)
                 os.makedirs(out_dir, exist_ok=True)
                 for path in earlier:
                     os.remove(path)
@@ -534,7 +536,7 @@ def _restore(paths: dict, data: dict, objective: str) -> int:
 
 def _result(state: dict, paths: dict, precompute: float) -> dict:
     """What :func:`run_search` returns, from the last state."""
-    overall = _overall_best(state["history"])
+    overall = _overall_best(state)
     return {
         "best": {
             "gait": overall["gait"],
@@ -546,6 +548,7 @@ def _result(state: dict, paths: dict, precompute: float) -> dict:
             "generation": overall["generation"],
         },
         "history": state["history"],
+        "start": state.get("start"),
         "generations": state["generation"],
         "rollouts": state["rollouts"],
         "seconds": state["seconds"],
@@ -554,46 +557,80 @@ def _result(state: dict, paths: dict, precompute: float) -> dict:
     }
 
 
-def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
-    """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was)."""
-    samples, jitter, seed = (state["settings"][key] for key in ("samples", "jitter", "seed"))
-    clock = time.perf_counter()
-    es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
-    done = state["generation"]
-    points = es.ask()
-    gaits = [space.gait(u) for u in points]
+def _roll_out(rollouts, gaits: list, settings: dict, done: int, first: int = 0):
+    """Each gait's rollouts: its own, then ``samples - 1`` jittered copies; their scores, and the fitness of each.
+
+    ``done``: the generations done; ``first``: the first gait's index in its generation (the
+    copies' draws are fixed by the seed, the generation and the index).
+    """
+    samples, jitter, seed = (settings[key] for key in ("samples", "jitter", "seed"))
     tried = [
-        gait if k == 0 else _jittered(gait, jitter, (seed, done, i, k))
+        gait if k == 0 else _jittered(gait, jitter, (seed, done, first + i, k))
         for i, gait in enumerate(gaits)
         for k in range(samples)
     ]
     flat = rollouts.map(tried)
-    results = [flat[i * samples : (i + 1) * samples] for i in range(len(points))]
-    fitness = [float(np.mean([r["fitness"] for r in group])) for group in results]
-    es.tell(points, [-f for f in fitness])  # CMA-ES minimises
+    groups = [flat[i * samples : (i + 1) * samples] for i in range(len(gaits))]
+    return groups, [float(np.mean([r["fitness"] for r in group])) for group in groups]
+
+
+def _row(generation: int, gaits: list, groups: list, fitness: list) -> dict:
+    """A history row: the best of ``gaits`` by ``fitness``, its own rollout's measures, and the workers'."""
     best = int(np.argmax(fitness))
-    own = results[best][0]
-    row = {
-        "generation": done + 1,
+    own = groups[best][0]
+    flat = [r for group in groups for r in group]
+    return {
+        "generation": generation,
         "best_fitness": fitness[best],
         "best_travel": own["travel"],
         "best_alignment": own["alignment"],
         "best_max_tilt_degrees": float(np.degrees(own["max_tilt"])),
-        "best_travel_spread": float(np.std([r["travel"] for r in results[best]])),
+        "best_travel_spread": float(np.std([r["travel"] for r in groups[best]])),
         "mean_fitness": float(np.mean(fitness)),
-        "sigma": float(es.sigma),
-        "seconds": time.perf_counter() - clock,
         "gait": gaits[best],
         "workers": sorted({r["pid"] for r in flat}),
         "received": max(r["received"] for r in flat),
         "built": max(r["built"] for r in flat),
     }
+
+
+def _scene_gait(gait: dict, m: int) -> dict:
+    """A scene's gait as a rollout takes it: ``m`` floats each (a phase not given is 0)."""
+    phase = gait["phase"] if gait["phase"] is not None else [0.0] * m
+    values = {"amplitude": gait["amplitude"], "period": gait["period"], "phase": phase}
+    return {key: [float(v) for v in given] for key, given in values.items()}
+
+
+def _scored_start(state: dict, rollouts, gait: dict) -> dict:
+    """The state with the gait the search starts from scored (``start``, a row of generation 0).
+
+    It is a candidate too: a search that finds nothing better returns it, never a worse gait
+    than it was given (an audit: two generations ended at fitness 1.2 from a gait of 15).
+    """
+    clock = time.perf_counter()
+    groups, fitness = _roll_out(rollouts, [gait], state["settings"], 0, first=state["settings"]["popsize"])
+    row = {**_row(0, [gait], groups, fitness), "sigma": state["settings"]["sigma0"]}
+    row["seconds"] = time.perf_counter() - clock
+    return {**state, "start": row, "rollouts": state["rollouts"] + len(groups[0]), "seconds": row["seconds"]}
+
+
+def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
+    """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was)."""
+    clock = time.perf_counter()
+    es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
+    done = state["generation"]
+    points = es.ask()
+    gaits = [space.gait(u) for u in points]
+    groups, fitness = _roll_out(rollouts, gaits, state["settings"], done)
+    es.tell(points, [-f for f in fitness])  # CMA-ES minimises
+    row = {**_row(done + 1, gaits, groups, fitness), "sigma": float(es.sigma)}
+    row["seconds"] = time.perf_counter() - clock
     return {
         **state,
         "es": es,
         "history": state["history"] + [row],
         "generation": done + 1,
-        "rollouts": state["rollouts"] + len(flat),
+        "rollouts": state["rollouts"] + sum(len(group) for group in groups),
         "seconds": state["seconds"] + row["seconds"],
         "numpy_random": np.random.get_state(),
     }
@@ -619,8 +656,10 @@ def _jittered(gait: dict, jitter: float, key) -> dict:
     }
 
 
-def _overall_best(history: list) -> dict:
-    return max(history, key=lambda h: h["best_fitness"])
+def _overall_best(state: dict) -> dict:
+    """The best row of a search: of its generations, or the gait it started from (generation 0) if none beat it."""
+    start = [state["start"]] if state.get("start") else []  # (a checkpoint of an earlier version has none)
+    return max(start + state["history"], key=lambda h: h["best_fitness"])
 
 
 #: history.csv's columns (the last, the gait, as JSON)
@@ -651,11 +690,12 @@ def _write_outputs(paths: dict, data: dict, state: dict) -> None:
             )
 
     _write_atomic(paths["history_csv"], table, "w")
-    overall = _overall_best(history)
+    overall = _overall_best(state)
+    where = f"generation {overall['generation']}" if overall["generation"] else "the gait it started from"
     best = json.loads(json.dumps(data))
     best["name"] = (
         f"{data.get('name', 'scene')} (best gait of {state['generation']} generations: "
-        f"generation {overall['generation']}, travel {overall['best_travel']:.4g})"
+        f"{where}, travel {overall['best_travel']:.4g})"
     )
     best.setdefault("muscles", {})["gait"] = overall["gait"]
     best["muscles"].pop("table", None)

@@ -60,9 +60,10 @@ def test_gait_space_round_trip():
 
 
 def test_search_writes_a_playable_best_gait(local, tmp_path):
-    assert local["generations"] == 2 and local["rollouts"] == 8
+    assert local["generations"] == 2 and local["rollouts"] == 9  # the gait it starts from is scored too
     best = local["best"]
-    assert best["fitness"] == max(h["best_fitness"] for h in local["history"])
+    assert local["start"]["generation"] == 0 and local["start"]["gait"] == TINY["muscles"]["gait"]
+    assert best["fitness"] == max(h["best_fitness"] for h in [local["start"]] + local["history"])
     # the best gait scene file plays, and travels what the search measured
     data = tomllib.loads(open(local["best_scene"]).read())
     for key in best["gait"]:
@@ -93,11 +94,11 @@ def test_same_seed_same_result(local, tmp_path):
 
 def test_killed_and_resumed_ends_where_an_uninterrupted_search_ends(local, tmp_path, capsys):
     first = search(tmp_path, workers=1, stop_after=1)
-    assert first["generations"] == 1 and first["rollouts"] == 4
+    assert first["generations"] == 1 and first["rollouts"] == 5
     assert len(list(csv.DictReader(open(first["history_csv"])))) == 1  # written after each generation
     resumed = search(tmp_path, workers=1, resume=True, progress=True)
     assert resumed["generations"] == 2
-    assert resumed["rollouts"] == 8  # counted over the whole search
+    assert resumed["rollouts"] == 9  # counted over the whole search
     assert [h["best_fitness"] for h in resumed["history"]] == [h["best_fitness"] for h in local["history"]]
     assert resumed["best"] == local["best"]
     # the progress count went on from the checkpoint's generation
@@ -146,7 +147,7 @@ def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
     assert not (tmp_path / "bad").exists()  # refused before anything was written
     # --overwrite starts again: the same as a search in an empty folder
     again = search(tmp_path, workers=1, overwrite=True)
-    assert again["generations"] == 2 and again["rollouts"] == 8
+    assert again["generations"] == 2 and again["rollouts"] == 9
     assert again["best"] == local["best"]
 
 
@@ -229,7 +230,7 @@ def test_local_pool_workers_use_one_blas_thread(monkeypatch):
 
 def test_samples_average_jittered_copies(tmp_path):
     result = search(tmp_path / "a", workers=1, samples=3, jitter=0.02)
-    assert result["rollouts"] == 2 * 4 * 3
+    assert result["rollouts"] == 3 + 2 * 4 * 3  # the gait it starts from, then two generations
     best = result["best"]
     # the best gait's own rollout is the travel reported; the fitness is the mean of its samples
     data = tomllib.loads(open(result["best_scene"]).read())

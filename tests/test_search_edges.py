@@ -62,8 +62,8 @@ def test_a_scene_with_a_table_is_searched_from_any_folder(tmp_path, monkeypatch,
     assert main([*args, *QUICK]) == 0, capsys.readouterr().err
     best = tomllib.loads((tmp_path / "bp" / "best_gait.toml").read_text())
     assert "table" not in best["muscles"] and len(best["muscles"]["gait"]["amplitude"]) == 2  # the gait replaces it
-    with open(tmp_path / "bp" / "history.csv") as f:
-        travel = float(next(csv.DictReader(f))["best_travel"])
+    state = optimize.read_checkpoint(str(tmp_path / "bp" / "checkpoint.pkl"))
+    travel = max([state["start"]] + state["history"], key=lambda row: row["best_fitness"])["best_travel"]
     assert run_scene(Scene.from_dict(best), None)["com"]["travel"][1] == pytest.approx(travel, rel=1e-9, abs=1e-12)
     # without the table beside the scene: refused, naming it, before any folder is made
     shutil.copy(EXAMPLES / "beam_pinned.toml", tmp_path / "lonely.toml")
@@ -118,7 +118,9 @@ def test_the_command_says_how_to_resume_a_search_that_lost_its_workers(tiny_scen
     args = ["optimize", tiny_scene, "--generations", "3", "--popsize", "4", "--steps", "60", "--seed", "3"]
     args += ["--out", str(out), "-q"]
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(rollouts, "make_executor", killing_pools(study.make_executor, after=4))  # in generation 2
+        patch.setattr(
+            rollouts, "make_executor", killing_pools(study.make_executor, after=5)
+        )  # in generation 2 (after the start and generation 1)
         assert main(args) == 4
     err = capsys.readouterr().err
     assert err == (
@@ -495,3 +497,23 @@ def test_a_gait_that_flings_the_body_apart_scores_as_a_failed_rollout():
         found = {k: v for k, v in monitor.first_problem_step.items() if k in ("push", "spread")}
         assert trial.monitor.run_problems(np.array(states)) == found
         assert bool(found) == (amplitude == 30.0)
+
+
+def test_a_search_never_returns_a_gait_worse_than_the_one_it_started_from(tmp_path):
+    """The scene's own gait was never scored: two generations in a box that excluded it returned a gait of
+    fitness 1.2 from one of 15 (an audit). It is scored first, as generation 0, and kept if none beats it."""
+    data = copy.deepcopy(TINY)
+    data["muscles"]["gait"] = {"amplitude": [0.45, 0.35, 0.25, 0.15], "period": [1.2, 0.8, 1.0, 0.6],
+                               "phase": [0.0, 0.25, 0.5, 0.1]}  # fmt: skip
+    space = GaitSpace(4, amplitude_max=0.01)  # candidates that barely move
+    result = run_search(
+        data, tmp_path / "s", generations=1, popsize=2, seed=3, steps=40, space=space, workers=1, direction=[-1.0, 0.0]
+    )
+    own = rollouts.Trial.from_scene(data, steps=40, direction=[-1.0, 0.0]).run(data["muscles"]["gait"])
+    best = result["best"]
+    assert best["generation"] == 0 and best["gait"] == data["muscles"]["gait"]
+    assert best["fitness"] == own["fitness"] and best["travel"] == own["travel"]
+    assert best["fitness"] > result["history"][0]["best_fitness"]  # no candidate did better
+    assert result["rollouts"] == 3  # the start, then the generation's two
+    saved = tomllib.loads((tmp_path / "s" / "best_gait.toml").read_text())
+    assert saved["muscles"]["gait"] == data["muscles"]["gait"] and "the gait it started from" in saved["name"]
