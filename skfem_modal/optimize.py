@@ -49,7 +49,7 @@ import numpy as np
 from .export import written_whole
 from .monitor import CeilingWarning
 from .outputs import SEARCH_FILES, TRANSFER_FILE, check_output_folder, listed
-from .rollouts import OBJECTIVES, Rollouts, Trial
+from .rollouts import OBJECTIVES, Rollouts, Trial, rollout_steps
 from .run import Progress
 from .study import WorkersLost
 
@@ -458,13 +458,13 @@ def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: 
     """
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
-    if isinstance(steps, bool) or not (steps is None or isinstance(steps, (int, np.integer)) and steps >= 1):
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    steps = scene.n_steps if steps is None else steps
+    rollout_steps(steps)
     for name, value in (("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
         if not (np.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be non-negative, got {value!r}")
     return {
-        "steps": int(steps or scene.n_steps),
+        "steps": int(steps),
         "direction": _unit_direction(direction, scene.dim).tolist(),
         "objective": objective,
         "tip_limit": float(np.radians(tip_limit_degrees)),
@@ -474,8 +474,10 @@ def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: 
 
 def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
     """CMA-ES's settings: at least a generation of at least two candidates, a positive first step."""
-    if generations < 1 or popsize < 2:
-        raise ValueError(f"need generations >= 1 and popsize >= 2, got {generations} and {popsize}")
+    for name, value, least in (("generations", generations, 1), ("popsize", popsize, 2)):
+        # a fraction ran: 2.5 generations ran 3
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            raise ValueError(f"{name} must be an integer of at least {least}, got {value!r}")
     if not (np.isfinite(sigma0) and sigma0 > 0):
         raise ValueError(f"sigma0 must be positive, got {sigma0!r}")
 

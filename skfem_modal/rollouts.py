@@ -58,7 +58,7 @@ from .sim import SimulationError, simulate
 from .study import WorkersLost, dask_client, lost_workers, make_executor
 from .threads import limited_blas_threads
 
-__all__ = ["OBJECTIVES", "Trial", "Rollouts", "rollout", "body_rotation_rows"]
+__all__ = ["OBJECTIVES", "MAX_ROLLOUT_STEPS", "Trial", "Rollouts", "rollout", "rollout_steps", "body_rotation_rows"]
 
 #: The objectives a :class:`Trial` scores with.
 OBJECTIVES = ("travel", "aligned")
@@ -67,6 +67,22 @@ OBJECTIVES = ("travel", "aligned")
 _TRIALS: dict = {}
 _COUNTS = {"received": 0, "built": 0}
 _BLAS_LIMIT: list = []  # the open thread limit of this worker process (kept open while it lives)
+
+
+#: Steps a rollout may have at most: it keeps each step's state (a million steps of 100 coordinates: 0.8 GB).
+MAX_ROLLOUT_STEPS = 1_000_000
+
+
+def rollout_steps(steps) -> int:
+    """A rollout's length, checked: a positive integer up to :data:`MAX_ROLLOUT_STEPS`."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    if steps > MAX_ROLLOUT_STEPS:  # 2e10 asked a worker for 596 GiB
+        raise ValueError(
+            f"steps: {steps} is more than {MAX_ROLLOUT_STEPS:.0e} steps a rollout (it keeps every step's "
+            "state): give fewer"
+        )
+    return int(steps)
 
 
 def body_rotation_rows(sim) -> np.ndarray:
@@ -128,8 +144,7 @@ class Trial:
     def __init__(self, sim, steps: int, direction, objective: str = "travel", tip_limit=np.pi / 3, tip_weight=10.0):
         if objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise ValueError(f"steps must be a positive integer, got {steps!r}")
+        rollout_steps(steps)
         direction = np.asarray(direction, dtype=float)
         if direction.shape != (sim.dim,) or not np.linalg.norm(direction) > 0:
             raise ValueError(f"direction must be a non-zero vector of {sim.dim} values, got {direction.tolist()}")

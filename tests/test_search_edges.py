@@ -517,3 +517,17 @@ def test_a_search_never_returns_a_gait_worse_than_the_one_it_started_from(tmp_pa
     assert result["rollouts"] == 3  # the start, then the generation's two
     saved = tomllib.loads((tmp_path / "s" / "best_gait.toml").read_text())
     assert saved["muscles"]["gait"] == data["muscles"]["gait"] and "the gait it started from" in saved["name"]
+
+
+def test_counts_are_whole_and_a_rollout_s_length_bounded_before_any_work(tmp_path, tiny_scene, capsys):
+    """2.5 generations ran 3; --steps 2e10 failed in a worker asking 596 GiB, raw, with a folder left (an audit)."""
+    for kw, said in (
+        ({"generations": 2.5}, "generations must be an integer of at least 1, got 2.5"),
+        ({"popsize": 4.5}, "popsize must be an integer of at least 2, got 4.5"),
+        ({"steps": 2 * 10**10}, "steps: 20000000000 is more than 1e[+]06 steps a rollout"),
+    ):
+        with pytest.raises(ValueError, match=said):
+            run_search(TINY, tmp_path / "s", **{"generations": 1, "popsize": 2, "steps": 20, **kw})
+    assert main(["optimize", tiny_scene, "--steps", "20000000000", "--out", str(tmp_path / "s"), "-q"]) == 2
+    assert "steps: 20000000000 is more than 1e+06 steps a rollout" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
