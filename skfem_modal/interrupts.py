@@ -17,10 +17,13 @@ are held; a signal whose default ends the process still does so at once.
 from __future__ import annotations
 
 import contextlib
+import multiprocessing.context
+import os
 import signal
 import threading
+import time
 
-__all__ = ["Terminated", "terminate_as_interrupt", "HeldSignals"]
+__all__ = ["Terminated", "terminate_as_interrupt", "HeldSignals", "QuietSpawnContext", "exit_with_parent"]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -100,3 +103,45 @@ class HeldSignals:
             if not self._holding and self._pending is not None:
                 (signum, frame), self._pending = self._pending, None
                 self._previous[signum](signum, frame)
+
+
+class _QuietSpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawned process that starts with Ctrl-C blocked (inherited through fork and exec).
+
+    A worker's Python imports numpy and the rest before its pool's initializer
+    can ignore SIGINT: a Ctrl-C in those seconds printed a traceback from each
+    worker, ending in numpy's import. Blocked in the parent's thread only while
+    it starts the process, the signal still reaches the parent.
+    """
+
+    def start(self):
+        if not hasattr(signal, "pthread_sigmask"):  # not on Windows: started as it is
+            return super().start()
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            return super().start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+class QuietSpawnContext(multiprocessing.context.SpawnContext):
+    """The spawn context for pools whose workers leave Ctrl-C to their parent (:class:`_QuietSpawnProcess`)."""
+
+    Process = _QuietSpawnProcess
+
+
+def exit_with_parent(poll: float = 1.0) -> None:
+    """In a pool's worker: end this process once the process that started it is gone.
+
+    A parent killed outright (SIGKILL, the out-of-memory killer) cannot shut its
+    pool down: its workers, handed to init, held 191 MB each for good (an audit).
+    A daemon thread checks every ``poll`` seconds.
+    """
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(poll)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()

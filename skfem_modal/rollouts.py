@@ -50,6 +50,7 @@ import warnings
 
 import numpy as np
 
+from .interrupts import exit_with_parent
 from .mesh import body_size
 from .monitor import MotionMonitor
 from .muscles import sine_gait
@@ -277,6 +278,7 @@ def _install(key: str, payload: bytes, blas_threads) -> None:
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     warnings.simplefilter("ignore")
+    exit_with_parent()
     _limit_blas(blas_threads)
     _TRIALS[key] = pickle.loads(payload)
 
@@ -354,7 +356,11 @@ class Rollouts:
             self.handle = uuid.uuid4().hex
             payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
             self.executor, self._close = make_executor(
-                workers, None, initializer=_install, initargs=(self.handle, payload, blas_threads)
+                workers,
+                None,
+                initializer=_install,
+                initargs=(self.handle, payload, blas_threads),
+                quiet_interrupts=True,
             )
         self.startup_seconds = time.perf_counter() - clock
 

@@ -45,6 +45,7 @@ from concurrent.futures import Executor, ProcessPoolExecutor
 import numpy as np
 
 from .export import written_whole
+from .interrupts import QuietSpawnContext, exit_with_parent
 from .mesh import body_size
 from .outputs import clear_earlier_study
 from .sim import simulate
@@ -583,9 +584,12 @@ def _quiet_worker() -> None:
     the caller's words (the command line's ``skfem-modal study: warning: ...``).
     """
     warnings.simplefilter("ignore")
+    exit_with_parent()
 
 
-def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer=None, initargs=()):
+def make_executor(
+    workers: int = 1, scheduler: str | None = None, *, initializer=None, initargs=(), quiet_interrupts: bool = False
+):
     """The executor a study (or a gait search) runs on.
 
     Parameters
@@ -598,6 +602,9 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
     initializer : callable, optional
         Called with ``initargs`` in each local pool process as it starts
         (``initargs`` are pickled once per process).
+    quiet_interrupts : bool
+        The local pool's processes start with Ctrl-C blocked, left to the
+        caller (:class:`~skfem_modal.interrupts.QuietSpawnContext`).
 
     Returns
     -------
@@ -645,7 +652,7 @@ def make_executor(workers: int = 1, scheduler: str | None = None, *, initializer
     os.environ.update({name: "1" for name in _ONE_THREAD})
     pool = ProcessPoolExecutor(
         max_workers=workers,
-        mp_context=multiprocessing.get_context("spawn"),
+        mp_context=QuietSpawnContext() if quiet_interrupts else multiprocessing.get_context("spawn"),
         initializer=initializer,
         initargs=initargs,
     )

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 import tomllib
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -21,6 +22,7 @@ from conftest import die
 import skfem_modal as sm
 from skfem_modal import optimize, rollouts, study
 from skfem_modal.cli import _joined_signed_values, main
+from skfem_modal.interrupts import QuietSpawnContext
 from skfem_modal.monitor import CeilingWarning
 from skfem_modal.optimize import GaitSpace, SearchInterrupted, SearchWorkersLost, run_search, scene_to_toml
 from skfem_modal.run import run_scene
@@ -531,3 +533,44 @@ def test_counts_are_whole_and_a_rollout_s_length_bounded_before_any_work(tmp_pat
     assert main(["optimize", tiny_scene, "--steps", "20000000000", "--out", str(tmp_path / "s"), "-q"]) == 2
     assert "steps: 20000000000 is more than 1e+06 steps a rollout" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def _children(pid: int) -> list[int]:
+    listed = subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)], capture_output=True, text=True).stdout
+    return [int(p) for p in listed.split()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"  # a zombie has ended (its parent, now init, reaps it)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc and ps --ppid")
+def test_a_search_killed_outright_leaves_no_worker_behind(tmp_path, tiny_scene):
+    """SIGKILL of the search: its pool workers were handed to init and held 191 MB each for good (an audit)."""
+    args = ["optimize", tiny_scene, "--generations", "200", "--popsize", "4", "--steps", "60", "--workers", "2"]
+    search = subprocess.Popen([sys.executable, "-m", "skfem_modal.cli", *args, "--out", str(tmp_path / "s"), "-q"])
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and not (tmp_path / "s" / "history.csv").exists():
+            time.sleep(0.2)
+        workers = [pid for pid in _children(search.pid) if "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text()]
+        assert len(workers) == 2
+    finally:
+        search.kill()
+        search.wait()
+    deadline = time.time() + 10
+    while time.time() < deadline and any(_alive(pid) for pid in workers):
+        time.sleep(0.2)
+    assert not any(_alive(pid) for pid in workers)
+
+
+def test_a_search_s_workers_start_with_ctrl_c_left_to_it():
+    """A Ctrl-C while a worker still imported numpy printed its traceback (an audit): it starts with SIGINT blocked."""
+    with ProcessPoolExecutor(1, mp_context=QuietSpawnContext()) as pool:
+        blocked = pool.submit(signal.pthread_sigmask, signal.SIG_BLOCK, []).result(timeout=60)
+    assert signal.SIGINT in blocked
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])  # the caller's own is as it was
