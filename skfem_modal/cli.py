@@ -415,8 +415,9 @@ def _resume_command(argv) -> str:
     """The command line that resumes an interrupted search (the same options, --resume instead of --overwrite)."""
     import shlex
 
-    words = [w for w in argv if w != "--overwrite"]
-    return shlex.join(["skfem-modal", *words] + ([] if "--resume" in words else ["--resume"]))
+    words = [w for w in argv if not _is_option(w, "--overwrite")]
+    resumed = any(_is_option(w, "--resume") for w in words)
+    return shlex.join(["skfem-modal", *words] + ([] if resumed else ["--resume"]))
 
 
 def _next_command(argv, generations: int) -> str:
@@ -425,7 +426,12 @@ def _next_command(argv, generations: int) -> str:
 
     if generations:
         return f"resume it with: {_resume_command(argv)}"
-    return f"start it again with: {shlex.join(['skfem-modal', *(w for w in argv if w != '--resume')])}"
+    return f"start it again with: {shlex.join(['skfem-modal', *(w for w in argv if not _is_option(w, '--resume'))])}"
+
+
+def _is_option(word: str, option: str) -> bool:
+    """Whether ``word`` is ``option`` as argparse took it: whole, or a prefix of it (``--overw``)."""
+    return word.startswith("--") and len(word) > 2 and option.startswith(word)
 
 
 #: Options whose value may start with "-" (``--direction -x``): argparse would read it as an option.

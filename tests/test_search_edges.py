@@ -574,3 +574,13 @@ def test_a_search_s_workers_start_with_ctrl_c_left_to_it():
         blocked = pool.submit(signal.pthread_sigmask, signal.SIG_BLOCK, []).result(timeout=60)
     assert signal.SIGINT in blocked
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])  # the caller's own is as it was
+
+
+def test_the_printed_command_knows_an_abbreviated_option():
+    """argparse takes --overw for --overwrite: the resume command kept it beside --resume, refused (an audit)."""
+    from skfem_modal.cli import _next_command
+
+    argv = ["optimize", "a.toml", "--overw", "--out", "s", "-q"]
+    assert _next_command(argv, 2) == "resume it with: skfem-modal optimize a.toml --out s -q --resume"
+    assert _next_command(["optimize", "--res", "-q"], 0) == "start it again with: skfem-modal optimize -q"
+    assert _next_command(["optimize", "--res", "-q"], 1) == "resume it with: skfem-modal optimize --res -q"
