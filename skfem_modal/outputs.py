@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import re
+import tempfile
 
 __all__ = [
     "RUN_FILES",
@@ -98,6 +99,25 @@ def _file_in_the_way(directory: str) -> str | None:
         path = parent
 
 
+def _check_writable(directory: str) -> None:
+    """Raise PermissionError, naming the output folder, if a folder cannot be made where it is (or in it).
+
+    Tried, not read off the permissions (root passes those, and /proc refuses all the
+    same): an empty folder is made and removed. Found at the end, a search's output
+    folder was refused after its precompute, the error naming only the path.
+    """
+    existing = os.path.abspath(directory)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".skfem_modal-", dir=existing))
+    except OSError as err:
+        raise PermissionError(
+            f"the output folder {directory!r} cannot be written: {existing!r} refuses a new folder "
+            f"({err.strerror}); choose another output folder"
+        ) from None
+
+
 def earlier_study(directory) -> list[str]:
     """The files an earlier study wrote in ``directory`` (sorted; empty when there are none)."""
     return sorted(p for p in _found(os.fspath(directory), _STUDY) if os.path.isfile(p))
@@ -137,6 +157,9 @@ def check_output_folder(directory, kind: str) -> list[str]:
     FileExistsError
         ``directory`` (or a folder on its path) is a file, or it holds
         another kind's output: a run, a study and a search never share a folder.
+    PermissionError
+        Nothing can be written there (a folder made in it, or in the nearest
+        folder of its path that exists, is refused).
     """
     directory = os.fspath(directory)
     blocking = _file_in_the_way(directory)
@@ -145,6 +168,7 @@ def check_output_folder(directory, kind: str) -> list[str]:
         raise FileExistsError(
             f"the output folder {directory!r} {what} a file, not a folder: choose another output folder"
         )
+    _check_writable(directory)
     for other, earlier in _KINDS.items():
         others = earlier(directory) if other != kind else []
         if others:

@@ -584,3 +584,13 @@ def test_the_printed_command_knows_an_abbreviated_option():
     assert _next_command(argv, 2) == "resume it with: skfem-modal optimize a.toml --out s -q --resume"
     assert _next_command(["optimize", "--res", "-q"], 0) == "start it again with: skfem-modal optimize -q"
     assert _next_command(["optimize", "--res", "-q"], 1) == "resume it with: skfem-modal optimize --res -q"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc, which refuses new folders")
+@pytest.mark.parametrize("command", [["run"], ["study", "--quick"], ["optimize", "--generations", "1"]])
+def test_an_output_folder_nothing_can_be_written_in_is_named_before_any_work(command, capsys):
+    """Found only when the folder was made: a search's after its precompute, naming only the path (an audit)."""
+    assert main([*command, "--out", "/proc/skfem_modal_out", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert f"skfem-modal {command[0]}: error: the output folder '/proc/skfem_modal_out' cannot be written: " in err
+    assert "'/proc' refuses a new folder" in err
