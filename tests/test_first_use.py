@@ -257,7 +257,7 @@ def test_version_and_defaults_in_help(capsys):
         assert shown in helps["modes"]
     for shown in (
         "generations (default: 20)",
-        "generation (default: 12)",
+        "generation (at least 2) (default: 12)",
         "(default: 0.3 2.0)",
         "ceiling (default: 1.0)",
         "(0 to 4294967294) (default: 0)",  # a default of 0 was left unsaid (0 == False; an audit)
