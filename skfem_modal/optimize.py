@@ -517,12 +517,13 @@ def _new_state(settings: dict, x0) -> dict:
 def _save(paths: dict, data: dict, state: dict) -> None:
     """The checkpoint of a search state, then the files that follow it (history.csv, best_gait.toml).
 
-    A ``transfer.csv`` beside them replayed an earlier best gait: it goes.
+    A ``transfer.csv`` beside them replayed the best gait before this generation: it goes if
+    this generation found a better one (kept otherwise: it was removed on every resume).
     """
     _write_atomic(paths["checkpoint"], lambda f: pickle.dump(state, f))
     _write_outputs(paths, data, state)
     stale = os.path.join(os.path.dirname(paths["checkpoint"]), TRANSFER_FILE)
-    if os.path.exists(stale):
+    if _overall_best(state)["generation"] == state["generation"] and os.path.exists(stale):
         os.remove(stale)
 
 

@@ -371,8 +371,19 @@ def test_a_resumed_search_that_goes_on_drops_the_transfer_of_its_old_best(tmp_pa
     (tmp_path / "transfer.csv").write_text("setting,travel\nas searched,0.1\n")
     search(tmp_path, workers=1, generations=1, resume=True)  # no new generation: the replay still stands
     assert (tmp_path / "transfer.csv").exists()
-    search(tmp_path, workers=1, resume=True)
-    assert not (tmp_path / "transfer.csv").exists()
+    went_on = search(tmp_path, workers=1, resume=True)
+    # dropped when the new generation found a better gait, kept when the replay is still of the best one
+    assert (tmp_path / "transfer.csv").exists() == (went_on["best"]["generation"] != 2)
+
+
+def test_a_resumed_search_whose_best_stays_keeps_its_transfer(tmp_path):
+    """Removed on every resume though the best gait had not changed (an audit)."""
+    space, kw = GaitSpace(4, amplitude_max=0.01), dict(popsize=2, seed=3, steps=40, workers=1, direction=[-1.0, 0.0])
+    run_search(TINY, tmp_path, generations=1, space=space, **kw)
+    (tmp_path / "transfer.csv").write_text("setting,travel\nas searched,0.1\n")
+    result = run_search(TINY, tmp_path, generations=2, space=space, resume=True, **kw)
+    assert result["best"]["generation"] == 0  # the crawl it started from, which candidates this small never beat
+    assert (tmp_path / "transfer.csv").exists()
 
 
 def test_a_search_run_and_study_never_share_a_folder(tiny_scene, tmp_path, capsys):
