@@ -47,6 +47,18 @@ def cat_mesh():
     return caterpillar()
 
 
+#: A small caterpillar crawling on the ground with Coulomb friction, two muscles (150 steps).
+COULOMB_CRAWL = {
+    "mesh": {"shape": "caterpillar", "params": {"nx": 28, "ny": 14}},
+    "material": {"mu": 1e6, "gamma": 1e6, "rho": 1e3},
+    "subspace": {"weights": 4, "clusters": 8},
+    "muscles": {"count": 2},
+    "time": {"step": 0.01, "steps": 150},
+    "gravity": {"acceleration": [0.0, -9.8]},
+    "ground": {"offset": 0.1, "friction": 0.5},
+}
+
+
 def die():
     """A task that kills the worker process running it (SIGKILL, as the out-of-memory killer does)."""
     import os

@@ -12,6 +12,7 @@ import pickle
 import numpy as np
 import pytest
 import skfem
+from conftest import COULOMB_CRAWL
 
 import skfem_modal as sm
 from skfem_modal.contact import ALLOWANCE
@@ -506,17 +507,6 @@ def test_the_example_scenes_crawl_with_every_vertex_above_the_ground(example):
     assert np.abs(travel[: len(travel) - 1]).max() > 0.02  # it moves along the ground
 
 
-CRAWL = {
-    "mesh": {"shape": "caterpillar", "params": {"nx": 28, "ny": 14}},
-    "material": {"mu": 1e6, "gamma": 1e6, "rho": 1e3},
-    "subspace": {"weights": 4, "clusters": 8},
-    "muscles": {"count": 2},
-    "time": {"step": 0.01, "steps": 150},
-    "gravity": {"acceleration": [0.0, -9.8]},
-    "ground": {"offset": 0.1, "friction": 0.5},
-}
-
-
 def test_a_run_with_coulomb_contact_does_not_depend_on_what_ran_before():
     """Fresh, unpickled, or reset after another gait: the same trajectory to the last bit.
 
@@ -524,7 +514,7 @@ def test_a_run_with_coulomb_contact_does_not_depend_on_what_ran_before():
     with whatever else was missing then, which rounds it by the batch, and a search's best gait
     replayed by ``skfem-modal run`` differed in the 13th digit of its travel (an audit).
     """
-    scene = Scene.from_dict(CRAWL)
+    scene = Scene.from_dict(COULOMB_CRAWL)
     gaits = [lambda t, a=a: sm.sine_gait(t, a * np.ones(2), [1.0, 0.8], [0.0, 0.25]) for a in (0.9, 0.4)]
 
     def run(sim, gait):

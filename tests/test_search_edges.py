@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import die
+from conftest import COULOMB_CRAWL, die
 
 import skfem_modal as sm
 from skfem_modal import optimize, rollouts, study
@@ -477,16 +477,7 @@ def test_a_scheduler_address_that_does_not_answer_is_named_and_leaves_no_folder(
 def test_a_gait_that_flings_the_body_apart_scores_as_a_failed_rollout():
     """A finite blow-up scored by how far it flung the body: amplitude 1e12 gave fitness +8.8e11, and a
     search with --amplitude-max 30 returned a gait that tore the body to 3.5 times its size (an audit)."""
-    data = {
-        "mesh": {"shape": "caterpillar", "params": {"nx": 28, "ny": 14}},
-        "material": {"mu": 1e6, "gamma": 1e6, "rho": 1e3},
-        "subspace": {"weights": 4, "clusters": 8},
-        "muscles": {"count": 2},
-        "time": {"step": 0.01, "steps": 80},
-        "gravity": {"acceleration": [0.0, -9.8]},
-        "ground": {"offset": 0.1, "friction": 0.5},
-    }
-    trial = rollouts.Trial.from_scene(data, steps=80, direction=[1.0, 0.0])
+    trial = rollouts.Trial.from_scene(COULOMB_CRAWL, steps=80, direction=[1.0, 0.0])
     scores = {
         amplitude: trial.run({"amplitude": [amplitude] * 2, "period": [1.0, 0.8], "phase": [0.0, 0.25]})
         for amplitude in (0.4, 30.0, 1e12)
