@@ -446,7 +446,14 @@ def read_scene_file(path) -> dict:
         try:
             return tomllib.load(f)
         except tomllib.TOMLDecodeError as err:
-            raise SceneError(f"{path}: not valid TOML: {err}") from None
+            suffix = os.path.splitext(path)[1].lower()
+            hint = (
+                f" (a {suffix} file is not a scene: to simulate a mesh, write a scene whose [mesh] file names it, "
+                "see docs/scenes.md)"
+                if suffix != ".toml"
+                else ""
+            )
+            raise SceneError(f"{path}: not valid TOML: {err}{hint}") from None
 
 
 #: The keys whose values are file paths, relative to the scene file's folder (section, key).

@@ -106,8 +106,13 @@ def test_a_scenes_configuration_loads_back():
 def test_toml_errors(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[time\nstep = 1\n")
-    with pytest.raises(SceneError, match="not valid TOML"):
+    with pytest.raises(SceneError, match="not valid TOML") as refused:
         Scene.from_toml(bad)
+    assert "is not a scene" not in str(refused.value)
+    # a mesh given where a scene goes (skfem-modal run seal.mesh) said only "not valid TOML" (an audit)
+    with pytest.raises(SceneError, match=r"not valid TOML: .*\(a \.mesh file is not a scene: to simulate a mesh, "):
+        (tmp_path / "seal.mesh").write_text("MeshVersionFormatted 2\nDimension 3\nVertices\n")
+        Scene.from_toml(tmp_path / "seal.mesh")
     with pytest.raises(FileNotFoundError, match="scene file not found"):
         Scene.from_toml(tmp_path / "missing.toml")
     good = tmp_path / "s.toml"
