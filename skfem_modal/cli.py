@@ -2,7 +2,8 @@
 
 Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
 file, an output folder holding an earlier run, a missing extra); 3 numerical
-failure (a simulation that went non-finite); 4 the workers were lost (a
+failure (a simulation that went non-finite, a modal analysis whose eigen solve
+stalled or lost its precision); 4 the workers were lost (a
 worker process killed, the dask scheduler gone: a search keeps its
 checkpoint and says how to resume); 130 interrupted (Ctrl-C, or SIGTERM: the
 same clean stop); 141 the reader of the output went away (e.g. ``| head``).
@@ -906,6 +907,9 @@ def main(argv=None) -> int:
         # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except FloatingPointError as err:  # the modal analysis's: an eigen solve that stalled or lost its precision
+        print(f"skfem-modal {args.command}: numerical failure: {err}", file=sys.stderr)
+        return EXIT_NUMERICAL
     except KeyboardInterrupt as stop:
         # Ctrl-C, or SIGTERM (e.g. from timeout): the command has stopped as it does on Ctrl-C
         said = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"

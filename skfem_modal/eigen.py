@@ -262,7 +262,15 @@ def _scaled_pairs_solver(K, M, node_dim: int, null):
             return all_values[:k], all_vectors[:, :k]
         # a slightly larger Krylov space than ARPACK's default saves restarts
         ncv = min(n - q, max(2 * k + 1, 20))
-        values, vectors = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
+        try:
+            values, vectors = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, v0=v0, ncv=ncv)
+        except spla.ArpackNoConvergence as err:
+            # many equal eigenvalues (20 identical separate squares: 0 of 7 converged) or a very thin body
+            raise FloatingPointError(
+                f"the eigen solver (ARPACK) found {len(err.eigenvalues)} of {k} modes before giving up: many "
+                "nearly equal frequencies (a mesh of many identical separate parts) or a very thin body make "
+                "shift-invert Lanczos stall; ask for fewer modes, or analyse the parts one at a time"
+            ) from None
         order = np.argsort(values)
         return values[order], vectors[:, order]
 

@@ -1,6 +1,7 @@
 import meshio
 import numpy as np
 import pytest
+import scipy.sparse.linalg as spla
 
 from skfem_modal import beam3d, export_modes, linear_modal_analysis, natural_frequencies, vertices_where
 from skfem_modal.cli import main
@@ -157,3 +158,25 @@ def test_a_shape_spec_takes_a_list_and_refuses_a_parameter_twice(capsys):
     assert "bounds: [0.0, 0.0, 0.0] .. [1.0, 2.0, 3.0]" in capsys.readouterr().out
     assert main(["info", "caterpillar:nx=5,nx=6"]) == 2
     assert "mesh parameter 'nx' is given twice in 'caterpillar:nx=5,nx=6'" in capsys.readouterr().err
+
+
+def test_a_modal_analysis_that_fails_numerically_says_so_without_a_traceback(tmp_path, capsys, monkeypatch):
+    """A plate 1e-5 thin, and an eigen solve that stalls (20 identical squares: ARPACK found 0 of 7), ended in raw
+    tracebacks, exit code 1 (an audit): a numerical failure, exit code 3, in one line."""
+    args = ["modes", "box3d:nx=3,ny=3,nz=1,size=[1,1,1e-5]", "--element", "P2", "--mu", "0.5", "--lam", "0"]
+    assert main([*args, "--out", str(tmp_path / "m.vtu"), "-q"]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith("skfem-modal modes: numerical failure: elastic mode 6 came out with eigenvalue -")
+    assert "negative beyond round-off" in err and err.count("\n") == 1
+
+    def stalled(*args, **kwargs):
+        raise spla.ArpackNoConvergence("ARPACK error -1: No convergence", np.zeros(0), np.zeros((0, 0)))
+
+    monkeypatch.setattr(spla, "eigsh", stalled)
+    assert main(["modes", "box3d:nx=8,ny=8,nz=8", "-k", "12", "--out", str(tmp_path / "s.vtu"), "-q"]) == 3
+    assert capsys.readouterr().err == (
+        "skfem-modal modes: numerical failure: the eigen solver (ARPACK) found 0 of 7 modes before giving up: many "
+        "nearly equal frequencies (a mesh of many identical separate parts) or a very thin body make shift-invert "
+        "Lanczos stall; ask for fewer modes, or analyse the parts one at a time\n"
+    )
+    assert not (tmp_path / "s.vtu").exists()
