@@ -389,7 +389,8 @@ def natural_frequencies(eigenvalues) -> np.ndarray:
     """Natural frequencies in Hz, ``sqrt(lambda) / (2 pi)``.
 
     Negative eigenvalues give 0 (a rigid mode's round-off; :func:`linear_modal_analysis` refuses
-    one negative beyond round-off, which this function has no scale to tell).
+    one negative beyond round-off, which this function has no scale to tell); NaN is refused
+    (ValueError).
 
     Parameters
     ----------
@@ -405,6 +406,8 @@ def natural_frequencies(eigenvalues) -> np.ndarray:
     [1.0, 0.0]
     """
     vals = np.asarray(eigenvalues, dtype=np.float64)
+    if np.isnan(vals).any():  # would pass as a frequency (infinity is one: beyond float64)
+        raise ValueError(f"eigenvalues must be numbers, got NaN at {np.flatnonzero(np.isnan(vals))[:10].tolist()}")
     return np.sqrt(np.clip(vals, 0.0, None)) / (2.0 * np.pi)
 
 

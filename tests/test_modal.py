@@ -3,6 +3,7 @@ import pytest
 import scipy.linalg
 from skfem import MeshTri
 
+import skfem_modal as sm
 from skfem_modal import (
     actuation_limits,
     beam2d,
@@ -286,3 +287,18 @@ def test_muscle_modes_name_signs_that_are_not_plus_or_minus_one(signs):
 
     with pytest.raises(ValueError, match=r"signs must be 2 values of \+1 or -1, got"):
         muscle_modes(caterpillar(nx=12, ny=6), 2, signs=signs)
+
+
+def test_a_nan_eigenvalue_is_no_frequency():
+    """natural_frequencies([nan]) returned NaN, and export_modes wrote it as the mode's frequency (an audit)."""
+    with pytest.raises(ValueError, match=r"eigenvalues must be numbers, got NaN at \[1\]"):
+        natural_frequencies([1.0, np.nan])
+    assert natural_frequencies([np.inf, -1e-15]).tolist() == [np.inf, 0.0]  # beyond float64, and round-off
+
+
+def test_export_refuses_a_nan_eigenvalue_before_writing(tmp_path):
+    mesh = sm.beam2d(2.0, 0.5, 8, 2)
+    values, modes = linear_modal_analysis(mesh, 5)
+    with pytest.raises(ValueError, match=r"eigenvalues must be numbers, got NaN at \[4\]"):
+        sm.export_modes(tmp_path / "m.vtu", mesh, modes, np.r_[values[:4], np.nan])
+    assert not (tmp_path / "m.vtu").exists()
