@@ -424,8 +424,8 @@ def run_search(
             if state is None:
                 gait = scene.config["muscles"]["gait"]
                 start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-                own = space.gait(start) if gait is None else _scene_gait(gait, m)
-                state = _scored_start(_new_state(settings, start), rollouts, own)
+                state = _new_state(settings, start)
+                state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
                 os.makedirs(out_dir, exist_ok=True)
                 for path in earlier:
                     os.remove(path)
@@ -560,15 +560,15 @@ def _result(state: dict, paths: dict, precompute: float) -> dict:
     }
 
 
-def _roll_out(rollouts, gaits: list, settings: dict, done: int, first: int = 0):
+def _roll_out(rollouts, gaits: list, settings: dict, done: int):
     """Each gait's rollouts: its own, then ``samples - 1`` jittered copies; their scores, and the fitness of each.
 
-    ``done``: the generations done; ``first``: the first gait's index in its generation (the
-    copies' draws are fixed by the seed, the generation and the index).
+    ``done``: the generations done (the copies' draws are fixed by the seed, the generation and
+    the gait's index).
     """
     samples, jitter, seed = (settings[key] for key in ("samples", "jitter", "seed"))
     tried = [
-        gait if k == 0 else _jittered(gait, jitter, (seed, done, first + i, k))
+        gait if k == 0 else _jittered(gait, jitter, (seed, done, i, k))
         for i, gait in enumerate(gaits)
         for k in range(samples)
     ]
@@ -604,36 +604,37 @@ def _scene_gait(gait: dict, m: int) -> dict:
     return {key: [float(v) for v in given] for key, given in values.items()}
 
 
-def _scored_start(state: dict, rollouts, gait: dict) -> dict:
-    """The state with the gait the search starts from scored (``start``, a row of generation 0).
-
-    It is a candidate too: a search that finds nothing better returns it, never a worse gait
-    than it was given (an audit: two generations ended at fitness 1.2 from a gait of 15).
-    """
-    clock = time.perf_counter()
-    groups, fitness = _roll_out(rollouts, [gait], state["settings"], 0, first=state["settings"]["popsize"])
-    row = {**_row(0, [gait], groups, fitness), "sigma": state["settings"]["sigma0"]}
-    row["seconds"] = time.perf_counter() - clock
-    return {**state, "start": row, "rollouts": state["rollouts"] + len(groups[0]), "seconds": row["seconds"]}
-
-
 def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
-    """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was)."""
+    """One CMA-ES generation: ask, roll out, tell; the new state (the old one is left as it was).
+
+    The first also scores the gait the search starts from (``start_gait``), rolled out with
+    its candidates: it is a candidate too (``start``, a row of generation 0, not told to CMA-ES),
+    so a search that finds nothing better returns it, never a worse gait than it was given (an
+    audit: two generations in a box excluding the scene's own gait returned fitness 1.2 from 15).
+    """
     clock = time.perf_counter()
     es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
     done = state["generation"]
     points = es.ask()
     gaits = [space.gait(u) for u in points]
-    groups, fitness = _roll_out(rollouts, gaits, state["settings"], done)
+    start = [state["start_gait"]] if state.get("start_gait") and not state.get("start") else []
+    groups, fitness = _roll_out(rollouts, gaits + start, state["settings"], done)
+    rolled = sum(len(group) for group in groups)
+    extra = {}
+    if start:
+        extra["start"] = {**_row(0, start, groups[-1:], fitness[-1:]), "sigma": state["settings"]["sigma0"]}
+        extra["start"]["seconds"] = 0.0  # timed with the generation
+        groups, fitness = groups[:-1], fitness[:-1]
     es.tell(points, [-f for f in fitness])  # CMA-ES minimises
     row = {**_row(done + 1, gaits, groups, fitness), "sigma": float(es.sigma)}
     row["seconds"] = time.perf_counter() - clock
     return {
         **state,
+        **extra,
         "es": es,
         "history": state["history"] + [row],
         "generation": done + 1,
-        "rollouts": state["rollouts"] + sum(len(group) for group in groups),
+        "rollouts": state["rollouts"] + rolled,
         "seconds": state["seconds"] + row["seconds"],
         "numpy_random": np.random.get_state(),
     }
