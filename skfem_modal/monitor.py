@@ -66,6 +66,12 @@ HOVER_STEPS = 3
 HOVER_CLEARANCE = 1e-3
 
 
+def _beyond_limits(push, ratio):
+    """Whether pushes (body sizes) and spread ratios (to the rest's) are beyond :data:`PUSH_LIMIT` and
+    :data:`SPREAD_LIMIT`, each a bool or an array of them (a NaN ratio is beyond)."""
+    return push > PUSH_LIMIT, np.logical_not((ratio >= 1.0 / SPREAD_LIMIT) & (ratio <= SPREAD_LIMIT))
+
+
 class MotionWarning(RuntimeWarning):
     """A run completed, but its motion is not physical for its scene."""
 
@@ -169,9 +175,10 @@ class MotionMonitor:
             self.spread_ratio[1] = ratio
         if push > self.push:
             self.push = push
-        if push > PUSH_LIMIT:
+        pushed, spread = _beyond_limits(push, ratio)
+        if pushed:
             self.first_problem_step.setdefault("push", step)
-        if not 1.0 / SPREAD_LIMIT <= ratio <= SPREAD_LIMIT:
+        if spread:
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
@@ -199,8 +206,8 @@ class MotionMonitor:
         excess[1:] -= change[:-1]
         push = np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
         ratio = self._spreads(states[1:]) / self.rest_spread
-        within = (ratio >= 1.0 / SPREAD_LIMIT) & (ratio <= SPREAD_LIMIT)
-        found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(~within)}
+        pushed, spread = _beyond_limits(push, ratio)
+        found = {"push": np.flatnonzero(pushed), "spread": np.flatnonzero(spread)}
         return {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
 
     def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:
