@@ -127,14 +127,7 @@ def _writable(folder: str) -> bool:
 def cmd_modes(args) -> int:
     from .export import export_modes
     from .mesh import mesh_summary, vertices_where
-    from .modal import (
-        actuation_limits,
-        linear_modal_analysis,
-        natural_frequencies,
-        rigid_mode_count,
-        stiffness_scale,
-        zero_stiffness,
-    )
+    from .modal import actuation_limits, hinge_count, linear_modal_analysis, natural_frequencies, rigid_mode_count
 
     mu, lam = _material(args)
     _check_vtu_out(args.out)
@@ -176,8 +169,8 @@ def cmd_modes(args) -> int:
     if k <= n_rigid:
         say(f"all {k} are rigid motions: ask for more than {n_rigid} (-k) to see elastic modes")
     say(f"{'mode':>5}  {'eigenvalue':>16}  {'frequency [Hz]':>15}  {'ceiling':>10}  kind")
-    zero = zero_stiffness(values[n_rigid:], stiffness_scale(mesh, mu, lam, args.rho))
-    kinds = ["rigid"] * min(n_rigid, k) + ["hinge" if z else "elastic" for z in zero]
+    n_hinges = hinge_count(mesh, fixed) if k > n_rigid else 0
+    kinds = (["rigid"] * n_rigid + ["hinge"] * n_hinges + ["elastic"] * k)[:k]
     for i, (val, f, c, kind) in enumerate(zip(values, freqs, ceilings, kinds)):
         # a rigid motion is no muscle: its "ceiling" only measures a rotation's gradient, or is infinite
         ceiling = "-" if kind == "rigid" or not np.isfinite(c) else f"{c:10.6g}"

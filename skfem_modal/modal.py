@@ -12,7 +12,10 @@ not depend on the element order:
 
 * the rigid modes of a free body are the canonical rigid motions (translations
   along each axis, then rotations about the part's centroid, per connected
-  part), mass-orthonormalised in that order;
+  part), mass-orthonormalised in that order; then the hinges (pieces of a
+  part that touch at a vertex or edge turning against each other), found
+  from the geometry by :mod:`skfem_modal.motions`, in a basis fixed by a
+  generic weight;
 * within a group of repeated eigenvalues (symmetric shapes) the basis is fixed
   by diagonalising a generic, position-dependent weight on the group;
 * each mode's sign makes its largest entry positive (the lowest DOF index
@@ -24,16 +27,25 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.linalg as sla
 
-from .eigen import canonical_eigenpairs, generic_weight, sign_convention
-from .fem import ELEMENTS, _jacobian, _mass, _stiffness, element_volumes, node_positions, scalar_basis, vector_dofs
-from .mesh import check_mesh, connected_parts
+from .eigen import _group_end, canonical_eigenpairs, canonical_repeated, generic_weight, sign_convention
+from .fem import ELEMENTS, _jacobian, _mass, _stiffness, element_volumes, node_positions, vector_dofs
+from .mesh import check_mesh
+from .motions import (
+    _hinge_motions,
+    _node_parts,
+    _rigid_motions,
+    fixed_nodes,
+    hinge_count,
+    rigid_mode_count,
+    rigid_motions,
+)
 
 __all__ = [
     "linear_modal_analysis",
     "rigid_motions",
     "rigid_mode_count",
+    "hinge_count",
     "muscle_count_problem",
     "fixed_nodes",
     "natural_frequencies",
@@ -45,168 +57,6 @@ __all__ = [
 
 #: Deterministic sign of each mode (see :func:`skfem_modal.eigen.sign_convention`).
 mode_sign_convention = sign_convention
-
-
-def _node_parts(mesh, element: str) -> np.ndarray:
-    parts = connected_parts(mesh)
-    if element == "P1":
-        return parts
-    basis = scalar_basis(mesh, element)
-    node_part = np.empty(basis.N, dtype=np.int64)
-    node_part[basis.element_dofs] = parts[mesh.t[0]][None, :]
-    return node_part
-
-
-def fixed_nodes(mesh, fixed, element: str = "P1") -> np.ndarray:
-    """The nodes pinned by a set of fixed vertices.
-
-    For P1 these are the vertices themselves; for P2 also every edge node whose
-    two end vertices are fixed (so a clamped face is clamped along its edges).
-
-    Parameters
-    ----------
-    mesh : skfem.MeshTri or skfem.MeshTet
-    fixed : array_like of int (vertex indices) or of bool, shape (n,)
-    element : {"P1", "P2"}
-
-    Returns
-    -------
-    nodes : ndarray of int, shape (nf,), ascending
-    """
-    n = mesh.p.shape[1]
-    arr = np.asarray(fixed)
-    if arr.dtype == bool:
-        if arr.shape != (n,):
-            raise ValueError(f"fixed: a boolean mask must have shape ({n},), got {arr.shape}")
-        verts = np.nonzero(arr)[0]
-    else:
-        if arr.size and not np.issubdtype(arr.dtype, np.integer):
-            raise TypeError(f"fixed: vertex indices must be integers, got dtype {arr.dtype}")
-        verts = np.unique(arr.astype(np.int64).ravel())
-        bad = verts[(verts < 0) | (verts >= n)]
-        if bad.size:
-            raise ValueError(f"fixed: vertex indices must be in 0..{n - 1}, got {bad[:10].tolist()}")
-    if element == "P1":
-        return verts
-    basis = scalar_basis(mesh, element)
-    is_fixed = np.zeros(n, dtype=bool)
-    is_fixed[verts] = True
-    if mesh.p.shape[0] == 2:
-        ends, nodes = mesh.facets, basis.dofs.facet_dofs[0]
-    else:
-        ends, nodes = mesh.edges, basis.dofs.edge_dofs[0]
-    pinned_edges = is_fixed[ends].all(axis=0)
-    return np.concatenate([verts, np.sort(nodes[pinned_edges])]).astype(np.int64)
-
-
-def rigid_motions(mesh, fixed=None, element: str = "P1") -> np.ndarray:
-    """Canonical basis of the infinitesimal rigid motions that respect ``fixed``.
-
-    Per connected part, in this order: translation along each axis, then
-    rotation about the part's centroid (about z in 2D; about x, y, z in 3D).
-    With fixed vertices, only the motions of each part that vanish at its fixed
-    nodes remain (a part pinned at two points in 2D has none).
-
-    Parameters
-    ----------
-    mesh : skfem.MeshTri or skfem.MeshTet
-    fixed : array_like of int or bool, optional
-        Fixed vertices.
-    element : {"P1", "P2"}
-
-    Returns
-    -------
-    R : ndarray, shape (n_nodes * dim, r)
-        ``r = 3`` (2D) or ``6`` (3D) per free part. Not orthonormalised.
-    """
-    check_mesh(mesh)
-    return _rigid_motions(mesh, fixed, element)
-
-
-def _rigid_motions(mesh, fixed, element: str, count: int | None = None, M=None) -> np.ndarray:
-    """The canonical rigid motions, shape (n_nodes * dim, r); only the first ``count`` columns when given.
-
-    Each part's motions live on its own nodes: a part's block is made on them alone (and, with
-    the mass matrix ``M``, mass-orthonormalised on them alone: parts share no node, so that is
-    Gram-Schmidt in column order over them all), and parts past the ``count`` columns are not
-    made. A triangle soup of thousands of parts then costs its columns, not their square.
-    """
-    x = node_positions(mesh, element)
-    n, dim = x.shape
-    parts = _node_parts(mesh, element)
-    pinned = np.zeros(n, dtype=bool)
-    if fixed is not None:
-        pinned[fixed_nodes(mesh, fixed, element)] = True
-    order = np.argsort(parts, kind="stable")
-    ends = np.cumsum(np.bincount(parts))
-    blocks, made = [], 0
-    for start, end in zip(np.r_[0, ends[:-1]], ends):
-        if count is not None and made >= count:
-            break
-        nodes = order[start:end]
-        block = _part_motions(x[nodes], pinned[nodes])
-        rows = vector_dofs(nodes, dim)
-        if M is not None and block.shape[1]:
-            block = _m_orthonormalize(block, M[rows][:, rows])
-        blocks.append((rows, block))
-        made += block.shape[1]
-    R = np.zeros((n * dim, made))
-    column = 0
-    for rows, block in blocks:
-        R[rows, column : column + block.shape[1]] = block
-        column += block.shape[1]
-    return R if count is None else R[:, :count]
-
-
-def _part_motions(x, pinned) -> np.ndarray:
-    """One part's rigid motions on its own nodes ``x`` (m, dim): translations, then rotations about its
-    centroid, the combinations vanishing at its ``pinned`` nodes (m,) only; shape (m dim, r)."""
-    m, dim = x.shape
-    c = np.zeros((m, 3))
-    c[:, :dim] = x - x.mean(axis=0)
-    fields = [np.zeros((m, dim)) for _ in range(dim)]
-    for axis, u in enumerate(fields):
-        u[:, axis] = 1.0
-    for axis in [2] if dim == 2 else [0, 1, 2]:
-        w = np.zeros(3)
-        w[axis] = 1.0
-        fields.append(np.cross(w, c)[:, :dim])
-    block = np.stack([f.ravel() for f in fields], axis=1)
-    at_pins = block[vector_dofs(np.nonzero(pinned)[0], dim)]
-    if at_pins.shape[0]:
-        # keep the combinations that vanish at this part's fixed nodes
-        _, s, vt = np.linalg.svd(at_pins)
-        rank = int((s > 1e-10 * max(1.0, s.max())).sum())
-        block = block @ vt[rank:].T
-    return block
-
-
-def rigid_mode_count(mesh, fixed=None) -> int:
-    """Number of rigid (zero-stiffness) motions: 3 in 2D and 6 in 3D per free part.
-
-    Parts are vertex-connected; fixed vertices remove the motions that move
-    them (one pinned vertex in 2D leaves the rotation about it).
-
-    Examples
-    --------
-    >>> from skfem_modal.mesh import caterpillar
-    >>> rigid_mode_count(caterpillar())
-    3
-    """
-    check_mesh(mesh)
-    dim = mesh.p.shape[0]
-    per_part = 3 if dim == 2 else 6
-    parts = connected_parts(mesh)
-    if fixed is None:
-        return per_part * (int(parts.max()) + 1)
-    # only the parts with pins need their motions made
-    pinned = fixed_nodes(mesh, fixed)
-    touched = np.unique(parts[pinned])
-    free = per_part * (int(parts.max()) + 1 - touched.size)
-    x = mesh.p.T
-    mask = np.zeros(mesh.p.shape[1], dtype=bool)
-    mask[pinned] = True
-    return free + sum(_part_motions(x[parts == part], mask[parts == part]).shape[1] for part in touched)
 
 
 def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
@@ -243,13 +93,6 @@ def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
     return f"is too many for the {free} degrees of freedom {where} less its {n_rigid} rigid motions: at most {fits}"
 
 
-def _m_orthonormalize(V: np.ndarray, M) -> np.ndarray:
-    """Gram-Schmidt (in column order) in the M inner product."""
-    G = V.T @ (M @ V)
-    L = np.linalg.cholesky(G)
-    return sla.solve_triangular(L, V.T, lower=True).T
-
-
 def linear_modal_analysis(
     mesh,
     k: int,
@@ -281,8 +124,9 @@ def linear_modal_analysis(
     Returns
     -------
     eigenvalues : ndarray, shape (k,)
-        Ascending squared angular frequencies; rigid modes come first, with
-        eigenvalues at round-off level.
+        Ascending squared angular frequencies; the rigid motions, then the
+        hinges, come first, with eigenvalue 0 exactly (known from the
+        geometry, not computed: their ``d^T K d`` is round-off).
     modes : ndarray, shape (n_nodes * dim, k)
         Mass-orthonormal (``modes.T @ M @ modes = I``), interleaved vertex-major,
         with the deterministic signs and bases described in the module docs.
@@ -321,24 +165,73 @@ def linear_modal_analysis(
         M = M[free][:, free]
     Kf, Mf = K, M
 
-    # mass-orthonormal part by part (a pinned DOF's row is zero in every motion that respects the pins)
+    # known from the geometry, mass-orthonormal part by part: the rigid motions, then (when elastic modes
+    # are asked for) the hinges; a pinned DOF's row is zero in each
     n_rigid = rigid_mode_count(mesh, fixed) if element == "P1" else _rigid_motions(mesh, fixed, element).shape[1]
-    rigid = _rigid_motions(mesh, fixed, element, None if k > n_rigid else k, M_all)[free]
-    values = np.zeros(k)
-    vectors = np.zeros((free.size, k))
-    # the rigid motions are known exactly: they are the first modes
-    stop = min(n_rigid, k)
-    vectors[:, :stop] = rigid[:, :stop]
-    values[:stop] = np.einsum("ij,ij->j", rigid[:, :stop], Kf @ rigid[:, :stop])
+    known = _rigid_motions(mesh, fixed, element, None if k > n_rigid else k, M_all)
     if k > n_rigid:
+        known = np.hstack([known, _hinge_motions(mesh, fixed, element, M_all)])
+    known = known[free]
+    n_known = known.shape[1]
+    values = np.zeros(k)  # the known motions' stay 0
+    vectors = np.zeros((free.size, k))
+    stop = min(n_known, k)
+    vectors[:, :stop] = known[:, :stop]
+    if k > n_known:
         weight = generic_weight(node_positions(mesh, element)).reshape(-1)[free]
-        ev, evec = canonical_eigenpairs(Kf, Mf, k - n_rigid, weight, dim, null=rigid if n_rigid else None)
-        values[n_rigid:], vectors[:, n_rigid:] = ev, evec
-        _check_elastic(ev, stiffness_scale(mesh, mu, lam, rho), n_rigid, fixed is not None)
+        part_of_row = np.repeat(_node_parts(mesh, element), dim)[free]
+        ev, evec = _elastic_pairs(Kf, Mf, known, k - n_known, weight, dim, part_of_row)
+        values[n_known:], vectors[:, n_known:] = ev, evec
+        _check_elastic(ev, stiffness_scale(mesh, mu, lam, rho), n_known)
+    if stop > n_rigid:
+        besides = (
+            f"the {n_rigid} rigid motions the pins leave"
+            if fixed is not None
+            else f"the mesh's {n_rigid} rigid motions"
+        )
+        warnings.warn(
+            f"{stop - n_rigid} modes have zero stiffness besides {besides}: parts joined at a single vertex or "
+            f"edge act as hinges ({n_known - n_rigid} in all)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     vectors = sign_convention(vectors)
     modes = np.zeros((n_dofs, k))
     modes[free] = vectors
     return values[:k], modes
+
+
+def _elastic_pairs(K, M, known, count: int, weight, dim: int, part_of_row):
+    """The ``count`` lowest eigenpairs beside the ``known`` motions (n, q), part by part.
+
+    ``K`` and ``M`` (n, n) are block-diagonal by part (``part_of_row``, shape (n,)): each part is solved
+    alone for its own lowest pairs, then the lowest of all are kept, a repeated group whole before its
+    basis is fixed (:func:`~skfem_modal.eigen.canonical_repeated`). Identical parts repeat every
+    eigenvalue: solved together, 20 squares made shift-invert Lanczos give up with 1 of 7 modes.
+    Returns values (count,) and vectors (n, count) as :func:`~skfem_modal.eigen.canonical_eigenpairs`.
+    """
+    parts = np.unique(part_of_row)
+    if parts.size == 1:
+        return canonical_eigenpairs(K, M, count, weight, dim, null=known)  # known: the whole null space
+    K, M = K.tocsr(), M.tocsr()
+    found = []  # (value, rows, vector on them)
+    for part in parts:
+        rows = np.flatnonzero(part_of_row == part)
+        null = known[rows][:, np.abs(known[rows]).max(axis=0, initial=0.0) > 0]
+        wanted = min(count, rows.size - null.shape[1])
+        if wanted:
+            part_values, part_vectors = canonical_eigenpairs(
+                K[rows][:, rows], M[rows][:, rows], wanted, weight[rows], dim, null
+            )
+            found += [(value, rows, part_vectors[:, i]) for i, value in enumerate(part_values)]
+    values = np.array([value for value, _, _ in found])
+    order = np.argsort(values, kind="stable")  # ties in part order
+    end = _group_end(values[order], count - 1, max(float(np.abs(values).max()), 1e-300))
+    vectors = np.zeros((K.shape[0], end))
+    for column, i in enumerate(order[:end]):
+        vectors[found[i][1], column] = found[i][2]
+    values, vectors = canonical_repeated(values[order[:end]], vectors, M, weight)
+    return values[:count], sign_convention(vectors[:, :count])
 
 
 def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:
@@ -352,36 +245,15 @@ def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:
     return float(np.median((2.0 * np.asarray(mu) + np.asarray(lam)) / (np.asarray(rho) * size_squared)))
 
 
-def zero_stiffness(values, scale: float) -> np.ndarray:
-    """Which elastic eigenvalues are zero, to round-off: at most 1e-12 of ``scale``, shape like ``values``.
-
-    ``scale``: :func:`stiffness_scale`, that of the highest eigenvalues. Such a mode bends a
-    hinge: parts joined at one vertex (or, in 3D, one edge) turn about it freely. (A real mode
-    is far above: the lowest bending mode of a 100:1 beam of 400 x 4 cells is 1e-8 of it.)
-
-    >>> zero_stiffness(np.array([-6e-15, 0.09, 1.5]), scale=100.0)
-    array([ True, False, False])
-    """
-    return np.abs(np.asarray(values, dtype=np.float64)) <= 1e-12 * scale
-
-
-def _check_elastic(values, scale: float, n_rigid: int, pinned: bool) -> None:
-    """Warn of hinges (zero-stiffness elastic modes); refuse eigenvalues negative beyond round-off."""
-    zero = zero_stiffness(values, scale)
-    if np.any(values[~zero] < 0.0):
-        i = int(np.flatnonzero(~zero & (values < 0.0))[0])
+def _check_elastic(values, scale: float, n_known: int) -> None:
+    """Refuse elastic eigenvalues negative beyond round-off (1e-12 of ``scale``, :func:`stiffness_scale`)."""
+    negative = values < -1e-12 * scale
+    if np.any(negative):
+        i = int(np.flatnonzero(negative)[0])
         raise FloatingPointError(
-            f"elastic mode {n_rigid + i} came out with eigenvalue {values[i]:.6g}, negative beyond round-off "
+            f"elastic mode {n_known + i} came out with eigenvalue {values[i]:.6g}, negative beyond round-off "
             f"(of the highest eigenvalues' scale, {scale:.6g}): the stiffness is not positive semi-definite "
             "to float64's precision"
-        )
-    if np.any(zero):
-        besides = f"the {n_rigid} rigid motions the pins leave" if pinned else f"the mesh's {n_rigid} rigid motions"
-        warnings.warn(
-            f"{int(zero.sum())} modes have zero stiffness besides {besides}: "
-            "parts joined at a single vertex or edge act as hinges",
-            RuntimeWarning,
-            stacklevel=3,
         )
 
 
