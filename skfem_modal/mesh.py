@@ -312,8 +312,10 @@ def _hanging(p, t, groups):
     from scipy.spatial import cKDTree
 
     dim, n = p.shape
-    flat, _, order, starts, counts = groups
-    boundary = flat[order[starts[counts == 1]]]  # (f, dim) corner indices
+    flat, opposite, order, starts, counts = groups
+    rows = order[starts[counts == 1]]
+    boundary = flat[rows]  # (f, dim) corner indices
+    own = opposite.ravel()[rows]  # the rest of the facet's one element: a sliver's own tip is no T-junction
     corners = p[:, boundary]  # (dim, f, dim)
     centre = corners.mean(axis=2)
     radius = np.sqrt(((corners - centre[:, :, None]) ** 2).sum(axis=0).max(axis=1))
@@ -323,7 +325,7 @@ def _hanging(p, t, groups):
     sizes = np.fromiter(map(len, hits), np.int64, len(hits))
     vertex = on_boundary[np.fromiter((i for found in hits for i in found), np.int64, int(sizes.sum()))]
     facet = np.repeat(np.arange(boundary.shape[0]), sizes)
-    keep = (vertex[:, None] != boundary[facet]).all(axis=1)
+    keep = (vertex[:, None] != boundary[facet]).all(axis=1) & (vertex != own[facet])
     vertex, facet = vertex[keep], facet[keep]
     # inside the facet: on its line or plane and strictly within it (to a billionth of its size)
     a = p[:, boundary[facet, 0]]
@@ -346,9 +348,9 @@ def _hanging(p, t, groups):
         inside = (off <= 1e-18 * size2) & (b1 > 1e-9) & (b2 > 1e-9) & (b1 + b2 < 1.0 - 1e-9)
     vertex, facet = vertex[inside], facet[inside]
     same = _parts(t, n)
-    own = same[vertex] == same[boundary[facet, 0]]
-    order = np.argsort(vertex[own], kind="stable")
-    return vertex[own][order], boundary[facet[own][order]]
+    in_part = same[vertex] == same[boundary[facet, 0]]
+    order = np.argsort(vertex[in_part], kind="stable")
+    return vertex[in_part][order], boundary[facet[in_part][order]]
 
 
 def _parts(t: np.ndarray, n: int) -> np.ndarray:

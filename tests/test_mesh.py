@@ -23,7 +23,14 @@ from skfem_modal import (
     vertices_where,
 )
 from skfem_modal.fem import element_volumes
-from skfem_modal.mesh import BUILTIN_SHAPES, builtin_mesh, connected_parts, mesh_summary, shape_parameters
+from skfem_modal.mesh import (
+    BUILTIN_SHAPES,
+    builtin_mesh,
+    connected_parts,
+    hanging_vertices,
+    mesh_summary,
+    shape_parameters,
+)
 
 
 def test_caterpillar_matches_the_tutorial(cat_mesh, reference):
@@ -361,3 +368,13 @@ def test_a_mesh_too_small_or_too_large_for_float64_is_named_with_its_size(scale)
 def test_built_in_shapes_name_parameters_they_cannot_take(make, message):
     with pytest.raises(ValueError, match=message):
         make()
+
+
+def test_a_sliver_on_the_boundary_is_no_hanging_vertex():
+    # a triangle whose tip is 1e-10 from its own boundary edge: the tip is no T-junction (the element
+    # owning the edge is its own), but it was reported as hanging in that edge and the mesh refused
+    p = [[0.0, 0.0], [1.0, 0.0], [0.5, 1e-10], [0.0, 1.0]]
+    t = [[0, 1, 2], [0, 2, 3]]
+    vertices, _ = hanging_vertices(np.array(p).T, np.array(t).T)
+    assert vertices.size == 0
+    make_mesh(p, t)
