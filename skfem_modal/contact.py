@@ -356,8 +356,8 @@ class CoulombContact(_Ground):
     finds a vertex below that they missed. At the end of the step every
     candidate is checked: if any they missed ended more than ``ALLOWANCE`` of
     the body's size below the ground, the step's iterations run again looking
-    at a spread few of those too; what is still below after that is held up
-    with the others. So no vertex ends a step in the ground by more than about
+    at a spread few of those too (and once more if that run missed others);
+    what is still below after that is held up with the others. So no vertex ends a step in the ground by more than about
     ``ALLOWANCE`` of the size (between the vertices held, a subspace cannot
     keep every vertex of a flat face exactly on the plane).
 

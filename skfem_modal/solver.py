@@ -82,6 +82,10 @@ from .rotations import closest_rotations3, rotations2_flat
 
 __all__ = ["LocalGlobal", "PlainBackend", "ActivationRows", "SimulationError", "make_backends", "BACKENDS"]
 
+# A step whose contact missed vertices that ended below the ground is run again, seeing them, up to
+# this many times; what is still below after that is held up at its end (a kick: velocity d / h).
+_RUNS_FOR_MISSED = 2
+
 #: Backend names a simulator accepts.
 BACKENDS = ("auto", "numpy", "numba", "plain")
 
@@ -292,8 +296,10 @@ class LocalGlobal:
         """
         found = self._attempt(backends, z, z_dot, a, contact)
         if contact is not None:
-            if contact.missed(found[0]):
-                # the contact looked at too few vertices (one ended deep below the ground): once more, with it
+            for _ in range(_RUNS_FOR_MISSED):
+                if not contact.missed(found[0]):
+                    break
+                # the contact looked at too few vertices (one ended deep below the ground): again, with it
                 found = self._attempt(backends, z, z_dot, a, contact)
             contact.finish_step(found[0])
         return found
