@@ -83,19 +83,22 @@ class SearchStop(BaseException):
     out_dir : str
     """
 
-    def _kept(self, generations: int, total: int, out_dir: str) -> str:
-        """Record what was kept; in words, what the checkpoint holds."""
+    def _kept(self, generations: int, total: int, out_dir: str, earlier_kept: bool = False) -> str:
+        """Record what was kept; in words, what the checkpoint holds (``earlier_kept``: the search this one
+        was to replace is still there, untouched)."""
         self.generations, self.total, self.out_dir = generations, total, out_dir
         if generations:
             return f"the checkpoint in {out_dir} holds generation {generations}"
+        if earlier_kept:
+            return f"no generation was finished, so the earlier search in {out_dir} is kept as it was"
         return f"no generation was finished, so nothing was checkpointed in {out_dir}: there is nothing to resume"
 
 
 class SearchInterrupted(SearchStop, KeyboardInterrupt):
     """Ctrl-C stopped a search; its checkpoint holds every finished generation (:class:`SearchStop`)."""
 
-    def __init__(self, generations: int, total: int, out_dir: str):
-        kept = self._kept(generations, total, out_dir)
+    def __init__(self, generations: int, total: int, out_dir: str, earlier_kept: bool = False):
+        kept = self._kept(generations, total, out_dir, earlier_kept)
         done = f"after generation {generations}" if generations else "in generation 1"
         super().__init__(f"interrupted {done} of {total}; {kept}")
 
@@ -104,8 +107,8 @@ class SearchWorkersLost(SearchStop, WorkersLost):
     """The search's workers were lost (a process killed, the dask scheduler gone); its checkpoint is kept
     (:class:`SearchStop`)."""
 
-    def __init__(self, reason: str, generations: int, total: int, out_dir: str):
-        kept = self._kept(generations, total, out_dir)
+    def __init__(self, reason: str, generations: int, total: int, out_dir: str, earlier_kept: bool = False):
+        kept = self._kept(generations, total, out_dir, earlier_kept)
         super().__init__(f"the search lost its workers in generation {generations + 1} of {total}: {reason}; {kept}")
 
 
@@ -416,7 +419,7 @@ def run_search(
     trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock
     recipe = {"data": data, "base_dir": None, **trial_settings}
-    bar = None
+    bar, replacing = None, []
     try:
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
@@ -427,8 +430,7 @@ def run_search(
                 state = _new_state(settings, start)
                 state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
                 os.makedirs(out_dir, exist_ok=True)
-                for path in earlier:
-                    os.remove(path)
+                replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
             elif state["history"]:
                 _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
             bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
@@ -436,15 +438,18 @@ def run_search(
             while state["generation"] < last:
                 state = _generation(state, rollouts, space)
                 _save(paths, data, state)
+                replacing = _remove_replaced(replacing, paths)
                 bar.update()
     except KeyboardInterrupt:
         if bar:
             bar.close()
-        raise SearchInterrupted(_restore(paths, data, objective), generations, out_dir) from None
+        done, kept = _stopped(paths, data, objective, replacing)
+        raise SearchInterrupted(done, generations, out_dir, kept) from None
     except WorkersLost as lost:
         if bar:
             bar.close()
-        raise SearchWorkersLost(str(lost), _restore(paths, data, objective), generations, out_dir) from lost
+        done, kept = _stopped(paths, data, objective, replacing)
+        raise SearchWorkersLost(str(lost), done, generations, out_dir, kept) from lost
     bar.close()
     _write_plot(paths["plot"], state["history"], objective)
     return _result(state, paths, precompute)
@@ -525,6 +530,25 @@ def _save(paths: dict, data: dict, state: dict) -> None:
     stale = os.path.join(os.path.dirname(paths["checkpoint"]), TRANSFER_FILE)
     if _overall_best(state)["generation"] == state["generation"] and os.path.exists(stale):
         os.remove(stale)
+
+
+def _remove_replaced(earlier: list, paths: dict) -> list:
+    """After a new search's first checkpoint: the files of the search it replaces that it did not write
+    over, removed; nothing is left to replace."""
+    written = {paths["checkpoint"], paths["history_csv"], paths["best_scene"]}
+    for path in earlier:
+        if path not in written and os.path.exists(path):
+            os.remove(path)
+    return []
+
+
+def _stopped(paths: dict, data: dict, objective: str, replacing: list) -> tuple[int, bool]:
+    """After a stop: the generations checkpointed (0: none) and whether an earlier search was kept instead.
+
+    A search replacing another that stops before its first checkpoint leaves the other as it was."""
+    if replacing:
+        return 0, True
+    return _restore(paths, data, objective), False
 
 
 def _restore(paths: dict, data: dict, objective: str) -> int:

@@ -198,6 +198,36 @@ def test_ctrl_c_in_the_first_generation_says_nothing_was_checkpointed(tiny_scene
     assert not (tmp_path / "cli" / "checkpoint.pkl").exists()
 
 
+def test_ctrl_c_before_the_first_checkpoint_of_an_overwrite_keeps_the_earlier_search(tmp_path, monkeypatch):
+    """--overwrite removed the earlier search's files as it started: a Ctrl-C in its first generation left
+    nothing to resume (an audit). They are kept until the new search's first checkpoint."""
+    out = tmp_path / "s"
+    search(out, workers=1, generations=1)
+    before = {path.name: path.read_bytes() for path in out.iterdir()}
+    assert "checkpoint.pkl" in before and "fitness.png" in before
+    generation = optimize._generation
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(optimize, "_generation", interrupted)
+    with pytest.raises(SearchInterrupted) as stop:
+        search(out, workers=1, overwrite=True, seed=4)
+    assert str(stop.value) == (
+        f"interrupted in generation 1 of 2; no generation was finished, so the earlier search in {out} is kept "
+        "as it was"
+    )
+    assert stop.value.generations == 0
+    assert {path.name: path.read_bytes() for path in out.iterdir()} == before
+    # the earlier search resumes; once a new one checkpoints, what it did not write over is gone
+    monkeypatch.setattr(optimize, "_generation", generation)
+    assert search(out, workers=1, resume=True)["generations"] == 2
+    (out / "transfer.csv").write_text("stale")
+    monkeypatch.setattr(optimize, "_write_plot", lambda *args: None)
+    search(out, workers=1, overwrite=True, seed=4, generations=1)
+    assert sorted(path.name for path in out.iterdir()) == ["best_gait.toml", "checkpoint.pkl", "history.csv"]
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
