@@ -8,52 +8,59 @@ clusters, a reduced simulator (:class:`ModalMuscle`, stepped by
 ParaView (:mod:`~skfem_modal.export`).
 """
 
-from .export import export_modes
-from .fem import (
-    deformation_jacobian,
-    element_volumes,
-    gravity_force,
-    lame_parameters,
-    mass_matrix,
-    node_positions,
-    quadrature_volumes,
-    stiffness_matrix,
-)
-from .mesh import (
-    MeshError,
-    beam2d,
-    beam3d,
-    body_size,
-    boundary_vertices,
-    box3d,
-    builtin_mesh,
-    caterpillar,
-    check_mesh,
-    creature,
-    farthest_point_sampling,
-    hanging_vertices,
-    load_mesh,
-    make_mesh,
-    mirror,
-    normalize_and_center,
-    tangled_elements,
-    vertices_where,
-)
-from .modal import (
-    actuation_limits,
-    linear_modal_analysis,
-    mode_sign_convention,
-    muscle_modes,
-    natural_frequencies,
-    rigid_mode_count,
-    rigid_motions,
-)
-from .muscles import sine_gait
-from .reference import FullSpaceSimulator
-from .run import run_scene
-from .scene import Scene, SceneError
-from .sim import ModalMuscle, SimulationError, StepRecord, simulate
-from .units import ScaleWarning, scale_mismatch, up_axis
+import importlib
+
+#: Where each public name lives: imported on first use, so the command line starts (and a Ctrl-C
+#: during its start is handled) before numpy, scipy and scikit-fem are loaded.
+_EXPORTS = {
+    "export_modes": "export",
+    "deformation_jacobian": "fem",
+    "element_volumes": "fem",
+    "gravity_force": "fem",
+    "lame_parameters": "fem",
+    "mass_matrix": "fem",
+    "node_positions": "fem",
+    "quadrature_volumes": "fem",
+    "stiffness_matrix": "fem",
+    "MeshError": "mesh",
+    "beam2d": "mesh",
+    "beam3d": "mesh",
+    "body_size": "mesh",
+    "boundary_vertices": "mesh",
+    "box3d": "mesh",
+    "builtin_mesh": "mesh",
+    "caterpillar": "mesh",
+    "check_mesh": "mesh",
+    "creature": "mesh",
+    "farthest_point_sampling": "mesh",
+    "hanging_vertices": "mesh",
+    "load_mesh": "mesh",
+    "make_mesh": "mesh",
+    "mirror": "mesh",
+    "normalize_and_center": "mesh",
+    "tangled_elements": "mesh",
+    "vertices_where": "mesh",
+    "actuation_limits": "modal",
+    "linear_modal_analysis": "modal",
+    "mode_sign_convention": "modal",
+    "muscle_modes": "modal",
+    "natural_frequencies": "modal",
+    "rigid_mode_count": "modal",
+    "rigid_motions": "modal",
+    "sine_gait": "muscles",
+    "FullSpaceSimulator": "reference",
+    "run_scene": "run",
+    "Scene": "scene",
+    "SceneError": "scene",
+    "ModalMuscle": "sim",
+    "SimulationError": "sim",
+    "StepRecord": "sim",
+    "simulate": "sim",
+    "ScaleWarning": "units",
+    "scale_mismatch": "units",
+    "up_axis": "units",
+    "hinge_count": "modal",
+}
 
 __version__ = "0.1.0"
 
@@ -91,6 +98,7 @@ __all__ = [
     "natural_frequencies",
     "rigid_mode_count",
     "rigid_motions",
+    "hinge_count",
     "muscle_modes",
     "sine_gait",
     "ModalMuscle",
@@ -105,3 +113,16 @@ __all__ = [
     "scale_mismatch",
     "up_axis",
 ]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'skfem_modal' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # found once
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

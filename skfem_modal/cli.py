@@ -20,14 +20,13 @@ import warnings
 
 import numpy as np
 
-from .interrupts import Terminated, terminate_as_interrupt
+from .interrupts import EXIT_INTERRUPTED, Terminated, terminate_as_interrupt
 from .study import WorkersLost
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_NUMERICAL = 3
 EXIT_WORKERS_LOST = 4
-EXIT_INTERRUPTED = 130
 EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
 
 #: Elastic modes ``modes`` finds besides the rigid motions, unless -k says otherwise.

@@ -23,6 +23,9 @@ import signal
 import threading
 import time
 
+#: The exit code of a command stopped by Ctrl-C (128 + SIGINT), or SIGTERM, as shells give.
+EXIT_INTERRUPTED = 130
+
 __all__ = ["Terminated", "terminate_as_interrupt", "HeldSignals", "QuietSpawnContext", "exit_with_parent"]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)

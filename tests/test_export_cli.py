@@ -180,3 +180,23 @@ def test_a_modal_analysis_that_fails_numerically_says_so_without_a_traceback(tmp
         "Lanczos stall; ask for fewer modes, or analyse the parts one at a time\n"
     )
     assert not (tmp_path / "s.vtu").exists()
+
+
+@pytest.mark.parametrize("after", [0.15, 0.35, 0.55])
+def test_ctrl_c_while_the_command_line_loads_is_said_without_a_traceback(after):
+    # the console script imported numpy, scipy and scikit-fem (most of a second) before main() could catch
+    # a Ctrl-C: a traceback through the imports (an audit)
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = "import sys; from skfem_modal._entry import main; sys.exit(main())"
+    process = subprocess.Popen(
+        [sys.executable, "-c", script, "info", "caterpillar"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    time.sleep(after)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=60)
+    assert process.returncode == 130 and "Traceback" not in err
+    assert err.rstrip().endswith("interrupted") and err.count("\n") == 1
