@@ -30,8 +30,10 @@ A rollout that goes non-finite scores ``-1000 size``.
 Workers. :class:`Rollouts` runs the gaits of one trial on an executor and
 sends the trial's precompute (the pickled simulator: the backends are
 rebuilt on arrival) once to each worker: the local process pool gets it
-through its initializer, a dask cluster as one scattered object (every
-worker holds one copy, its tasks use it). Any other executor gets the scene
+through its initializer, a dask cluster as one scattered object, the
+pickled bytes (every worker holds one copy; the first task a worker runs
+unpickles it, the others find it unpickled: dask fetching the bytes twice, a
+task racing the broadcast, unpickled the simulator twice). Any other executor gets the scene
 instead and each of its worker processes builds the simulator once. Workers
 use ``blas_threads`` BLAS threads each (default one: the processes share the
 cores, and a result does not depend on where it ran). The local pool's
@@ -66,6 +68,8 @@ OBJECTIVES = ("travel", "aligned")
 
 # this process's trials, by key, and how many it received (unpickled) or built
 _TRIALS: dict = {}
+# a long-lived worker (dask's) keeps the trials of its last few searches, not of every one it served
+_KEPT_TRIALS = 3
 _COUNTS = {"received": 0, "built": 0}
 _BLAS_LIMIT: list = []  # the open thread limit of this worker process (kept open while it lives)
 
@@ -286,11 +290,11 @@ def _install(key: str, payload: bytes, blas_threads) -> None:
 def rollout(task: dict) -> dict:
     """Run one gait of a trial (an executor's task: plain data in and out).
 
-    ``task``: ``trial`` (the key of a trial this process holds, or the trial
-    itself, as a dask worker gets it), ``gait``, ``blas_threads``, ``parent``
-    (the search's process id: its own threads are left as they are), and
-    ``recipe`` (the scene and settings to build the trial from where this
-    process holds none) or None.
+    ``task``: ``trial`` (the key of a trial), ``gait``, ``blas_threads``,
+    ``parent`` (the search's process id: its own threads are left as they
+    are), and, for a process that holds no trial of that key yet, ``payload``
+    (the pickled trial, as dask workers get it) or ``recipe`` (the scene and
+    settings to build it from), or neither.
 
     Returns
     -------
@@ -299,14 +303,17 @@ def rollout(task: dict) -> dict:
         it has ``received`` and ``built``.
     """
     _limit_blas(task.get("blas_threads"), task.get("parent"))
-    trial = task["trial"]
-    if isinstance(trial, str):
-        if trial not in _TRIALS:
-            if task.get("recipe") is None:
-                raise RuntimeError("this worker holds no trial of that key and was sent no scene to build it from")
-            _TRIALS[trial] = Trial.from_scene(**task["recipe"])
-        trial = _TRIALS[trial]
-    score = trial.run(task["gait"])
+    key = task["trial"]
+    if key not in _TRIALS:
+        if task.get("payload") is not None:
+            _TRIALS[key] = pickle.loads(task["payload"])
+        elif task.get("recipe") is not None:
+            _TRIALS[key] = Trial.from_scene(**task["recipe"])
+        else:
+            raise RuntimeError("this worker holds no trial of that key and was sent no scene to build it from")
+        while len(_TRIALS) > _KEPT_TRIALS:
+            del _TRIALS[next(iter(_TRIALS))]  # the oldest
+    score = _TRIALS[key].run(task["gait"])
     score.update(pid=os.getpid(), **_COUNTS)
     return score
 
@@ -346,12 +353,13 @@ class Rollouts:
             if recipe is None:
                 raise ValueError("an executor that is not dask's needs the recipe to build the trial in its workers")
             self.executor, self.handle, self.recipe = executor, uuid.uuid4().hex, recipe
-        elif executor is not None:
-            self.executor = executor
-            self._scattered = self.handle = client.scatter(trial, broadcast=True, hash=False)
-        elif scheduler:
-            self.executor, self._close = make_executor(workers, scheduler)
-            self._scattered = self.handle = dask_client(self.executor).scatter(trial, broadcast=True, hash=False)
+        elif executor is not None or scheduler:
+            if executor is None:
+                executor, self._close = make_executor(workers, scheduler)
+                client = dask_client(executor)
+            self.executor, self.handle = executor, uuid.uuid4().hex
+            payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
+            self._scattered = client.scatter(payload, broadcast=True, hash=False)
         else:
             self.handle = uuid.uuid4().hex
             payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
@@ -379,6 +387,7 @@ class Rollouts:
                 "blas_threads": self.blas_threads,
                 "parent": os.getpid(),
                 "recipe": self.recipe,
+                "payload": self._scattered,
             }
             for gait in gaits
         ]
