@@ -80,19 +80,22 @@ _PER_VERTEX = ("touching", "sliding", "direction")
 _REFINE = 16
 
 
-def _least_norm(L) -> np.ndarray | None:
-    """``L^T (L L^T)^-1`` (shape (n, m)) for ``L`` (m, n) of full row rank, else None.
+def _gram_inverse(G, L) -> np.ndarray | None:
+    """``(L L^T)^-1`` (m, m) from ``G = L L^T`` for ``L`` (m, n) of full row rank, else None.
 
     Full rank as ``np.linalg.matrix_rank`` says; that SVD is only made when a Cholesky factor of
-    ``L L^T`` does not show it at once (reciprocal condition above 1e-12), so a well-posed
-    set of contact points costs a factor and a solve.
+    ``G`` does not show it at once (reciprocal condition above 1e-12), so a well-posed set of
+    contact points costs a factor and its inverse (m x m: the right-hand sides are the m
+    rows, not the n columns; 15 x 96 took 13 us in LAPACK's solve, its inverse 2).
     """
-    G = L @ L.T
     factor, info = lapack.dpotrf(G)
     if info == 0 and lapack.dpocon(factor, np.abs(G).sum(axis=0).max())[0] > 1e-12:
-        return lapack.dpotrs(factor, L)[0].T
+        upper = lapack.dpotri(factor)[0]  # the inverse's upper triangle, zeros below (scipy cleans them)
+        inverse = upper + upper.T
+        inverse.flat[:: G.shape[0] + 1] *= 0.5  # (np.triu's masks cost 13 us each)
+        return inverse
     if np.linalg.matrix_rank(L) == L.shape[0]:
-        return L.T @ np.linalg.solve(G, np.eye(L.shape[0]))
+        return np.linalg.inv(G)
     return None
 
 
@@ -185,6 +188,12 @@ class ReferenceContact(_Ground):
         JeT = self.Je.T.toarray() if sps.issparse(self.Je) else self.Je.T
         self.HinvJeT = system.solve(JeT)  # (r, p dim): H^-1 Je^T
         self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
+        # per point row, made once (a new active set then costs products of the points' size, not the
+        # subspace's): E E^T, whose rows and columns of a set are its L L^T; H^-1 E^T, the change of z
+        # a unit correction of each row makes; and that change's heights
+        self._gram = self.E @ self.E.T  # (p dim, p dim)
+        self._pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
+        self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
         self.solve, self.h = system.solve, float(h)
         self._cache: OrderedDict = OrderedDict()
 
@@ -258,7 +267,7 @@ class ReferenceContact(_Ground):
         dim = self.dim
         active = np.flatnonzero(mask)
         rows = (active[:, None] * dim + np.arange(dim)).ravel()
-        L = self.E[rows]
+        L, dheights = self.E[rows], None
         if self.push_out:
             # position rule: the least change of z in the energy norm of the
             # global step (contact forces at the points), z += H^-1 Je^T lam
@@ -268,18 +277,21 @@ class ReferenceContact(_Ground):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < L.shape[1] and (least := _least_norm(L)) is not None:
-            # reference: the least change of force that meets every constraint exactly
-            dz = self.solve(least)
+        elif rows.size < L.shape[1] and (X := _gram_inverse(self._gram.take(rows, 0).take(rows, 1), L)) is not None:
+            # reference: the least change of force that meets every constraint exactly,
+            # H^-1 L^T (L L^T)^-1 (and its heights) from the rows made once
+            dz, dheights = self._pull[:, rows] @ X, self._pull_up[:, rows] @ X
         else:
             # reference, more constraints than coordinates: least squares
             dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
+        if dheights is None:
+            dheights = np.asarray(self.Je_up @ dz)
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
         dz = np.ascontiguousarray(dz * factor)
         Je_rows = self.Je[rows]
         Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
-        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(np.asarray(self.Je_up @ dz)))
+        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor))
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
