@@ -23,6 +23,7 @@ __all__ = [
     "sign_convention",
     "canonical_repeated",
     "generic_weight",
+    "weighted_basis",
 ]
 
 # Eigenvalues closer than this (relative) form one repeated group.
@@ -455,6 +456,30 @@ def generic_weight(x: np.ndarray, components: int | None = None) -> np.ndarray:
     return (f[:, None] * comp[None, :]).ravel()
 
 
+def weighted_basis(V, M, weight):
+    """The basis of an M-orthonormal ``V``'s span that diagonalises a generic ``weight`` on it.
+
+    Unique up to sign and the same whatever basis of the span ``V`` is given
+    (the solver's, the vertex numbering's): the weight has no symmetry to share.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, g)
+        M-orthonormal columns.
+    M : scipy.sparse matrix, shape (n, n)
+    weight : ndarray, shape (n,)
+        :func:`generic_weight`.
+
+    Returns
+    -------
+    basis : ndarray, shape (n, g)
+        M-orthonormal, in ascending order of the weight's values on it.
+    """
+    S = V.T @ (M @ (weight[:, None] * V))
+    _, Q = np.linalg.eigh((S + S.T) / 2)
+    return V @ Q
+
+
 def canonical_repeated(values, vectors, M, weight):
     """Fix the basis inside every group of repeated eigenvalues.
 
@@ -483,10 +508,7 @@ def canonical_repeated(values, vectors, M, weight):
     while start < k:
         stop = _group_end(values, start, scale)
         if stop - start > 1:
-            V = vectors[:, start:stop]
-            S = V.T @ (M @ (weight[:, None] * V))
-            _, Q = np.linalg.eigh((S + S.T) / 2)
-            vectors[:, start:stop] = V @ Q
+            vectors[:, start:stop] = weighted_basis(vectors[:, start:stop], M, weight)
             values[start:stop] = values[start:stop].mean()
         start = stop
     return values, vectors

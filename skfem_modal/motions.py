@@ -18,6 +18,7 @@ import scipy.linalg as sla
 import scipy.sparse as sps
 from scipy.sparse.csgraph import connected_components
 
+from .eigen import generic_weight, weighted_basis
 from .fem import node_positions, scalar_basis, vector_dofs
 from .mesh import check_mesh, connected_parts
 
@@ -288,10 +289,8 @@ def hinge_count(mesh, fixed=None) -> int:
 
 def _hinge_motions(mesh, fixed, element: str, M=None) -> np.ndarray:
     """The hinges, shape (n_nodes * dim, h): zero-strain motions M-orthogonal to the rigid ones (to the
-    Euclidean complement without ``M``), M-orthonormal with ``M``, part by part, in a basis fixed by a
+    Euclidean complement without ``M``); with ``M``, M-orthonormal part by part in a basis fixed by a
     generic weight of the nodes."""
-    from .eigen import generic_weight
-
     pieces = facet_pieces(mesh)
     parts = _Parts(mesh, fixed, element)
     dim = parts.x.shape[1]
@@ -313,8 +312,9 @@ def _hinge_motions(mesh, fixed, element: str, M=None) -> np.ndarray:
         mass = None if M is None else M[rows][:, rows]
         free = _piece_motions(mesh, parts, nodes, pieces, node_piece)
         block = _hinges_of_part(free, _part_motions(parts.x[nodes], parts.pinned[nodes]), mass)
-        if block.shape[1]:
-            blocks.append((rows, _weighted_basis(block, mass, weight[nodes].ravel())))
+        if block.shape[1] and mass is not None:
+            block = weighted_basis(block, mass, weight[nodes].ravel())  # reproducible: the solver's would not be
+        blocks.append((rows, block))
     return _assembled(blocks, parts.x.size)
 
 
@@ -360,15 +360,6 @@ def _hinges_of_part(free: np.ndarray, rigid: np.ndarray, mass) -> np.ndarray:
     # the rigid ones lie in the span of ``free``: what is left has rank q - r, known, so no threshold
     gram, vectors = np.linalg.eigh(inner(free, free))
     return free @ (vectors[:, -hinges:] / np.sqrt(gram[-hinges:]))
-
-
-def _weighted_basis(block: np.ndarray, mass, weight: np.ndarray) -> np.ndarray:
-    """The basis of an (M-)orthonormal ``block``'s span that diagonalises a generic ``weight`` (solver- and
-    numbering-independent, up to sign)."""
-    weighted = weight[:, None] * block
-    S = block.T @ (weighted if mass is None else mass @ weighted)
-    _, Q = np.linalg.eigh((S + S.T) / 2)
-    return block @ Q
 
 
 def _m_orthonormalize(V: np.ndarray, M) -> np.ndarray:
