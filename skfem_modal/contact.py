@@ -369,9 +369,10 @@ class CoulombContact(_Ground):
     candidate is checked: if any they missed ended more than ``ALLOWANCE`` of
     the body's size below the ground, the step's iterations run again looking
     at a spread few of those too (and once more if that run missed others);
-    what is still below after that is held up with the others. So no vertex ends a step in the ground by more than about
-    ``ALLOWANCE`` of the size (between the vertices held, a subspace cannot
-    keep every vertex of a flat face exactly on the plane).
+    what is still below after that is held up with the others. So no vertex
+    ends a step in the ground by more than about ``ALLOWANCE`` of the size
+    (between the vertices held, a subspace cannot keep every vertex of a flat
+    face exactly on the plane).
 
     Parameters
     ----------

@@ -32,10 +32,10 @@ sends the trial's precompute (the pickled simulator: the backends are
 rebuilt on arrival) once to each worker: the local process pool gets it
 through its initializer, a dask cluster as one scattered object, the
 pickled bytes (every worker holds one copy; the first task a worker runs
-unpickles it, the others find it unpickled: dask fetching the bytes twice, a
-task racing the broadcast, unpickled the simulator twice). Any other executor gets the scene
-instead and each of its worker processes builds the simulator once. Workers
-use ``blas_threads`` BLAS threads each (default one: the processes share the
+unpickles it, the others find it unpickled: scattered as a simulator, a
+task racing the broadcast had it unpickled twice). Any other executor gets
+the scene instead and each of its worker processes builds the simulator
+once. Workers use ``blas_threads`` BLAS threads each (default one: the processes share the
 cores, and a result does not depend on where it ran). The local pool's
 workers ignore SIGINT, so Ctrl-C reaches the search alone, which stops them.
 """

@@ -536,3 +536,21 @@ def test_a_run_with_coulomb_contact_does_not_depend_on_what_ran_before():
     used.reset()
     for sim in (used, pickle.loads(payload)):
         np.testing.assert_array_equal(run(sim, gaits[1]), expected)
+
+
+def test_a_contact_sets_gram_inverse_and_its_rank_test():
+    # the reference contact's least-norm correction of a new set: (L L^T)^-1 by a Cholesky factor and its
+    # inverse (the symmetric fill-in from the upper triangle), the rank test only when the factor cannot tell
+    from skfem_modal.contact import _gram_inverse
+
+    L = np.random.default_rng(1).standard_normal((5, 12))
+    G = L @ L.T
+    np.testing.assert_allclose(_gram_inverse(G, L), np.linalg.inv(G), rtol=1e-12)
+    assert _gram_inverse(L[[0, 1, 1]] @ L[[0, 1, 1]].T, L[[0, 1, 1]]) is None  # a repeated row: no exact solution
+    # well posed (reciprocal condition 4.5e-12, the factor's path) and full rank past the factor's test
+    # (4.5e-14, the rank test's path): inverted both, to what float64 holds of G
+    for step, most in ((1e-5, 1e-5), (1e-6, 1e-3)):
+        near = L.copy()
+        near[1] = near[0] + step * L[1]
+        X = _gram_inverse(near @ near.T, near)
+        assert np.abs((near @ near.T) @ X - np.eye(5)).max() < most

@@ -626,3 +626,33 @@ def test_an_output_folder_nothing_can_be_written_in_is_named_before_any_work(com
     err = capsys.readouterr().err
     assert f"skfem-modal {command[0]}: error: the output folder '/proc/skfem_modal_out' cannot be written: " in err
     assert "'/proc' refuses a new folder" in err
+
+
+class _Counted:
+    """A stand-in trial: what a rollout needs of one (``run``), cheap to pickle."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def run(self, gait):
+        return {"fitness": float(len(self.name)), "trial": self.name}
+
+
+def test_a_worker_unpickles_a_sent_trial_once_and_keeps_its_last_three(monkeypatch):
+    """A dask worker gets the pickled trial with every task: unpickled at the first, found after; a long-lived
+    worker serving many searches keeps the last 3 (it kept every one: a search's simulator is tens of MB)."""
+    import pickle
+
+    monkeypatch.setattr(rollouts, "_TRIALS", {})
+    loads = []
+    unpickle = pickle.loads
+    monkeypatch.setattr(pickle, "loads", lambda data: loads.append(data) or unpickle(data))
+    for name in ("a", "bb", "ccc", "dddd"):
+        payload = pickle.dumps(_Counted(name))
+        for _ in range(3):
+            score = rollouts.rollout({"trial": f"key-{name}", "gait": {}, "payload": payload, "recipe": None})
+            assert score["trial"] == name and score["fitness"] == len(name)
+    assert len(loads) == 4  # once per trial, not per task
+    assert list(rollouts._TRIALS) == ["key-bb", "key-ccc", "key-dddd"]  # the oldest went
+    with pytest.raises(RuntimeError, match="holds no trial of that key and was sent no scene"):
+        rollouts.rollout({"trial": "key-a", "gait": {}, "payload": None, "recipe": None})
