@@ -76,11 +76,19 @@ class Picked:
         p = pushes.shape[0] // dim
         self.up_rows = np.arange(p) * dim + up
         self.tangent_rows = np.arange(p)[:, None] * dim + self.tangents
-        # the tangent rows' pushes and reach by vertex, (p, dim - 1, r) and (p, dim - 1, p dim): a
-        # sliding vertex's friction leans its normal force onto them
-        self.tangent_pushes = pushes[self.tangent_rows]
-        self.tangent_reach = np.ascontiguousarray(self.reach.T[self.tangent_rows])
+        # the tangent rows' pushes and reach by vertex, side by side, (p, dim - 1, r + p dim): a
+        # sliding vertex's friction leans its normal force onto them (one product for both)
+        self.tangent_leans = np.concatenate([pushes[self.tangent_rows], self.reach.T[self.tangent_rows]], axis=2)
         self.stamp = 0
+        self._cone_weights = {}
+
+    def cone_weights(self, cone) -> np.ndarray:
+        """``[1, .., 1, -cone^2]`` (dim,): a sticking vertex's squared forces (tangents, then normal) weighed
+        by them sum to its tangential force squared less ``cone`` times its normal force, squared."""
+        weights = self._cone_weights.get(cone)
+        if weights is None:
+            weights = self._cone_weights[cone] = np.append(np.ones(self.dim - 1), -cone * cone)
+        return weights
 
     def aim(self, start, target, floor) -> None:
         """The step's start positions (p dim,), targets (p dim,) and floors (p,)."""
@@ -94,7 +102,7 @@ class Picked:
     @property
     def nbytes(self) -> int:
         """Memory held by the pick's arrays (``J`` too when dense)."""
-        arrays = (self.J, self.pushes, self.reach, self.tangent_pushes, self.tangent_reach)
+        arrays = (self.J, self.pushes, self.reach, self.tangent_leans)
         return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
 
@@ -127,22 +135,34 @@ class SetOperator:
 
     def __init__(self, picked, active, stick, sliding, direction, friction, compliance):
         self.friction, self.compliance, self.dim = friction, compliance, picked.dim
-        self.pushed = active.nonzero()[0]
-        self.slid = sliding.nonzero()[0] if friction else np.zeros(0, np.int64)
-        self.sticking = stick.nonzero()[0]
-        self.stuck = np.searchsorted(self.pushed, self.sticking)
+        self.cone = friction * (1.0 + _CONE)  # a sticking vertex's tangential force over its normal force, at most
+        self.pushed = pushed = active.nonzero()[0]
+        self.slid = slid = sliding.nonzero()[0] if friction else np.zeros(0, np.int64)
+        self.sticking = sticking = stick.nonzero()[0]
+        self.stuck = pushed.searchsorted(sticking)  # (the method: a third of np.searchsorted's cost)
         self.free = (~active).nonzero()[0]
-        self.ways = direction[self.slid]
-        self.held = picked.tangent_rows[self.sticking].ravel()
-        self.n_pushed = self.pushed.size
-        rows = self.rows = np.concatenate([picked.up_rows[self.pushed], self.held])
+        self.held = picked.tangent_rows[sticking].ravel()
+        self.n_pushed = n = pushed.size
+        rows = self.rows = np.concatenate([picked.up_rows[pushed], self.held])
         pushes, reach = picked.pushes[rows], picked.reach[:, rows]
-        if self.slid.size:
-            ways = self.ways[:, None, picked.tangents]  # (s, 1, dim - 1)
-            at = np.searchsorted(self.pushed, self.slid)
-            pushes[at] += friction * np.matmul(ways, picked.tangent_pushes[self.slid])[:, 0]
-            reach[:, at] += friction * np.matmul(ways, picked.tangent_reach[self.slid])[:, 0].T
-            self.way_rows, self.way_weights = picked.tangent_rows[self.slid].ravel(), ways.ravel()
+        if slid.size:
+            self.ways = direction[slid]
+            ways = self.ways[:, picked.tangents]  # (s, dim - 1)
+            at = pushed.searchsorted(slid)
+            lean = np.matmul(ways[:, None], picked.tangent_leans[slid])[:, 0]
+            lean *= friction
+            r = pushes.shape[1]
+            pushes[at] += lean[:, :r]
+            reach[:, at] += lean[:, r:].T
+            # each sliding vertex's motion along its friction's way is one row over the picked coordinates
+            self.way_map = np.zeros((slid.size, reach.shape[0]))
+            self.way_map[np.arange(slid.size)[:, None], picked.tangent_rows[slid]] = ways
+        if sticking.size:
+            # each sticking vertex's tangential forces and normal force, gathered at once from the forces
+            index = self.cone_index = np.empty((sticking.size, self.dim), np.int64)
+            index[:, :-1] = np.arange(n, n + self.held.size).reshape(sticking.size, -1)
+            index[:, -1] = self.stuck
+            self.cone_weights = picked.cone_weights(self.cone)
         K = reach[rows]
         K.flat[:: rows.size + 1] += compliance
         self.inverse = _inverse(K)
@@ -156,7 +176,7 @@ class SetOperator:
         self.targets = picked.target[self.rows]
         self.floors = picked.floor[self.free]
         if self.slid.size:
-            self.way_starts = picked.start[self.way_rows]
+            self.way_start = dot(self.way_map, picked.start)
 
     def evaluate(self, picked, x_t, refine=0, quiet=np.inf):
         """The forces and the picked coordinates after the solve, for a global solution's ``x_t``.
@@ -203,8 +223,9 @@ class SetOperator:
 
     def _backwards(self, x) -> np.ndarray:
         """How far each sliding vertex moved the way its friction pushes, shape (s,)."""
-        moved = (x[self.way_rows] - self.way_starts) * self.way_weights
-        return np.add.reduce(moved.reshape(self.slid.size, -1), axis=1)
+        moved = dot(self.way_map, x)
+        moved -= self.way_start
+        return moved
 
     def holds(self, lam, x, tol) -> bool:
         """Whether the sets hold: no pull, none left below, none sticking beyond its cone or sliding back.
@@ -214,14 +235,15 @@ class SetOperator:
         n = self.n_pushed
         if n:
             normal = lam[:n]
-            if _min(normal) < -_PULL * max(_max(normal), 1e-300):
+            least = _min(normal)
+            if least < 0.0 and least < -_PULL * max(_max(normal), 1e-300):
                 return False
         if self.free.size and _min(x[self.free_rows] - self.floors) < 0.0:
             return False
         if self.sticking.size:
-            held = lam[n:]
-            needed = np.add.reduce((held * held).reshape(-1, self.dim - 1), axis=1)
-            if _max(needed - (self.friction * (1.0 + _CONE) * lam[self.stuck]) ** 2) > 0.0:
+            forces = lam[self.cone_index]
+            forces *= forces
+            if _max(dot(forces, self.cone_weights)) > 0.0:  # tangential^2 - (cone normal)^2
                 return False
         if self.slid.size and _max(self._backwards(x)) > tol:
             return False
@@ -266,7 +288,7 @@ class SetOperator:
             stops[self.slid] = self._backwards(x) > tol
         needed = np.sqrt(np.add.reduce(tangential * tangential, axis=1))
         at = self.sticking
-        slips[at] = needed[at] > self.friction * normal[at] * (1.0 + _CONE)
+        slips[at] = needed[at] > self.cone * normal[at]
         slips &= ~release
         return normal, tangential, needed, release, below, slips, stops, depth
 

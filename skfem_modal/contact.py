@@ -739,7 +739,7 @@ class CoulombContact(_Ground):
                 self._last = last
                 return True
         z_t = z.copy()
-        active = self.touching[picked].copy()
+        active = self.touching[picked]  # (a copy: fancy indexing)
         if not np.count_nonzero(active):
             depth = x_t[self.up :: self.dim] - self.floor
             if not np.count_nonzero(depth < 0.0):
@@ -752,7 +752,7 @@ class CoulombContact(_Ground):
         # more than friction gives slides the way that force points, against the motion it would
         # have without friction (implicit Coulomb friction's return mapping)
         sliding = active & self.sliding[picked] if not retest else np.zeros_like(active)
-        direction = self.direction[picked].copy()
+        direction = self.direction[picked]
         seen = set()
         for attempt in range(_PASSES):
             stick = active & ~sliding if mu else np.zeros_like(active)
