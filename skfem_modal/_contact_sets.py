@@ -134,7 +134,7 @@ class SetOperator:
     """
 
     def __init__(self, picked, active, stick, sliding, direction, friction, compliance):
-        self.friction, self.compliance, self.dim = friction, compliance, picked.dim
+        self.friction, self.compliance, self.dim, self.tangents = friction, compliance, picked.dim, picked.tangents
         self.cone = friction * (1.0 + _CONE)  # a sticking vertex's tangential force over its normal force, at most
         self.pushed = pushed = active.nonzero()[0]
         self.slid = slid = sliding.nonzero()[0] if friction else np.zeros(0, np.int64)
@@ -260,10 +260,9 @@ class SetOperator:
         -------
         normal : ndarray, shape (p,)
             Every picked vertex's normal force (0 where not pushed).
-        tangential : ndarray, shape (p, dim), or None without friction
-            The sticking vertices' tangential forces, the sliding ones' friction.
-        needed : ndarray, shape (p,), or None without friction
-            Their lengths.
+        ways : ndarray, shape (p, dim), or None
+            The way each vertex in ``slips`` would slide, against the tangential force its
+            sticking took, unit (None without any).
         release, below, slips, stops : ndarray of bool, shape (p,)
             Pulled by the ground; not pushed and below its floor; sticking beyond the
             cone (and not pulled); sliding back against its friction's way by over ``tol``.
@@ -279,18 +278,20 @@ class SetOperator:
         depth[self.free] = x[self.free_rows] - self.floors
         below = depth < 0.0
         slips, stops = np.zeros(p, bool), np.zeros(p, bool)
-        if not self.friction:
-            return normal, None, None, release, below, slips, stops, depth
-        tangential = np.zeros((p, self.dim))
-        tangential.ravel()[self.held] = lam[n:]
+        ways = None
         if self.slid.size:
-            tangential[self.slid] = (self.friction * normal[self.slid])[:, None] * self.ways
             stops[self.slid] = self._backwards(x) > tol
-        needed = np.sqrt(np.add.reduce(tangential * tangential, axis=1))
-        at = self.sticking
-        slips[at] = needed[at] > self.cone * normal[at]
-        slips &= ~release
-        return normal, tangential, needed, release, below, slips, stops, depth
+        if self.sticking.size:
+            held = lam[n:].reshape(-1, self.dim - 1)  # the sticking vertices' tangential forces
+            needed = np.sqrt(np.add.reduce(held * held, axis=1))
+            slipping = needed > self.cone * lam[self.stuck]
+            slipping &= ~release[self.sticking]
+            if np.count_nonzero(slipping):
+                at = self.sticking[slipping]
+                slips[at] = True
+                ways = np.zeros((p, self.dim))
+                ways[at[:, None], self.tangents] = held[slipping] / needed[slipping, None]
+        return normal, ways, release, below, slips, stops, depth
 
     @property
     def nbytes(self) -> int:

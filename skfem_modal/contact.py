@@ -763,7 +763,7 @@ class CoulombContact(_Ground):
                 found = op.evaluate(self.sets, x_t, self._refine, self._quiet)
             np.copyto(z, z_t)
             op.apply(z, found[0])
-            normal, tangential, needed, release, below, slips, stops, depth = op.diagnose(*found, picked.size, self.tol)
+            normal, ways, release, below, slips, stops, depth = op.diagnose(*found, picked.size, self.tol)
             if mu and attempt >= _PASSES // 2:
                 # going round: from here a vertex only starts sliding, never stops again, so that
                 # the passes end; one its friction drives back stops in the step's next projection
@@ -795,7 +795,8 @@ class CoulombContact(_Ground):
                 friction_changes = False
             # (else friction alone goes round: in the second half only slips are left, stops cleared above)
             if friction_changes:
-                direction[slips] = tangential[slips] / needed[slips, None]
+                if ways is not None:
+                    direction[slips] = ways[slips]
                 sliding = (sliding | slips) & ~stops
             sliding &= active
             if not np.count_nonzero(active):
@@ -809,7 +810,7 @@ class CoulombContact(_Ground):
         # going round in circles: the whole problem over the rows concerned, at once (friction within a
         # pyramid inside Coulomb's cone: _least_distance)
         near = active | below
-        normal, tangential, x = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
+        normal = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
         self._update_state(normal > 0.0, np.zeros(picked.size, bool), direction)
         return True
 
@@ -827,7 +828,7 @@ class CoulombContact(_Ground):
         not enough). The dual, ``min 1/2 b^T A K A^T b - (A d)^T b`` over ``b >= 0`` (``A``
         the generators over the rows, ``K`` the rows' compliance matrix, positive definite by
         its compliance, ``d`` the gaps), is ``|L^T A^T b|^2 / 2 - (A d)^T b`` with ``L L^T = K``.
-        Returns the normal forces (p,), the tangential forces (p, dim) and the positions after.
+        Returns the normal forces (p,).
         """
         sets, dim, up, mu = self.sets, self.dim, self.up, self.friction
         p = self.picked.size
@@ -862,10 +863,7 @@ class CoulombContact(_Ground):
             goal[heights] += give
         on_rows = np.zeros(p * dim)
         on_rows[rows] = forces
-        normal = on_rows[up::dim].copy()
-        tangential = on_rows.reshape(p, dim)
-        tangential[:, up] = 0.0
-        return normal, tangential, x
+        return on_rows[up::dim].copy()
 
     def _least_distance_solve(self, factor, half, pushes, gap, z_t, z):
         """One least-distance solve (:meth:`_least_distance`) for the generators' gaps ``gap`` (g,); z in place.
