@@ -610,17 +610,18 @@ class CoulombContact(_Ground):
         ``start`` gives the first ones' start-of-step positions when they are known (the others
         start where ``z_start`` has them).
         """
-        same = picked.size and np.array_equal(picked, self._made_for)
+        # (the vertices kept from the last step are the very array the operators were made for)
+        same = picked.size and (picked is self._made_for or np.array_equal(picked, self._made_for))
         self.picked = picked
         if not picked.size:
             return
         dim = self.dim
-        self.rows_of_picked = (picked[:, None] * dim + np.arange(dim)).ravel()  # candidate rows, picked order
         if not same:  # the operators index the picked vertices: made again for others
             self._operators, self._last, self._made_for = {}, None, picked
             rows = self.space.rows(self.space.dofs(self.vertices[picked]))
             self.J = rows.tocsr() if sps.issparse(rows) else rows
-            self.sets = Picked(self.J, self._push_of(self.rows_of_picked), dim, self.up)
+            candidate_rows = (picked[:, None] * dim + np.arange(dim)).ravel()  # picked order
+            self.sets = Picked(self.J, self._push_of(candidate_rows), dim, self.up)
         self.start = self.sets.positions(z_start).reshape(-1, dim)
         if start is not None:
             self.start[: start.shape[0]] = start
