@@ -554,3 +554,70 @@ def test_a_contact_sets_gram_inverse_and_its_rank_test():
         near[1] = near[0] + step * L[1]
         X = _gram_inverse(near @ near.T, near)
         assert np.abs((near @ near.T) @ X - np.eye(5)).max() < most
+
+
+def test_a_contact_sets_checks_read_each_vertex_as_coulomb_says():
+    # the Coulomb contact's small solves check their sets in a few gathers and products (a sticking
+    # vertex's forces gathered at once, each sliding vertex's motion along its way as one row): here
+    # each rule is read vertex by vertex from the forces and positions, on sets made to break each rule
+    from skfem_modal._contact_sets import Picked, SetOperator
+
+    rng = np.random.default_rng(7)
+    p, dim, up, r, mu, tol = 8, 3, 1, 30, 0.5, 1e-9
+    tangents = [0, 2]
+    J = rng.standard_normal((p * dim, r))
+    A = rng.standard_normal((r, r))
+    pushes = np.linalg.solve(A @ A.T + r * np.eye(r), J.T).T
+    picked = Picked(J, pushes, dim, up)
+    start = rng.standard_normal(p * dim)
+    target = start + 0.01 * rng.standard_normal(p * dim)
+    picked.aim(start, target, target[up::dim] - tol)
+    outcomes = {"holds": 0, "release": 0, "below": 0, "slips": 0, "stops": 0}
+    for _ in range(400):
+        active = rng.random(p) < 0.7
+        sliding = active & (rng.random(p) < 0.4)
+        angle = rng.uniform(0, 2 * np.pi, p)
+        direction = np.zeros((p, dim))
+        direction[:, 0], direction[:, 2] = np.cos(angle), np.sin(angle)
+        op = SetOperator(picked, active, active & ~sliding, sliding, direction, mu, 1e-3)
+        # the forces asked for (each rule broken by about one vertex in twenty): normal ones pushing,
+        # tangential ones within the cone, free vertices above their floors, sliding ones going their way
+        n, sticking = np.count_nonzero(active), np.flatnonzero(active & ~sliding)
+        normal_wanted = rng.uniform(0.05, 1.0, p) * np.where(rng.random(p) < 0.05, -1.0, 1.0)
+        tangential = rng.uniform(-0.3, 0.3, (p, 2)) * np.where(rng.random(p) < 0.05, 4.0, 1.0)[:, None]
+        wanted = np.concatenate([normal_wanted[active], (tangential[sticking] * normal_wanted[sticking, None]).ravel()])
+        x_t = J @ rng.standard_normal(r)
+        x_t[op.rows] = target[op.rows] - np.linalg.inv(op.inverse) @ wanted
+        for v in np.flatnonzero(~active):
+            gap = rng.uniform(0.01, 1.0) * (-1.0 if rng.random() < 0.05 else 1.0)
+            x_t[v * dim + up] = target[v * dim + up] + gap - op.reach[v * dim + up] @ wanted
+        for v in np.flatnonzero(sliding):
+            moved = rng.uniform(1e-6, 1e-3) * (1.0 if rng.random() < 0.05 else -1.0)
+            rows = v * dim + np.array(tangents)
+            x_t[rows] = start[rows] - op.reach[rows] @ wanted + moved * direction[v, tangents]
+        lam, x = op.evaluate(picked, x_t)
+        np.testing.assert_allclose(lam, wanted, atol=1e-9)
+        normal = np.zeros(p)
+        normal[active] = lam[:n]
+        release = normal < -1e-9 * max(normal.max(), 1e-300)
+        below = np.array([not active[v] and x[v * dim + up] < target[v * dim + up] - tol for v in range(p)])
+        slips, stops, ways = np.zeros(p, bool), np.zeros(p, bool), np.zeros((p, dim))
+        for j, v in enumerate(sticking):
+            force = np.zeros(dim)
+            force[tangents] = lam[n + 2 * j : n + 2 * j + 2]
+            slips[v] = np.linalg.norm(force) > mu * (1 + 1e-9) * normal[v] and not release[v]
+            ways[v] = force / np.linalg.norm(force)
+        for v in np.flatnonzero(sliding):
+            moved = [(x[v * dim + a] - start[v * dim + a]) * direction[v, a] for a in tangents]
+            stops[v] = sum(moved) > tol
+        found_normal, found_ways, *found, _ = op.diagnose(lam, x, p, tol)
+        np.testing.assert_array_equal(found_normal, normal)
+        for name, expected, got in zip(("release", "below", "slips", "stops"), (release, below, slips, stops), found):
+            np.testing.assert_array_equal(got, expected, err_msg=name)
+            outcomes[name] += bool(expected.any())
+        if slips.any():
+            np.testing.assert_allclose(found_ways[slips], ways[slips], atol=1e-12)
+        holds = not (release.any() or below.any() or slips.any() or stops.any())
+        assert op.holds(lam, x, tol) == holds
+        outcomes["holds"] += holds
+    assert min(outcomes.values()) >= 10, outcomes  # every rule broken, and kept, in many sets
