@@ -739,7 +739,6 @@ class CoulombContact(_Ground):
                 last.apply(z, found[0])
                 self._last = last
                 return True
-        z_t = z.copy()
         active = self.touching[picked]  # (a copy: fancy indexing)
         if not np.count_nonzero(active):
             depth = x_t[self.up :: self.dim] - self.floor
@@ -762,16 +761,16 @@ class CoulombContact(_Ground):
             else:
                 op = self._operator(active, stick, sliding, direction)
                 found = op.evaluate(self.sets, x_t, self._refine, self._quiet)
-            np.copyto(z, z_t)
-            op.apply(z, found[0])
             normal, ways, release, below, slips, stops, depth = op.diagnose(*found, picked.size, self.tol)
             if mu and attempt >= _PASSES // 2:
                 # going round: from here a vertex only starts sliding, never stops again, so that
                 # the passes end; one its friction drives back stops in the step's next projection
                 stops[:] = False
-            if not (np.count_nonzero(release) or np.count_nonzero(below)) and not (
+            n_below = np.count_nonzero(below)
+            if not (np.count_nonzero(release) or n_below) and not (
                 mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
             ):
+                op.apply(z, found[0])  # (z is the global solution until the sets hold)
                 self._update_state(active, sliding, direction)
                 self._last = op  # the next projection tries the same sets first
                 return True
@@ -784,8 +783,9 @@ class CoulombContact(_Ground):
                 # release every vertex the ground pulls, hold the deepest few below: the rows of
                 # neighbouring vertices nearly repeat each other, so a few stand for a whole patch
                 active = active & ~release
-                active[self._deepest(depth)] = True
-            elif np.count_nonzero(below):
+                if n_below:
+                    active[self._deepest(depth)] = True
+            elif n_below:
                 # going round in circles: one change at a time, the deepest vertex first
                 active = active | (below & (depth <= depth[below].min()))
                 friction_changes = False
@@ -805,13 +805,12 @@ class CoulombContact(_Ground):
                 active = x_t[self.up :: self.dim] < self.floor
                 sliding &= active
                 if not np.count_nonzero(active):
-                    np.copyto(z, z_t)
                     self._release()
-                    return True
+                    return False
         # going round in circles: the whole problem over the rows concerned, at once (friction within a
         # pyramid inside Coulomb's cone: _least_distance)
         near = active | below
-        normal = self._least_distance(near, near if mu else np.zeros_like(near), z_t, x_t, z)
+        normal = self._least_distance(near, near if mu else np.zeros_like(near), z.copy(), x_t, z)
         self._update_state(normal > 0.0, np.zeros(picked.size, bool), direction)
         return True
 
