@@ -79,7 +79,7 @@ class Player:
     Parameters
     ----------
     sim : skfem_modal.sim.ModalMuscle
-        Only its public API is used: ``rest_state``, ``step``, ``positions``,
+        Only its public API is used: ``reset``, ``rest_state``, ``step``, ``positions``,
         ``com``, ``muscle_amplitudes``, ``ceilings``, ``h``, ``n_muscles``.
     gait : callable, optional
         ``gait(t) -> a``, activations of shape (m,) at simulated time ``t``.
@@ -155,7 +155,12 @@ class Player:
 
     # ------------------------------------------------------------ controls
     def reset(self) -> None:
-        """The body back at rest, time to zero, sliders to zero (gait and pause stay)."""
+        """The body back at rest, time to zero, sliders to zero (gait and pause stay).
+
+        The simulator forgets what its earlier steps left (the contact's vertices, the iterations'
+        warm starts), so a reset player repeats itself whatever ran the simulator before.
+        """
+        self.sim.reset()
         self.z, self.z_dot, _ = self.sim.rest_state()
         self.n_steps = 0
         self.sliders = np.zeros(self.sim.n_muscles)

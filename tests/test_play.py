@@ -589,3 +589,23 @@ def test_the_command_refuses_the_window_sizes_play_refuses(size, capsys):
     width, height = size.split("x")
     said = "argument --size: window size must be at least 200 x 150 pixels (and at most 8192 a side)"
     assert f"{said}, got {width} x {height}" in capsys.readouterr().err
+
+
+def test_a_player_repeats_itself_whatever_ran_its_simulator_before(creature):
+    # play(sim) then Player(sim) (docs/play.md): the Coulomb contact kept the vertices the earlier
+    # steps looked at, so the player's first steps differed with how long the window had run
+    scene, sim = creature
+
+    def amplitudes_after_a_slider():
+        player = Player(sim, clock=FakeClock())
+        player.set_slider(2, 0.5 * sim.ceilings[2])
+        for _ in range(40):
+            player.step()
+        return player.amplitudes()
+
+    first = amplitudes_after_a_slider()
+    z, z_dot, _ = sim.rest_state()
+    for i in range(37):  # another user of the simulator, stopped anywhere
+        z, z_dot = sim.step(z, z_dot, scene.activation(i * sim.h, sim.ceilings), velocity=True)
+    np.testing.assert_array_equal(amplitudes_after_a_slider(), first)
+    assert abs(first[2]) > 4 * np.abs(np.delete(first, 2)).max()  # the slider's muscle takes its mode
