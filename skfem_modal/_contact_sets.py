@@ -80,15 +80,6 @@ class Picked:
         # sliding vertex's friction leans its normal force onto them (one product for both)
         self.tangent_leans = np.concatenate([pushes[self.tangent_rows], self.reach.T[self.tangent_rows]], axis=2)
         self.stamp = 0
-        self._cone_weights = {}
-
-    def cone_weights(self, cone) -> np.ndarray:
-        """``[1, .., 1, -cone^2]`` (dim,): a sticking vertex's squared forces (tangents, then normal) weighed
-        by them sum to its tangential force squared less ``cone`` times its normal force, squared."""
-        weights = self._cone_weights.get(cone)
-        if weights is None:
-            weights = self._cone_weights[cone] = np.append(np.ones(self.dim - 1), -cone * cone)
-        return weights
 
     def aim(self, start, target, floor) -> None:
         """The step's start positions (p dim,), targets (p dim,) and floors (p,)."""
@@ -112,7 +103,7 @@ class SetOperator:
     ``(A H^-1 F^T + c I) lam = target_A - A z``: the rows ``A`` are the pushed
     vertices' heights, then the sticking ones' tangents; ``F = A`` but for the
     sliding vertices, whose normal force leans by ``friction`` the way their
-    friction pushes (``ways``), so it is exactly ``friction`` times the normal
+    friction pushes (``direction``), so it is exactly ``friction`` times the normal
     force. ``z + pushes^T lam`` is the projection; the picked coordinates
     after it are ``x = x_t + reach lam``.
 
@@ -141,13 +132,12 @@ class SetOperator:
         self.sticking = sticking = stick.nonzero()[0]
         self.stuck = pushed.searchsorted(sticking)  # (the method: a third of np.searchsorted's cost)
         self.free = (~active).nonzero()[0]
-        self.held = picked.tangent_rows[sticking].ravel()
+        held = picked.tangent_rows[sticking].ravel()
         self.n_pushed = n = pushed.size
-        rows = self.rows = np.concatenate([picked.up_rows[pushed], self.held])
+        rows = self.rows = np.concatenate([picked.up_rows[pushed], held])
         pushes, reach = picked.pushes[rows], picked.reach[:, rows]
         if slid.size:
-            self.ways = direction[slid]
-            ways = self.ways[:, picked.tangents]  # (s, dim - 1)
+            ways = direction[slid][:, picked.tangents]  # (s, dim - 1)
             at = pushed.searchsorted(slid)
             lean = np.matmul(ways[:, None], picked.tangent_leans[slid])[:, 0]
             lean *= friction
@@ -160,9 +150,10 @@ class SetOperator:
         if sticking.size:
             # each sticking vertex's tangential forces and normal force, gathered at once from the forces
             index = self.cone_index = np.empty((sticking.size, self.dim), np.int64)
-            index[:, :-1] = np.arange(n, n + self.held.size).reshape(sticking.size, -1)
+            index[:, :-1] = np.arange(n, n + held.size).reshape(sticking.size, -1)
             index[:, -1] = self.stuck
-            self.cone_weights = picked.cone_weights(self.cone)
+            # squared, weighed by these, they sum to the tangential force squared less (cone normal)^2
+            self.cone_weights = np.array([1.0] * (self.dim - 1) + [-self.cone * self.cone])
         K = reach[rows]
         K.flat[:: rows.size + 1] += compliance
         self.inverse = _inverse(K)
