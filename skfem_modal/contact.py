@@ -196,10 +196,19 @@ class ReferenceContact(_Ground):
         self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
         self.solve, self.h = system.solve, float(h)
         self._cache: OrderedDict = OrderedDict()
+        # one product gives a correction of z and of the heights: (r + p,), split by two views
+        self._correction = np.empty(self._pull.shape[0] + self._pull_up.shape[0])
+        self._dz, self._dheights = self._correction[: self._pull.shape[0]], self._correction[self._pull.shape[0] :]
+        self._forget_set()
+
+    def _forget_set(self) -> None:
+        # the last active set's key, entry and target rows: a step's iterations mostly keep one set
+        self._set_key, self._set, self._set_target = None, None, None
 
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_cache"] = OrderedDict()
+        state.update(_set_key=None, _set=None, _set_target=None)
         state.pop("_dot", None)
         return state
 
@@ -215,6 +224,7 @@ class ReferenceContact(_Ground):
         """Remember the contact positions at the start of the step (``again``: the same step once more)."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
+        self._set_key = None  # its target rows are the last step's
         if self.push_out:
             depth = np.maximum(self.ground - up_start, 0.0)
             # the lowest end height allowed: the ground, or on the way out of it
@@ -257,9 +267,8 @@ class ReferenceContact(_Ground):
         self.n_below = np.count_nonzero(below)
         return self.active_count > 0
 
-    def _projection(self, mask: np.ndarray):
-        """The active points' position rows and correction matrices (cached per active set)."""
-        key = mask.tobytes()
+    def _projection(self, key: bytes, mask: np.ndarray):
+        """The active points' position rows and correction matrix (cached per active set, ``key`` the mask's bytes)."""
         entry = self._cache.get(key)
         if entry is not None:
             self._cache.move_to_end(key)
@@ -288,10 +297,11 @@ class ReferenceContact(_Ground):
             dheights = np.asarray(self.Je_up @ dz)
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
-        dz = np.ascontiguousarray(dz * factor)
+        dz = dz * factor
         Je_rows = self.Je[rows]
         Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
-        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor))
+        # (r + p, rows): the change of z and of the heights per unit of each row's miss
+        entry = (active, rows, Je_rows, np.vstack([dz, dheights * factor]))
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
@@ -299,11 +309,15 @@ class ReferenceContact(_Ground):
 
     def _apply(self, z, heights, mask) -> None:
         """Correct ``z`` and its contact heights in place for an active set."""
-        active, rows, Je_rows, dz, dheights = self._projection(mask)
+        key = mask.tobytes()
+        if key != self._set_key:
+            self._set = self._projection(key, mask)
+            self._set_key, self._set_target = key, self.p_target[self._set[1]]
+        active, _, Je_rows, correction = self._set
         self.active_count = active.size
-        delta = self.p_target[rows] - dot(Je_rows, z)
-        z += dot(dz, delta)
-        heights += dot(dheights, delta)
+        dot(correction, self._set_target - dot(Je_rows, z), self._correction)
+        z += self._dz
+        heights += self._dheights
 
     def _project_positions(self, z, heights) -> bool:
         """Position rule: no contact point ends below its target height."""
@@ -676,7 +690,7 @@ class CoulombContact(_Ground):
         one step): the driver runs the step's iterations again, with a spread few of the missed
         ones among the vertices looked at (those still below at the end are held up there).
         """
-        heights = self.heights_of(z)
+        heights = self.heights_of.above(z, self._lowest)  # the lowest allowed: exact below it
         self._checked = (z.copy(), heights)  # the end of the step needs them too
         below = self._unpicked(np.flatnonzero(heights < self._lowest))
         self._missed = self._spread(below, heights)  # a flat face's sag: a spread few hold it all
@@ -701,7 +715,7 @@ class CoulombContact(_Ground):
         checked, self._checked = self._checked, None
         for _ in range(_FINISH):
             same = checked is not None and np.array_equal(checked[0], z)
-            heights = checked[1] if same else self.heights_of(z)
+            heights = checked[1] if same else self.heights_of.above(z, self._lowest)
             checked = None
             below = np.flatnonzero(heights < self._lowest)
             if not below.size:

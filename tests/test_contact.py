@@ -621,3 +621,30 @@ def test_a_contact_sets_checks_read_each_vertex_as_coulomb_says():
         assert op.holds(lam, x, tol) == holds
         outcomes["holds"] += holds
     assert min(outcomes.values()) >= 10, outcomes  # every rule broken, and kept, in many sets
+
+
+def test_the_end_of_a_steps_check_in_single_precision_sees_every_vertex_below_as_exact_arithmetic():
+    # a step's end reads every candidate's height in single precision first (half the memory), then
+    # exactly near the floor: on rows with cancellation and floors a hair above, at and below each
+    # exact height, the vertices below are those the exact product says, with its values
+    from skfem_modal.space import Heights
+
+    rng = np.random.default_rng(3)
+    p, q = 4000, 32
+    rows = rng.standard_normal((p, q)) * rng.uniform(0.1, 10.0, (p, 1))
+    heights = Heights(rows, slice(1, None, 3))
+    z = 10.0 * rng.standard_normal(3 * q)
+    exact = heights(z)
+    single = (rows.astype(np.float32) @ z[1::3].astype(np.float32)).astype(np.float64)
+    assert 1e-7 < np.abs(single - exact).max() < 1e-3  # single precision's error is there to be bounded
+    for offset in (-1e-12, 0.0, 1e-12):
+        floor = exact + offset * np.abs(exact)
+        found = heights.above(z, floor)
+        assert np.array_equal(found < floor, exact < floor)
+        below = found < floor + 1e-6
+        assert np.array_equal(found[below], heights(z, np.flatnonzero(below)))
+    # far above the floor, the single precision values stand
+    assert np.array_equal(heights.above(z, exact - 1.0), single)
+    # a non-finite state is read exactly (its NaN never hides a vertex below)
+    z[4] = np.nan
+    assert np.isnan(heights.above(z, exact)).any()
