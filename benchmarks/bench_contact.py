@@ -30,13 +30,19 @@ set-up's with the same motion, iterations per step, vertices the contact held
 worst penetration over the whole run (settling included) of any boundary
 vertex, ``sim.penetration(z)`` over the body's largest extent, in %.
 
-A second table says where the Coulomb contact's time goes: one more run of
+A second table splits the Coulomb set-ups' timed steps (the best runs') into
+those that made no active-set pass (every projection kept its last sets,
+checked) and the others: their share, median ms and ratio to the floating
+median, and the passes per step (counted in the same runs, by a wrapper of
+``SetOperator.diagnose`` that adds a fraction of a microsecond a pass).
+
+A third table says where the Coulomb contact's time goes: one more run of
 each friction with the gait, the contact's methods timed by wrappers (so a
 little slower). Per step: the projections (one per global solution), the
 active-set passes (small solves), the operators made for them (the rest
 found in the step's cache), the time of one projection, the step's
 iterations run again (a vertex missed deep below, or a backend refusing the
-step), the step and the contact's share of it. A third its memory: the
+step), the step and the contact's share of it. A fourth its memory: the
 pushes ``H^-1 B_row^T`` it keeps (``_pushes``: boundary vertices x dim x
 subspace doubles, allocated when the system is bound, a row filled when
 first needed: "rows made" is what is filled) and the most its cache of
@@ -81,6 +87,18 @@ TIME_COLUMNS = [
 ]
 
 
+# active-set passes so far (each a check of a set's solve: SetOperator.diagnose), counted while timing
+PASSES = [0]
+
+
+def _counting(diagnose):
+    def counted(self, *args, **kwargs):
+        PASSES[0] += 1
+        return diagnose(self, *args, **kwargs)
+
+    return counted
+
+
 def _toml(name):
     with open(os.path.join(EXAMPLES, name), "rb") as f:
         return tomllib.load(f)
@@ -117,9 +135,11 @@ def run(sim, activation, steps, size, record):
     contact = sim.model.contact
     for i in range(steps):
         a = activation(i * sim.h)
+        before = PASSES[0]
         clock = time.perf_counter()
         z_next, z_dot = sim.step(z, z_dot, a, velocity=True)
         record["seconds"].append(time.perf_counter() - clock)
+        record["passes"].append(PASSES[0] - before)
         record["iterations"].append(sim.iterations)
         record["held"].append(0 if contact is None else contact.active_count)
         record["depth"].append(sim.penetration(z_next) / size)
@@ -154,7 +174,7 @@ def timed(name, data, args):
             for motion in MOTIONS:
                 zero = np.zeros(sim.n_muscles)
                 activation = (lambda t, s=scene, m=sim: s.activation(t, m.ceilings)) if motion == "gait" else None
-                record = records[setup, motion] = {k: [] for k in ("seconds", "iterations", "held", "depth")}
+                record = records[setup, motion] = {k: [] for k in ("seconds", "iterations", "held", "depth", "passes")}
                 runs.append(run(sim, activation or (lambda t, z=zero: z), args.settle + args.steps, size, record))
         # one simulator per set-up steps both motions: each run resets it, so they go one after the other
         for motion in MOTIONS:
@@ -167,6 +187,8 @@ def timed(name, data, args):
                 iterations=float(np.mean(record["iterations"][args.settle :])),
                 held=np.array(record["held"][args.settle :]),
                 depth=100.0 * max(record["depth"]),
+                ms=ms,
+                passes=np.array(record["passes"][args.settle :]),
             )
             if key not in best or row["median"] < best[key]["median"]:
                 best[key] = row
@@ -181,7 +203,21 @@ def timed(name, data, args):
                 f"{held.mean():7.1f} {held.max():5d} {row['depth']:8.3f}"
             )
         sys.stdout.flush()
-    return built
+    return built, best
+
+
+def without_passes(name, best):
+    """The second table's rows: the Coulomb contact's steps that made no active-set pass, against those that did."""
+    for motion in MOTIONS:
+        floating = best["floating", motion]["median"]
+        for setup in ("coulomb 0.5", "coulomb 0.0"):
+            row = best[setup, motion]
+            none = row["passes"] == 0
+            cells = []
+            for chosen in (none, ~none):
+                median = float(np.median(row["ms"][chosen])) if np.any(chosen) else float("nan")
+                cells.append(f"{100 * np.mean(chosen):6.1f}% {median:9.3f} {median / floating:7.1f}x")
+            print(f"{name:12s} {motion:6s} {setup:12s} " + "   ".join(cells) + f" {row['passes'].mean():7.2f}")
 
 
 class _Timer:
@@ -211,7 +247,7 @@ class _Timer:
 
 
 def where_the_time_goes(name, scene, sim, steps):
-    """A gait run of the Coulomb contact with its methods timed; the second and third tables' rows."""
+    """A gait run of the Coulomb contact with its methods timed; the third and fourth tables' rows."""
     sim.reset()
     contact = sim.model.contact
     # a pass of the active set is one check of a set's solve, saying who breaks it
@@ -280,12 +316,24 @@ def main():
         f"{'iter':>6s} {'held':>7s} {'most':>5s} {'depth %':>8s}"
     )
     scenes = {k: v for k, v in scene_dicts().items() if not args.only or k in args.only}
-    coulomb = {}
-    for name, data in scenes.items():
-        built = timed(name, data, args)
-        for setup in ("coulomb 0.5", "coulomb 0.0"):
-            coulomb[f"{name} {setup.split()[1]}"] = built[setup]
-        del built
+    coulomb, bests = {}, {}
+    diagnose = SetOperator.diagnose
+    SetOperator.diagnose = _counting(diagnose)
+    try:
+        for name, data in scenes.items():
+            built, bests[name] = timed(name, data, args)
+            for setup in ("coulomb 0.5", "coulomb 0.0"):
+                coulomb[f"{name} {setup.split()[1]}"] = built[setup]
+            del built
+    finally:
+        SetOperator.diagnose = diagnose
+    print("\n# the Coulomb contact's steps without an active-set pass (every projection kept its sets), and the others")
+    print(
+        f"{'scene':12s} {'motion':6s} {'contact':12s} {'no pass':>7s} {'median ms':>9s} {'x float':>8s}   "
+        f"{'passes':>7s} {'median ms':>9s} {'x float':>8s} {'passes/step':>7s}"
+    )
+    for name, best in bests.items():
+        without_passes(name, best)
     print("\n# where the Coulomb contact's time goes (gait; its methods timed by wrappers), per step")
     print(f"{'scene, friction':16s} " + " ".join(c for c, _ in TIME_COLUMNS) + f" {'share':>7s}")
     caches = {

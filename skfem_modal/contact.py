@@ -195,26 +195,27 @@ class ReferenceContact(_Ground):
         self._pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
         self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
         self.solve, self.h = system.solve, float(h)
+        self._buffers()
+
+    def _buffers(self) -> None:
+        """The corrections' cache and buffer, made anew (a pickle would copy the views apart from their base)."""
         self._cache: OrderedDict = OrderedDict()
         # one product gives a correction of z and of the heights: (r + p,), split by two views
-        self._correction = np.empty(self._pull.shape[0] + self._pull_up.shape[0])
-        self._dz, self._dheights = self._correction[: self._pull.shape[0]], self._correction[self._pull.shape[0] :]
-        self._forget_set()
-
-    def _forget_set(self) -> None:
+        r = self._pull.shape[0]
+        self._correction = np.empty(r + self._pull_up.shape[0])
+        self._dz, self._dheights = self._correction[:r], self._correction[r:]
         # the last active set's key, entry and target rows: a step's iterations mostly keep one set
         self._set_key, self._set, self._set_target = None, None, None
 
     def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_cache"] = OrderedDict()
-        state.update(_set_key=None, _set=None, _set_target=None)
-        state.pop("_dot", None)
-        return state
+        made = ("_dot", "_cache", "_correction", "_dz", "_dheights", "_set_key", "_set", "_set_target")
+        return {name: value for name, value in self.__dict__.items() if name not in made}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._dot = (lambda A, x: A @ x) if sps.issparse(self.Je) else dot
+        if "_pull" in state:  # bound
+            self._buffers()
 
     def positions(self, z) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""

@@ -448,7 +448,9 @@ class ModalMuscle:
         the same step to round-off; over a run with ground contact, whose touch, stick and
         slip decisions amplify round-off as any contact simulation's do, the paths can drift
         apart: a creature started touching the ground, 1e-2 of its size after 50 steps).
-        ``auto`` uses numba when it is installed.
+        ``auto`` uses numba when it is installed, but numpy's Kronecker form for 3D
+        skinning subspaces from 20 clusters on, counting the muscles' own (faster there:
+        ``benchmarks/bench_backends.py``).
     max_s : float
         The muscles' amplitude ceilings: a mode scaled by its ceiling changes
         some element's deformation gradient by ``max_s`` (Frobenius norm).

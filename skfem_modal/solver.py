@@ -444,6 +444,13 @@ class LocalGlobal:
         return math.sqrt(self._change2)
 
 
+#: in 3D, from this many rotations a step (clusters, the elasticity's and the muscles' own) on, the numpy
+#: step in Kronecker form is faster than the compiled one (benchmarks/bench_backends.py, the seal floating:
+#: 21 rotations 0.112 against 0.126 ms a step, 61 0.213 against 0.522; 16 0.096 against 0.090, 11 0.086
+#: against 0.073): ``auto`` takes it there
+KRONECKER_OVER_NUMBA = 20
+
+
 def make_backends(model, name: str, max_iter: int) -> list:
     """The backends a simulator steps with: the fast one first, an exact fallback last.
 
@@ -451,27 +458,45 @@ def make_backends(model, name: str, max_iter: int) -> list:
     ----------
     model : Model
     name : {"auto", "numpy", "numba", "plain"}
-        ``auto``: numba when installed, numpy otherwise. ``numpy``: 2D
-        buffers (:mod:`._step2`); 3D in Kronecker form when the subspace moves
-        x, y and z alike (skinning bases do; :mod:`._kron3`), plain otherwise.
-        ``numba``: compiled iterations (the ``fast`` extra). ``plain``: one
-        iteration at a time, every rotation exact (the reference for the others).
+        ``auto``: numba when installed, numpy otherwise; but in 3D with at least
+        :data:`KRONECKER_OVER_NUMBA` clusters (the elasticity's and the muscles'
+        own: rotations a step), numpy's Kronecker form where the subspace has it
+        (faster there). ``numpy``: 2D buffers (:mod:`._step2`);
+        3D in Kronecker form when the subspace moves x, y and z alike (skinning
+        bases do; :mod:`._kron3`), plain otherwise. ``numba``: compiled
+        iterations (the ``fast`` extra). ``plain``: one iteration at a time,
+        every rotation exact (the reference for the others).
     max_iter : int
     """
+    dense_3d = model.space.dense and model.space.dim == 3
+    plain = PlainBackend(model)
     if name == "auto":
         name = "numba" if _accel.AVAILABLE else "numpy"
-    plain = PlainBackend(model)
+        if name == "numba" and dense_3d and _clusters(model) >= KRONECKER_OVER_NUMBA:
+            found = _kronecker(model, max_iter, plain)
+            if found is not None:
+                return found
     if name == "plain" or not model.space.dense:
         return [plain]
     if name == "numba":
         from ._compiled import compiled_backend
 
         return [compiled_backend(model, max_iter)]
-    if model.space.dim == 2:
+    if not dense_3d:
         from ._step2 import Step2Backend
 
         return [Step2Backend(model, max_iter)]
+    return _kronecker(model, max_iter, plain) or [plain]
+
+
+def _clusters(model) -> int:
+    """The model's clusters, the elasticity's and the muscles' own: its rotations a step (9 rows each in 3D)."""
+    return (model.G.shape[0] + (model.A.shape[1] if model.A is not None else 0)) // 9
+
+
+def _kronecker(model, max_iter, plain):
+    """``[Kronecker form, plain]`` for a 3D model whose operators factor so, else None."""
     from ._kron3 import KroneckerBackend
 
     kron = KroneckerBackend.build(model, max_iter)
-    return [plain] if kron is None else [kron, plain]
+    return None if kron is None else [kron, plain]

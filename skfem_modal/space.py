@@ -212,6 +212,10 @@ class FullSpace(_MeshData):
         return SparseSystem(H)
 
 
+# magnitudes whose products single precision holds with room to spare (it overflows at 2^128)
+_SINGLE_RANGE = 2.0**100
+
+
 class Heights:
     """Reads one coordinate of some vertices from the unknowns: ``rows @ z[pick]``, or ``z[pick]`` itself.
 
@@ -224,13 +228,15 @@ class Heights:
 
     #: rows from which :meth:`above` reads in single precision first (below that, the product costs less)
     SCREEN = 2000
+    _single = None  # the rows in single precision and their error bound, made when first needed (above)
 
     def __init__(self, rows, pick):
         self.rows, self.pick = rows, pick
-        self._single = None  # the rows in single precision and their error bound, made when first needed
 
     def __getstate__(self):
-        return {**self.__dict__, "_single": None}
+        state = self.__dict__.copy()
+        state.pop("_single", None)  # made again where needed
+        return state
 
     def __call__(self, z, which=None) -> np.ndarray:
         """The vertices' coordinates, shape (p,); or only those of ``which`` (indices into the vertices)."""
@@ -240,35 +246,43 @@ class Heights:
         return picked[which] if self.rows is None else self.rows[which] @ picked
 
     def above(self, z, floor) -> np.ndarray:
-        """The coordinates (p,), exact wherever one may be below its ``floor`` (p,).
+        """The coordinates (p,), in double precision wherever one may be below its ``floor`` (p,).
 
         For many rows, a product that reads each once a step (the seal's 6227 boundary vertices:
-        1.6 MB) is made in single precision first, half the bytes, then exactly again for the
-        vertices within its error of their floor; the others are above it for certain. A float32
-        dot product of ``q`` terms, its inputs rounded too, is off by at most ``(q + 3) u sum_s
-        |U_s z_s|`` (``u = 2^-24``; Higham, *Accuracy and Stability of Numerical Algorithms*,
-        3.1), bounded here by the largest row's absolute sum times ``max |z_s|``, taken twice,
-        plus underflow. So ``above(z, floor) < floor`` is ``self(z) < floor``, vertex by vertex,
-        and the values there are ``self(z, which)``'s.
+        1.6 MB) is made in single precision first, half the bytes, then again in double precision
+        (``self(z, near)``) for the vertices within single precision's error of their floor: the
+        others are above it for certain. A float32 dot product of ``q`` terms, its inputs rounded
+        too, is off by at most ``(q + 3) u sum_s |U_s z_s|`` (``u = 2^-24``; Higham, *Accuracy and
+        Stability of Numerical Algorithms*, 3.1), bounded here by the largest row's absolute sum
+        times ``max |z_s|``; underflow (inputs, products and sums below ``2^-126``, flushed to zero
+        or not) adds at most ``2^-126`` for each of them; the bound is taken twice. Rows or states
+        whose products single precision could overflow are read in double precision only. So
+        ``above(z, floor) < floor`` is ``self(z, which) < floor`` for each vertex ``which`` (a
+        product over some rows alone can round a unit in the last place apart from one over all).
 
         >>> import numpy as np
         >>> rows = np.random.default_rng(0).random((3000, 8)); heights = Heights(rows, slice(None))
         >>> z = np.ones(8); floor = np.full(3000, np.median(rows @ z))
-        >>> bool(np.array_equal(heights.above(z, floor) < floor, heights(z) < floor))
-        True
+        >>> found = heights.above(z, floor); near = np.flatnonzero(found < floor + 1e-6)
+        >>> bool(np.array_equal(found < floor, heights(z) < floor)), bool(np.all(found[near] == heights(z, near)))
+        (True, True)
         """
         rows = self.rows
         if rows is None or rows.shape[0] < self.SCREEN:
             return self(z)
         if self._single is None:
-            terms = 2.0 * (rows.shape[1] + 3)
             largest = float(np.abs(rows).sum(axis=1).max())
-            self._single = (rows.astype(np.float32), terms * 2.0**-24 * largest, terms * 2.0**-126)
-        single, error_per_unit, underflow = self._single
-        picked = z[self.pick]
-        margin = error_per_unit * float(np.abs(picked).max()) + underflow
-        if not margin < 1e30:  # non-finite, or single precision could overflow: exactly
+            # False: rows single precision cannot hold, read in double precision every time
+            self._single = (rows.astype(np.float32), largest) if largest < _SINGLE_RANGE else False
+        if self._single is False:
             return self(z)
+        single, largest = self._single
+        picked = z[self.pick]
+        reach = float(np.abs(picked).max())
+        if not (reach < _SINGLE_RANGE and largest * reach < _SINGLE_RANGE):  # also non-finite
+            return self(z)
+        q = rows.shape[1]
+        margin = 2.0 * ((q + 3) * 2.0**-24 * largest * reach + (q * reach + largest + 2 * q) * 2.0**-126)
         values = (single @ picked.astype(np.float32)).astype(np.float64)
         near = np.flatnonzero(values < floor + margin)
         if near.size:

@@ -127,3 +127,48 @@ def test_a_redone_step_under_the_coulomb_contact_agrees_with_the_plain_backend()
     assert touched >= 40
     assert sims["numpy"].solver.redone >= 10
     assert worst <= 1e-12
+
+
+@pytest.mark.parametrize("clusters", [8, 20])
+def test_auto_takes_numpys_kronecker_form_in_3d_from_twenty_clusters(clusters):
+    # numba's compiled 3D step costs more than numpy's Kronecker form from about 20 clusters on
+    # (benchmarks/bench_backends.py), so "auto" takes numba below that and numpy from there
+    from skfem_modal.solver import KRONECKER_OVER_NUMBA
+
+    assert KRONECKER_OVER_NUMBA == 20
+    sim = sm.ModalMuscle.from_mesh(sm.box3d(8, 3, 3, (4.0, 1.0, 1.0)), n_muscles=2, n_weights=4,
+                                   n_clusters=clusters, mu=1e5, rho=1e3, h=0.01)  # fmt: skip
+    assert sim.backend == "auto"
+    if clusters >= KRONECKER_OVER_NUMBA or not _accel.AVAILABLE:
+        assert sim.backend_used == "numpy" and sim.backends[0].name == "numpy (Kronecker form)"
+    else:
+        assert sim.backend_used == "numba"
+    # the same trajectory as the other backend asked for by name
+    other = sm.ModalMuscle.from_mesh(sm.box3d(8, 3, 3, (4.0, 1.0, 1.0)), n_muscles=2, n_weights=4,
+                                     n_clusters=clusters, mu=1e5, rho=1e3, h=0.01, backend="plain")  # fmt: skip
+    states = [s.rest_state()[:2] for s in (sim, other)]
+    for i in range(30):
+        a = 0.5 * sim.ceilings * np.sin(2 * np.pi * i * 0.01 / np.array([0.5, 0.7]))
+        states = [s.step(*state, a, velocity=True) for s, state in zip((sim, other), states)]
+    assert np.abs(states[0][0] - states[1][0]).max() <= 1e-9 * np.abs(states[1][0]).max()
+
+
+def test_3d_creature_crawling_under_coulomb_friction_same_trajectory_on_every_backend():
+    # the Coulomb contact (the default) is the same code on every backend; its sets' decisions would
+    # amplify any difference of the iterations' round-off, and over 150 steps none shows
+    mesh = sm.creature(cell=0.25)
+    kw = dict(n_muscles=4, n_weights=6, n_clusters=12, mu=1e5, rho=1e3, h=0.01, gravity=[0.0, 0.0, -9.8],
+              ground=float(mesh.p[2].min()) - 0.02, friction=0.5)  # fmt: skip
+    sims = {backend: sm.ModalMuscle.from_mesh(mesh, backend=backend, **kw) for backend in BACKENDS}
+    assert [sim.backend_used for sim in sims.values()] == list(BACKENDS)
+    states = {b: sim.rest_state()[:2] for b, sim in sims.items()}
+    plain, worst, touched = sims["plain"], 0.0, 0
+    for i in range(150):
+        phase = i * 0.01 / np.array([0.5, 0.4, 0.7, 0.3]) + [0.0, 0.3, 0.6, 0.1]
+        a = 0.5 * plain.ceilings * np.sin(2 * np.pi * phase)
+        states = {b: sim.step(*states[b], a, velocity=True) for b, sim in sims.items()}
+        reference = states["plain"][0]
+        worst = max(worst, max(np.abs(s[0] - reference).max() for s in states.values()) / np.abs(reference).max())
+        touched += plain.model.contact.active_count > 0
+    assert touched >= 80  # it crawls on the ground
+    assert worst <= 1e-10

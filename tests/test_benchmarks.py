@@ -4,10 +4,13 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from skfem_modal.contact import ALLOWANCE
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 BENCHMARKS = os.path.join(HERE, "..", "benchmarks")
+SHARED = os.path.join(HERE, "..", "..", "shared", "meshes")
 
 
 def bench(script, *args):
@@ -20,14 +23,22 @@ def test_bench_contact_runs_and_its_rows_hold_the_ground():
     out = bench(
         "bench_contact.py", "--only", "caterpillar", "creature", "--steps", "20", "--settle", "10", "--repeat", "1"
     )
-    rows = [line.split() for line in out.splitlines() if line.split()[:1] in (["caterpillar"], ["creature"])]
-    table = [r for r in rows if r[1] in ("still", "gait")]  # the first table: scene, motion, contact, ...
+    tables = [[line.split() for line in part.splitlines()[2:]] for part in out.split("\n\n")]
+    table = tables[0]  # scene, motion, contact, ...
     by_contact = {name: [r for r in table if r[2] == name] for name in ("floating", "coulomb", "reference")}
     # scenes x motions; coulomb with friction 0.5 and 0
     assert [len(by_contact[name]) for name in ("floating", "coulomb", "reference")] == [4, 8, 4]
     assert all(r[5] == "1.0x" for r in by_contact["floating"])
     for r in by_contact["coulomb"]:
         assert float(r[-1]) <= 100 * ALLOWANCE  # depth %: every vertex, the whole run
+    # the Coulomb set-ups' steps without an active-set pass and the others: shares of all the timed steps
+    without = tables[1]
+    assert "steps without an active-set pass" in out.split("\n\n")[1] and len(without) == 8
+    for r in without:
+        assert float(r[4].rstrip("%")) + float(r[7].rstrip("%")) == pytest.approx(100.0, abs=0.11)
+    # crawling with friction, the passes are counted (the creature's gait changes its sets in most steps)
+    (creature,) = [r for r in without if r[:4] == ["creature", "gait", "coulomb", "0.5"]]
+    assert float(creature[-1]) > 0.5 and float(creature[7].rstrip("%")) > 20.0
     assert "where the Coulomb contact's time goes" in out and "memory of the Coulomb contact" in out
 
 
@@ -36,3 +47,19 @@ def test_bench_render_runs_and_prints_peak_memory():
     assert "the built-in crawl: 6 frames" in out
     (row,) = [line.split() for line in out.splitlines() if line.startswith("matplotlib")]
     assert row[1] == "64x64" and 50 < float(row[2]) < 2000 and 0.8 < float(row[4]) < 1.5
+
+
+@pytest.mark.skipif(not os.path.isdir(SHARED), reason=f"the real meshes are not at {SHARED}")
+def test_bench_backends_runs_and_says_what_auto_takes():
+    from skfem_modal import _accel
+
+    argv = [sys.executable, os.path.join(BENCHMARKS, "bench_backends.py"), "--steps", "30", "--sizes", "4x10", "8x20"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    if not _accel.AVAILABLE:  # the default install: it says what it needs
+        assert done.returncode != 0 and "needs numba" in done.stderr
+        return
+    assert done.returncode == 0, done.stderr
+    rows = {line[:22].strip(): line.split() for line in done.stdout.splitlines()[2:]}
+    assert list(rows) == ["caterpillar (2D)", "seal 4 w x 10 cl", "seal 8 w x 20 cl"]
+    assert [row[-1] for row in rows.values()] == ["numba", "numba", "numpy"]  # auto: numpy in 3D from 20 clusters
+    assert [int(row[-5]) for row in rows.values()] == [48, 48, 96]  # the subspace: 12 coordinates a weight in 3D

@@ -201,7 +201,8 @@ def test_ctrl_c_while_the_command_line_loads_is_said_without_a_traceback(module)
         "from skfem_modal._entry import main\n"
         "sys.exit(main())\n"
     )
-    process = subprocess.run([sys.executable, "-c", script, "info", "caterpillar"], capture_output=True, text=True, timeout=60)
+    argv = [sys.executable, "-c", script, "info", "caterpillar"]
+    process = subprocess.run(argv, capture_output=True, text=True, timeout=60)
     out, err = process.stdout, process.stderr
     assert process.returncode == 130 and "Traceback" not in err
     assert out == ""  # stopped before the command ran
