@@ -195,27 +195,17 @@ class ReferenceContact(_Ground):
         self._pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
         self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
         self.solve, self.h = system.solve, float(h)
-        self._buffers()
-
-    def _buffers(self) -> None:
-        """The corrections' cache and buffer, made anew (a pickle would copy the views apart from their base)."""
         self._cache: OrderedDict = OrderedDict()
-        # one product gives a correction of z and of the heights: (r + p,), split by two views
-        r = self._pull.shape[0]
-        self._correction = np.empty(r + self._pull_up.shape[0])
-        self._dz, self._dheights = self._correction[:r], self._correction[r:]
-        # the last active set's key, entry and target rows: a step's iterations mostly keep one set
-        self._set_key, self._set, self._set_target = None, None, None
 
     def __getstate__(self):
-        made = ("_dot", "_cache", "_correction", "_dz", "_dheights", "_set_key", "_set", "_set_target")
-        return {name: value for name, value in self.__dict__.items() if name not in made}
+        state = self.__dict__.copy()
+        state["_cache"] = OrderedDict()
+        state.pop("_dot", None)
+        return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._dot = (lambda A, x: A @ x) if sps.issparse(self.Je) else dot
-        if "_pull" in state:  # bound
-            self._buffers()
 
     def positions(self, z) -> np.ndarray:
         """Contact point positions, shape (p, dim)."""
@@ -225,7 +215,6 @@ class ReferenceContact(_Ground):
         """Remember the contact positions at the start of the step (``again``: the same step once more)."""
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
-        self._set_key = None  # its target rows are the last step's
         if self.push_out:
             depth = np.maximum(self.ground - up_start, 0.0)
             # the lowest end height allowed: the ground, or on the way out of it
@@ -268,8 +257,9 @@ class ReferenceContact(_Ground):
         self.n_below = np.count_nonzero(below)
         return self.active_count > 0
 
-    def _projection(self, key: bytes, mask: np.ndarray):
-        """The active points' position rows and correction matrix (cached per active set, ``key`` the mask's bytes)."""
+    def _projection(self, mask: np.ndarray):
+        """The active points' position rows and correction matrices (cached per active set)."""
+        key = mask.tobytes()
         entry = self._cache.get(key)
         if entry is not None:
             self._cache.move_to_end(key)
@@ -298,11 +288,10 @@ class ReferenceContact(_Ground):
             dheights = np.asarray(self.Je_up @ dz)
         factor = np.full(rows.size, self.stickiness)
         factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
-        dz = dz * factor
+        dz = np.ascontiguousarray(dz * factor)
         Je_rows = self.Je[rows]
         Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
-        # (r + p, rows): the change of z and of the heights per unit of each row's miss
-        entry = (active, rows, Je_rows, np.vstack([dz, dheights * factor]))
+        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor))
         self._cache[key] = entry
         if len(self._cache) > _CACHE_SIZE:
             self._cache.popitem(last=False)
@@ -310,15 +299,11 @@ class ReferenceContact(_Ground):
 
     def _apply(self, z, heights, mask) -> None:
         """Correct ``z`` and its contact heights in place for an active set."""
-        key = mask.tobytes()
-        if key != self._set_key:
-            self._set = self._projection(key, mask)
-            self._set_key, self._set_target = key, self.p_target[self._set[1]]
-        active, _, Je_rows, correction = self._set
+        active, rows, Je_rows, dz, dheights = self._projection(mask)
         self.active_count = active.size
-        dot(correction, self._set_target - dot(Je_rows, z), self._correction)
-        z += self._dz
-        heights += self._dheights
+        delta = self.p_target[rows] - dot(Je_rows, z)
+        z += dot(dz, delta)
+        heights += dot(dheights, delta)
 
     def _project_positions(self, z, heights) -> bool:
         """Position rule: no contact point ends below its target height."""
@@ -691,7 +676,7 @@ class CoulombContact(_Ground):
         one step): the driver runs the step's iterations again, with a spread few of the missed
         ones among the vertices looked at (those still below at the end are held up there).
         """
-        heights = self.heights_of.above(z, self._lowest)  # the lowest allowed: exact below it
+        heights = self.heights_of.above(z, self._lowest)  # in double precision near the lowest allowed
         self._checked = (z.copy(), heights)  # the end of the step needs them too
         below = self._unpicked(np.flatnonzero(heights < self._lowest))
         self._missed = self._spread(below, heights)  # a flat face's sag: a spread few hold it all
