@@ -212,7 +212,7 @@ def cmd_run(args) -> int:
     travel = np.round(summary["com"]["travel"], 4).tolist()
     say(
         f"precompute {summary['timings']['precompute_total_s']:.3f} s; step median {step['median']:.3f} ms, "
-        f"p90 {step['p90']:.3f} ms; iterations per step {summary['iterations']['mean']:.2f}"
+        f"p90 {step['p90']:.3f} ms ({summary['backend']}); iterations per step {summary['iterations']['mean']:.2f}"
     )
     say(f"centre of mass travel {travel}")
     if summary["ground"]:

@@ -263,6 +263,7 @@ def _summary_start(scene, sim, precompute: float) -> dict:
         "scene": scene.to_dict(),
         "mesh": mesh_summary(sim.mesh),
         "effects": list(sim.effects),
+        "backend": sim.backend_used,
         "sizes": {
             "dofs": int(sim.mesh.p.size),
             "subspace": int(sim.B.shape[1]),

@@ -8,6 +8,7 @@ import meshio
 import numpy as np
 import pytest
 
+from skfem_modal import _accel
 from skfem_modal.cli import main
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
@@ -31,6 +32,7 @@ def test_default_run_writes_every_file(default_run, reference):
     summary = json.loads((default_run / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["steps_completed"] == 450
     assert summary["effects"] == ["elasticity", "inertia", "muscles", "gravity", "contact"]
+    assert summary["backend"] == ("numba" if _accel.AVAILABLE else "numpy")  # auto, in 2D
     assert summary["com"]["travel"][0] == pytest.approx(reference["crawl_com_dx"], abs=0.01)
     assert summary["sizes"] == {
         "dofs": 3438,
