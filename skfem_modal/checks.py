@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from .acceleration import ACCELERATIONS
-from .contact import ALLOWANCE, MODELS
+from .contact import ALLOWANCE, MODELS, checked_allowance
 from .fem import _positive
 from .mesh import part_sizes
 from .solver import BACKENDS
@@ -120,7 +120,7 @@ def _backend_name(value):
     return value
 
 
-def _contact_settings(model, friction, stickiness, push_out) -> dict:
+def _contact_settings(model, friction, stickiness, push_out, allowance=None) -> dict:
     """A contact model's settings, checked: each model takes only its own."""
     if model not in MODELS:
         raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
@@ -132,10 +132,14 @@ def _contact_settings(model, friction, stickiness, push_out) -> dict:
                 "(which keeps every vertex above the ground and has friction)"
             )
         friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
-        return {"model": model, "friction": friction}
-    if friction is not None:
+        allowance = ALLOWANCE if allowance is None else checked_allowance(allowance)
+        return {"model": model, "friction": friction, "allowance": allowance}
+    foreign = [name for name, value in (("friction", friction), ("allowance", allowance)) if value is not None]
+    if foreign:
         raise ValueError(
-            "friction: a setting of contact_model='coulomb', not of 'reference' (which has stickiness instead)"
+            f"{' and '.join(foreign)}: {'a setting' if len(foreign) == 1 else 'settings'} of contact_model='coulomb', "
+            "not of 'reference' (which has "
+            "stickiness and push_out instead, and lets vertices end inside the ground)"
         )
     return {
         "model": model,
@@ -261,8 +265,8 @@ def _pulled_to_ground(gravity, ground, up: int) -> None:
         )
 
 
-def _clear_of_ground(mesh, ground, up: int) -> None:
-    """Raise if the body starts deeper inside the ground than the contact's allowance (2e-4 of its size).
+def _clear_of_ground(mesh, ground, up: int, allowance: float = ALLOWANCE) -> None:
+    """Raise if the body starts deeper inside the ground than the contact's allowance (of its size).
 
     A contact that finds a body deep in the ground pushes it out within a step or two, with
     the energy of a spring compressed that far: the body is flung into the air (a ghost
@@ -274,7 +278,7 @@ def _clear_of_ground(mesh, ground, up: int) -> None:
     sizes = part_sizes(mesh)  # each part of a mesh as large as itself
     relative = (ground - mesh.p[up]) / sizes
     deepest = int(np.argmax(relative))
-    if relative[deepest] > ALLOWANCE:
+    if relative[deepest] > allowance:
         lowest, depth = float(mesh.p[up, deepest]), ground - float(mesh.p[up, deepest])
         which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of a smaller part)"
         raise ValueError(

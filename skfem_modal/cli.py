@@ -224,7 +224,8 @@ def cmd_run(args) -> int:
             else f"relative to the size of each vertex's own part, at most {share:.2g} %"
         )
         deepest = ground["worst_penetration"]
-        say(f"deepest any vertex went below the ground ({ground['model']} contact): {deepest:.3g} ({of})")
+        allowed = "" if ground.get("allowance") is None else f", allowance {100 * ground['allowance']:.2g} %"
+        say(f"deepest any vertex went below the ground ({ground['model']} contact{allowed}): {deepest:.3g} ({of})")
     if args.render:
         return _render(args.out, args, say)
     say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")
@@ -262,6 +263,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_info(args) -> int:
+    from .contact import ALLOWANCE
     from .mesh import mesh_summary
     from .scene import schema_markdown
 
@@ -301,7 +303,8 @@ def cmd_info(args) -> int:
             g = c["ground"]
             which = _contact_points(scene)
             rule = (
-                f"friction {0.5 if g['friction'] is None else g['friction']:g}"
+                f"friction {0.5 if g['friction'] is None else g['friction']:g}, "
+                f"allowance {ALLOWANCE if g['allowance'] is None else g['allowance']:g} of the size"
                 if g["model"] == "coulomb"
                 else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
                 f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"

@@ -53,13 +53,15 @@ from .effects import Effect
 from .mesh import boundary_vertices, connected_labels, part_sizes
 from .solver import SimulationError
 
-__all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE"]
+__all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE", "MOST_ALLOWANCE", "checked_allowance"]
 
 #: Contact models by name (a scene's ``ground.model``).
 MODELS = ("coulomb", "reference")
 
-#: How far below the ground (of the body's size) the Coulomb contact lets a vertex end a step.
+#: How far below the ground (of the body's size) the Coulomb contact lets a vertex end a step, by default.
 ALLOWANCE = 2e-4
+#: The largest allowance one may choose: half a percent of the body's size.
+MOST_ALLOWANCE = 5e-3
 
 _CACHE_SIZE = 512
 # passes of the active set in one projection before the exact solve (half changing whole sets, half one vertex)
@@ -78,6 +80,25 @@ _FINISH = 8
 _PER_VERTEX = ("touching", "sliding", "direction")
 # solves that may take back the way the compliance lets the ground give (see SetOperator.refined)
 _REFINE = 16
+
+
+def checked_allowance(value, name: str = "allowance") -> float:
+    """The Coulomb contact's allowance as a float, checked to be in (0, :data:`MOST_ALLOWANCE`].
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``, if the value is not a number in that range.
+    """
+    try:
+        allowance = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number (a share of the body's size), got {value!r}") from None
+    if not 0.0 < allowance <= MOST_ALLOWANCE:
+        raise ValueError(
+            f"{name} must be above 0 and at most {MOST_ALLOWANCE:g} (half a percent of the body's size), got {value!r}"
+        )
+    return allowance
 
 
 def _gram_inverse(G, L) -> np.ndarray | None:
@@ -366,11 +387,11 @@ class CoulombContact(_Ground):
     that goes on from where the last step ended keeps them for up to ten
     steps (and with them the small solves' operators), until a step's end
     finds a vertex below that they missed. At the end of the step every
-    candidate is checked: if any they missed ended more than ``ALLOWANCE`` of
+    candidate is checked: if any they missed ended more than ``allowance`` of
     the body's size below the ground, the step's iterations run again looking
     at a spread few of those too (and once more if that run missed others);
     what is still below after that is held up with the others. So no vertex
-    ends a step in the ground by more than about ``ALLOWANCE`` of the size
+    ends a step in the ground by more than about ``allowance`` of the size
     (between the vertices held, a subspace cannot keep every vertex of a flat
     face exactly on the plane).
 
@@ -384,6 +405,11 @@ class CoulombContact(_Ground):
     up : int
     friction : float
         The Coulomb coefficient ``mu >= 0`` (0: frictionless).
+    allowance : float
+        How far below the ground a vertex may end a step, a share of its part's
+        size, in (0, :data:`MOST_ALLOWANCE`] (default :data:`ALLOWANCE`). A larger
+        one is cheaper: fewer steps find a vertex their iterations missed and run
+        them again (``benchmarks/bench_contact.py``'s last table).
 
     Attributes
     ----------
@@ -394,10 +420,11 @@ class CoulombContact(_Ground):
     model = "coulomb"
     watch = None  # the candidates change from step to step: nothing a backend could compute ahead
 
-    def __init__(self, space, vertices, ground, up, friction=0.5):
+    def __init__(self, space, vertices, ground, up, friction=0.5, allowance=ALLOWANCE):
         self._plane(space, ground, up)
         self.space, self.vertices = space, np.asarray(vertices)
         self.friction = float(friction)
+        self.relative_allowance = checked_allowance(allowance)
         self.heights_of = space.heights(self.vertices, up)
         # each candidate's lengths relative to its own part: bodies far apart in one mesh are each held
         # as close to the ground as one alone (relative to the whole mesh, a part 60 sizes away let
@@ -405,7 +432,7 @@ class CoulombContact(_Ground):
         self.size = self.sizes[self.vertices]  # (p,)
         self.part = self.parts[self.vertices]  # (p,)
         self.tol = 1e-9 * float(self.size.min())
-        self.allowance = ALLOWANCE * self.size
+        self.allowance = self.relative_allowance * self.size
         # per candidate, made once (the ground of a contact does not move): the lowest height a step may
         # leave it at, and below which it counts as near the ground
         self._lowest = self.ground - self.allowance
@@ -544,8 +571,8 @@ class CoulombContact(_Ground):
             raise ValueError(
                 f"the state starts inside the ground: a boundary vertex is {depth:.4g} ({share:.3g} % "
                 f"of the body's size) below the ground at {self.ground:.6g}, more than the contact's allowance "
-                f"({100 * ALLOWANCE:.3g} %); it would fling the body out. Start from a state above the ground "
-                "(sim.rest_state() is), or go on from where the last step ended"
+                f"({100 * self.relative_allowance:.3g} %); it would fling the body out. Start from a state above "
+                "the ground (sim.rest_state() is), or go on from where the last step ended"
             )
 
     def _near(self, z) -> np.ndarray:

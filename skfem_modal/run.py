@@ -333,6 +333,7 @@ def _measured(sim, log: dict) -> dict:
         ground = {
             "height": sim.ground,
             "model": sim.contact_model,
+            "allowance": sim.allowance,  # None under the reference contact
             "worst_penetration": worst,
             "worst_penetration_relative": log["relative"],  # of each vertex's own part
         }

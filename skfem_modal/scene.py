@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground
+from .contact import ALLOWANCE, MOST_ALLOWANCE
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -75,6 +76,10 @@ def _non_negative(v):
 
 def _unit_interval(v):
     return None if 0 <= v <= 1 else "a number in [0, 1]"
+
+
+def _allowance(v):
+    return None if 0 < v <= MOST_ALLOWANCE else f"a number above 0 and at most {MOST_ALLOWANCE:g}"
 
 
 def _at_least_one(v):
@@ -308,8 +313,8 @@ SCHEMA: dict[str, Any] = {
         "height": Key(
             "float",
             None,
-            "Height of the ground plane along the up axis (at most 2e-4 of the body's size above its lowest point: "
-            "a body starting deeper would be flung out).",
+            "Height of the ground plane along the up axis (at most the contact's allowance, 2e-4 of the body's size "
+            "by default, above its lowest point: a body starting deeper would be flung out).",
             "length",
         ),
         "offset": Key(
@@ -341,6 +346,15 @@ SCHEMA: dict[str, Any] = {
             "force it takes is at most this times its normal force, and slides against its motion otherwise.",
             "",
             _non_negative,
+        ),
+        "allowance": Key(
+            "float",
+            None,
+            'How far below the ground a vertex may end a step, a share of the body\'s size (model "coulomb"; '
+            "default 2e-4, at most 0.005). Larger is cheaper: fewer steps run their iterations again for a vertex "
+            "they missed (docs/contact.md, what the allowance costs).",
+            "",
+            _allowance,
         ),
         "contacts": Key(
             "int|all",
@@ -864,6 +878,7 @@ class Scene:
             up=self.up,
             contact_model="coulomb" if ground is None else ground["model"],
             friction=None if ground is None else ground["friction"],
+            allowance=None if ground is None else ground["allowance"],
             stickiness=None if ground is None else ground["stickiness"],
             push_out=None if ground is None else ground["push_out"],
             pinned=self.pinned_vertices(),
@@ -1142,7 +1157,7 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         errors.append("ground: give height or offset, not both")
     if ground is not None and valid("ground.model"):
         # each contact model takes only its own settings: none is silently ignored
-        others = {"coulomb": ("stickiness", "push_out"), "reference": ("friction",)}[ground["model"]]
+        others = {"coulomb": ("stickiness", "push_out"), "reference": ("friction", "allowance")}[ground["model"]]
         for key in others:
             if ground[key] is not None:
                 errors.append(
@@ -1194,7 +1209,8 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
             up = None
         if up is not None and ground is not None and ground["height"] is not None and valid("ground.height"):
             try:
-                _clear_of_ground(mesh, ground["height"], up)
+                chosen = ground["allowance"] is not None and ground["model"] == "coulomb" and valid("ground.allowance")
+                _clear_of_ground(mesh, ground["height"], up, ground["allowance"] if chosen else ALLOWANCE)
             except ValueError as err:
                 errors.append(f"ground.height: {err}")
     if ground is not None:

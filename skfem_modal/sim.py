@@ -21,8 +21,8 @@ projecting each global solution. The pieces:
 
 :class:`ModalMuscle` holds them and its settings: assigning ``h``,
 ``max_iter``, ``tol``, ``rtol``, ``etol``, ``warm_start``, ``acceleration``, ``backend``, ``gravity``, ``ground``,
-``up``, ``contact_model``, ``friction``, ``stickiness``, ``push_out``, ``pin_stiffness``, ``damping_mass``,
-``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
+``up``, ``contact_model``, ``friction``, ``allowance``, ``stickiness``, ``push_out``, ``pin_stiffness``,
+``damping_mass``, ``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
 only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
 ``active_labels``, ``mu``, ``gamma``, ``rho``, ``pinned`` and
 ``contact_vertices`` shape the precomputed operators and are read-only.
@@ -60,7 +60,7 @@ from .checks import (
     _positive_scalar,
     _pulled_to_ground,
 )
-from .contact import CoulombContact, ReferenceContact
+from .contact import ALLOWANCE, CoulombContact, ReferenceContact, checked_allowance
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive
 from .ingredients import ingredients, timed
@@ -111,6 +111,11 @@ def _element_weights(mesh, mu, gamma, rho):
         _positive(gamma, nT, "gamma", allow_zero=True) * vol,
         _positive(rho, nT, "rho"),
     )
+
+
+def _allowance(settings: dict) -> float:
+    """How deep a body may start in the ground under a contact model's settings (``_contact_settings``)."""
+    return settings.get("allowance", ALLOWANCE)
 
 
 def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
@@ -204,6 +209,7 @@ def _from_mesh(
     up=None,
     contact_model="coulomb",
     friction=None,
+    allowance=None,
     stickiness=None,
     push_out=None,
     pinned=None,
@@ -268,8 +274,9 @@ def _from_mesh(
     _backend_name(backend)
     _acceleration_name(acceleration)
     _flag(warm_start, "warm_start")
-    _contact_settings(contact_model, friction, stickiness, push_out)
-    contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
+    settings = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
+    contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, stickiness=stickiness,
+                   push_out=push_out)  # fmt: skip
     _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
     say = _stage_reporter(progress)
     damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
@@ -279,7 +286,7 @@ def _from_mesh(
         if ground is not None:
             g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
             _pulled_to_ground(g, ground, axis)
-            _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis)
+            _clear_of_ground(mesh, float(_array(ground, (), "ground")), axis, _allowance(settings))
         if pinned is not None:  # named as given (the modal analysis would say 'fixed')
             arguments["pinned"] = _pins(pinned, None, mesh.p.shape[1])[0]
         made = ingredients(mesh, pool if parallel else None, say, **_taken_by(ingredients, arguments))
@@ -394,6 +401,9 @@ class ModalMuscle:
         which lets vertices end inside the ground (for its numbers).
     friction : float, optional
         ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
+    allowance : float, optional
+        ``coulomb`` only: how far below the ground a vertex may end a step, a
+        share of the body's size in (0, 0.005] (default 2e-4); larger is cheaper.
     stickiness : float, optional
         ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
         velocity of contacting points, 0 lets them slide freely.
@@ -501,6 +511,7 @@ class ModalMuscle:
         up=None,
         contact_model="coulomb",
         friction=None,
+        allowance=None,
         stickiness=None,
         push_out=None,
         pinned=None,
@@ -530,13 +541,14 @@ class ModalMuscle:
         self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
         self._backend = _backend_name(backend)
         gravity, self._up = _gravity_and_up(gravity, up, dim)
-        self._contact = _contact_settings(contact_model, friction, stickiness, push_out)
+        self._contact = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
-        contact = dict(contact_model=contact_model, friction=friction, stickiness=stickiness, push_out=push_out)
+        contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, stickiness=stickiness,
+                       push_out=push_out)  # fmt: skip
         ground, contact_vertices = _ground(ground, n, contact_vertices, **contact)
         _pulled_to_ground(gravity, ground, self._up)
-        _clear_of_ground(mesh, ground, self._up)
+        _clear_of_ground(mesh, ground, self._up, _allowance(self._contact))
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
         self._mu, self._gamma, self._rho = mu, gamma, rho
@@ -734,7 +746,9 @@ class ModalMuscle:
         contact = self._model.contact
         if contact is None:
             raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
-        self._contact.update(changes)
+        settings = {**self._contact, **changes}
+        _clear_of_ground(self._mesh, contact.ground, self._up, _allowance(settings))  # a smaller allowance
+        self._contact = settings
         self._put_contact(contact.vertices, contact.ground)
 
     def _put_contact(self, vertices, ground) -> None:
@@ -759,6 +773,13 @@ class ModalMuscle:
         "coulomb",
         _nonnegative,
         "Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise).",
+    )
+    allowance = _contact_setting(
+        "allowance",
+        "coulomb",
+        checked_allowance,
+        "How far below the ground a vertex may end a step, of the body's size (``contact_model='coulomb'``; None "
+        "otherwise).",
     )
     stickiness = _contact_setting(
         "stickiness",
@@ -796,7 +817,7 @@ class ModalMuscle:
             self._rebuild()
             return
         value = float(_array(value, (), "ground"))
-        _clear_of_ground(self._mesh, value, self._up)
+        _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
         contact = self._model.contact
         if contact is None:
             self._contact_vertices = boundary_vertices(self._mesh)
@@ -814,7 +835,7 @@ class ModalMuscle:
         value = _axis(value, self.dim)
         if self.gravity is not None:
             up_axis(self.gravity, self.dim, value)  # gravity must pull down along it
-        _clear_of_ground(self._mesh, self.ground, value)
+        _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
         self._up = value
         if self._model.contact is not None:
             self._new_contact("up")

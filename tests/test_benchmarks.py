@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from skfem_modal.contact import ALLOWANCE
+from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 BENCHMARKS = os.path.join(HERE, "..", "benchmarks")
@@ -40,6 +40,13 @@ def test_bench_contact_runs_and_its_rows_hold_the_ground():
     (creature,) = [r for r in without if r[:4] == ["creature", "gait", "coulomb", "0.5"]]
     assert float(creature[-1]) > 0.5 and float(creature[7].rstrip("%")) > 20.0
     assert "where the Coulomb contact's time goes" in out and "memory of the Coulomb contact" in out
+    # what the allowance costs: each scene at each allowance, every vertex within it
+    assert "what the allowance costs" in out.split("\n\n")[4]
+    allowances = tables[4]
+    expected = [(scene, a) for scene in ("caterpillar", "creature") for a in (ALLOWANCE, 1e-3, MOST_ALLOWANCE)]
+    assert [(r[0], float(r[1])) for r in allowances] == expected
+    for r in allowances:
+        assert 0.0 <= float(r[-2]) <= 1.0 and float(r[-1]) <= 100 * float(r[1])  # reruns a step; depth %
 
 
 def test_bench_render_runs_and_prints_peak_memory():

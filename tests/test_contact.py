@@ -16,7 +16,7 @@ import skfem
 from conftest import COULOMB_CRAWL
 
 import skfem_modal as sm
-from skfem_modal.contact import ALLOWANCE
+from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE
 from skfem_modal.reference import FullSpaceSimulator
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
@@ -269,7 +269,7 @@ def test_the_full_space_slides_as_the_reduced_one():
     assert worst <= ALLOWANCE
 
 
-def dropped(dim, h, *, damping_mass=2.0, friction=0.5):
+def dropped(dim, h, *, damping_mass=2.0, friction=0.5, allowance=None):
     """A soft body a tenth of its size above the ground under gravity."""
     mesh = sm.caterpillar(nx=24, ny=12) if dim == 2 else sm.creature(cell=0.25)
     return sm.ModalMuscle.from_mesh(
@@ -283,6 +283,7 @@ def dropped(dim, h, *, damping_mass=2.0, friction=0.5):
         gravity=[0.0] * (dim - 1) + [-9.8],
         ground=float(mesh.p[-1].min()) - 0.1 * size_of(mesh),
         friction=friction,
+        allowance=allowance,
         damping_mass=damping_mass,
     )
 
@@ -311,6 +312,26 @@ def test_a_dropped_body_lands_and_comes_to_rest_at_any_step(dim, h):
     # at rest on the ground: not hovering above it, not moving
     assert -ALLOWANCE <= lowest[-1] < 1e-3
     assert kinetic[-1] <= 2e-3 * kinetic.max()
+
+
+@pytest.mark.parametrize("h", [0.01, 0.3])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_drop_with_the_largest_allowance_lands_and_rests_within_it(dim, h):
+    # the cheaper contact: vertices may end a step up to half a percent of the size below the ground
+    energy, kinetic, lowest = fall(dropped(dim, h, allowance=MOST_ALLOWANCE), 3.0)
+    assert lowest.min() >= -MOST_ALLOWANCE
+    assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()
+    assert -MOST_ALLOWANCE <= lowest[-1] < 1e-3
+    assert kinetic[-1] <= 2e-3 * kinetic.max()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_an_undamped_drop_at_a_tiny_step_with_the_largest_allowance_gains_no_energy(dim):
+    # a vertex left up to 0.5 % below climbs out by |g| h^2 a step: no kick at h = 0.001 either
+    energy, kinetic, lowest = fall(dropped(dim, 0.001, damping_mass=0.0, allowance=MOST_ALLOWANCE), 1.0)
+    assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()
+    assert lowest.min() >= -MOST_ALLOWANCE
+    assert kinetic.max() > 0.5 * (energy[0] - energy.min())
 
 
 @pytest.mark.parametrize("friction", [0.0, 0.5])
@@ -440,6 +461,30 @@ def test_a_body_starting_deep_in_the_ground_is_refused(contact_model):
     assert sim.up == 1
 
 
+def test_a_body_may_start_as_deep_in_the_ground_as_its_allowance():
+    mesh = sm.caterpillar(nx=12, ny=6)
+    lowest, size = float(mesh.p[1].min()), size_of(mesh)
+    kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -9.8], ground=lowest + 1e-3 * size)
+    with pytest.raises(ValueError, match=r"\(0.1 % of its size\) below the ground"):
+        sm.ModalMuscle.from_mesh(mesh, **kw)
+    sim = sm.ModalMuscle.from_mesh(mesh, allowance=2e-3, **kw)
+    with pytest.raises(ValueError, match=r"\(0.1 % of its size\) below the ground"):
+        sim.allowance = 5e-4  # the rest shape is checked against the new one too
+    assert sim.allowance == 2e-3
+    z, z_dot, _ = sim.rest_state()
+    for _ in range(40):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+        lowest = (float(sim.positions(z)[:, 1].min()) - sim.ground) / size
+        assert -2e-3 <= lowest < 1e-3  # held within its allowance, and not flung out
+    # a scene's ground is checked against its allowance too, before any work
+    on_ground = Scene.from_dict({**copy.deepcopy(DEFAULT_SCENE), "ground": {"offset": 0.0}})
+    height = on_ground.ground_height() + 1e-3 * size_of(on_ground.mesh)
+    with pytest.raises(ValueError, match=r"ground.height: the body starts inside the ground"):
+        Scene.from_dict({**copy.deepcopy(DEFAULT_SCENE), "ground": {"height": height}})
+    scene = Scene.from_dict({**copy.deepcopy(DEFAULT_SCENE), "ground": {"height": height, "allowance": 2e-3}})
+    assert scene.build().allowance == 2e-3
+
+
 def test_a_run_started_from_a_state_deep_in_the_ground_is_refused():
     # the setters check the rest shape; a state given to step is checked as its run starts
     mesh = sm.caterpillar(nx=12, ny=6)
@@ -509,6 +554,19 @@ def test_the_example_scenes_crawl_with_every_vertex_above_the_ground(example):
     assert summary["ground"]["worst_penetration_relative"] <= ALLOWANCE
     travel = np.asarray(summary["com"]["travel"])
     assert np.abs(travel[: len(travel) - 1]).max() > 0.02  # it moves along the ground
+
+
+def test_a_crawl_with_a_larger_allowance_keeps_every_vertex_within_it():
+    import pathlib
+
+    scene = Scene.from_toml(pathlib.Path(__file__).resolve().parents[1] / "examples" / "creature_crawl.toml")
+    scene.config["time"]["steps"] = 200
+    scene.config["ground"]["allowance"] = MOST_ALLOWANCE
+    summary = run_scene(scene, None)
+    assert summary["status"] == "completed"
+    worst = summary["ground"]["worst_penetration_relative"]
+    assert ALLOWANCE < worst <= MOST_ALLOWANCE  # it took the room it was given, and no more
+    assert summary["ground"]["allowance"] == MOST_ALLOWANCE  # the record says which
 
 
 def test_a_run_with_coulomb_contact_does_not_depend_on_what_ran_before():

@@ -72,6 +72,7 @@ LIVE = [
     ("stickiness", 0.2, {"contact_model": "reference"}),
     ("push_out", 1.0, {"contact_model": "reference"}),
     ("friction", 0.05, {}),
+    ("allowance", 5e-3, {}),
     ("contact_model", "reference", {}),
     ("damping_mass", 2.0, {}),
     ("damping_stiffness", 1e-3, {"damping_mass": 0.5}),
@@ -152,6 +153,10 @@ def test_settings_are_checked_when_assigned(flat):
         sim.stickiness = 3.0
     with pytest.raises(AttributeError, match=r"stickiness is a setting of contact_model='reference'"):
         build(flat).stickiness = 0.5
+    with pytest.raises(ValueError, match=r"allowance must be above 0 and at most 0.005"):
+        sim.allowance = 0.05
+    with pytest.raises(AttributeError, match=r"allowance is a setting of contact_model='coulomb'"):
+        build(flat, contact_model="reference").allowance = 1e-3
     with pytest.raises(AttributeError, match="no pinned vertices"):
         sim.pin_stiffness = 10.0
     with pytest.raises(ValueError, match="gravity"):
