@@ -35,7 +35,7 @@ from .mesh import (
     shape_parameters,
     vertices_where,
 )
-from .solver import TOL
+from .solver import MAX_ITERATIONS, TOL
 from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
 
 __all__ = [
@@ -76,6 +76,14 @@ def _non_negative(v):
 
 def _unit_interval(v):
     return None if 0 <= v <= 1 else "a number in [0, 1]"
+
+
+def _iterations(v):
+    return None if 1 <= v <= MAX_ITERATIONS else f"an integer from 1 to {MAX_ITERATIONS}"
+
+
+def _some(v):
+    return None if len(v) else "at least one condition"
 
 
 def _allowance(v):
@@ -263,7 +271,7 @@ SCHEMA: dict[str, Any] = {
             _positive,
         ),
         "steps": Key("int", None, "Number of steps (instead of duration).", check=_at_least_one),
-        "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_at_least_one),
+        "iterations": Key("int", 10, "Local/global iterations per step, at most.", check=_iterations),
         "tol": Key(
             "float",
             TOL,
@@ -369,6 +377,7 @@ SCHEMA: dict[str, Any] = {
             None,
             "Take the contact vertices only among the boundary vertices where one of these conditions "
             'holds, e.g. ["z <= 0.1"] for the feet.',
+            check=_some,
         ),
         "stickiness": Key(
             "float",
@@ -395,6 +404,7 @@ SCHEMA: dict[str, Any] = {
             None,
             'Conditions selecting the pinned vertices, e.g. ["x <= 0.01"] or '
             '["x == min"] (a vertex satisfying any one is pinned).',
+            check=_some,
         ),
         "box": Key("table", None, "Instead of where: `{ min = [...], max = [...] }`, pin the vertices inside."),
         "stiffness": Key(
@@ -1221,7 +1231,11 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
                     f"{dim}D mesh"
                 )
     pinned = config["pinned"]
-    if pinned is not None and valid("pinned", "pinned.where", "pinned.box"):
+    if (
+        pinned is not None
+        and valid("pinned", "pinned.where", "pinned.box")
+        and (pinned["where"] is None) != (pinned["box"] is None)  # (else said above)
+    ):
         usable = True
         if pinned["where"] is not None:
             for cond in pinned["where"]:

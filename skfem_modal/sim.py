@@ -67,7 +67,7 @@ from .ingredients import ingredients, timed
 from .mesh import _signed_measures, boundary_vertices, check_mesh, validated
 from .modal import muscle_modes
 from .model import Model
-from .solver import TOL, LocalGlobal, SimulationError, make_backends
+from .solver import MAX_ITERATIONS, TOL, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
 from .threads import limited_blas_threads
 from .units import outside_stacklevel, up_axis, warn_scale
@@ -85,11 +85,6 @@ def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> 
         warm_start=_flag(warm_start, "warm_start"),
         acceleration=_acceleration_name(acceleration, full_space),
     )
-
-
-#: Iterations a step may take, at most: a backend keeps every iterate of a step (about 20 kB each for the
-#: 3D numpy backend with 20 clusters: a billion asked for 179 GiB at the first step)
-MAX_ITERATIONS = 100_000
 
 
 def _iterations(value) -> int:

@@ -444,6 +444,11 @@ class LocalGlobal:
         return math.sqrt(self._change2)
 
 
+#: Iterations a step may take, at most: a backend keeps every iterate of a step (about 20 kB each for the
+#: 3D numpy backend with 20 clusters: a billion asked for 179 GiB at the first step)
+MAX_ITERATIONS = 100_000
+
+
 #: in 3D, from this many rotations a step (clusters, the elasticity's and the muscles' own) on, the numpy
 #: step in Kronecker form is faster than the compiled one (benchmarks/bench_backends.py, the seal floating:
 #: 21 rotations 0.112 against 0.126 ms a step, 61 0.213 against 0.522; 16 0.096 against 0.090, 11 0.086

@@ -11,6 +11,7 @@ local/global iterations: said the same way.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import warnings
@@ -30,6 +31,8 @@ FAR = 10.0
 #: time step is reported: the iterations turn it too slowly (measured, a spinning unit square's
 #: spin kept over half a second: 98 % at 0.16, 90 % at 0.2, 61 % at 0.25, 18 % at 0.32, none at 0.63).
 CROSSING = 0.2
+#: Steps of a run that is not short: one barely moving its body in fewer is blamed on its length, not its units.
+SHORT_RUN = 100
 
 
 class ScaleWarning(UserWarning):
@@ -151,7 +154,7 @@ def material_length_scales(mu: float, rho: float, gravity=None, duration: float 
     """
     scales = {}
     if gravity is not None:
-        g = float(np.linalg.norm(np.asarray(gravity, dtype=np.float64)))
+        g = float(np.hypot.reduce(np.asarray(gravity, dtype=np.float64)))  # a norm that does not overflow
         if g > 0:
             scales["weight"] = float(mu) / (float(rho) * g)
     speed = float(np.sqrt(float(mu) / float(rho)))
@@ -217,9 +220,19 @@ def scale_mismatch(
     for key, length in scales.items():
         if size > FAR * length:
             definition, effect = meaning[key]
+            # a short run (a step or two) barely moves any body: no sign of other units when a run of
+            # SHORT_RUN steps would move it
+            short = key == "waves" and step is not None and size <= FAR * SHORT_RUN * step
+            cause = (
+                f"The run is short ({float(duration):.3g} time units): run longer (time.duration or time.steps), "
+                "or if the mesh is in other units (pixels), normalise it"
+                if short
+                else "Is it in other units (pixels)? Normalise it"
+            )
+            ratio = size / length if length > 0.0 else math.inf
             return (
-                f"{what} is {size:.4g} length units across, {size / length:.3g}x the material's length scale "
-                f"{length:.3g} ({definition}): it would {effect}. Is it in other units (pixels)? Normalise it "
+                f"{what} is {size:.4g} length units across, {ratio:.3g}x the material's length scale "
+                f"{length:.3g} ({definition}): it would {effect}. {cause} "
                 "(mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python: largest extent 2), "
                 "scale it (mesh.scale), or give a stiffer material."
             )

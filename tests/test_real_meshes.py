@@ -74,6 +74,14 @@ def test_the_length_scales_are_the_material_s():
     assert scale_mismatch(body, 4e4, 1e2, duration=3.0) is None
     big = MeshTri(body.p * 100.0, body.t)
     assert "barely move in the run" in scale_mismatch(big, 4e4, 1e2, duration=0.3)
+    assert "Is it in other units (pixels)?" in scale_mismatch(big, 4e4, 1e2, duration=0.3, h=0.001)  # 300 steps
+    # one step barely moves any body: blamed on the run's length, not on the units (a normalised mesh was told
+    # to normalise itself)
+    one_step = scale_mismatch(body, 4e4, 1e2, duration=0.001, h=0.001)
+    assert "barely move in the run. The run is short (0.001 time units): run longer" in one_step
+    # a gravity whose norm overflows float64 (|g|^2 beyond 1e308) is measured, not divided by
+    huge = scale_mismatch(body, 4e4, 1e2, [0.0, -1e160])
+    assert "2.5e+157x the material's length scale 4e-158" in huge and "collapse under its own weight" in huge
 
 
 @needs_shared

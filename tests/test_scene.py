@@ -68,6 +68,13 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(muscles__signs=[1, -1, 2, 1]), r"muscles.signs: expected a list of \+1 and -1, got \[1, -1, 2, 1\]"),
         (dict(mesh__params={"nx": 0}), r"mesh: caterpillar: nx and ny must be at least 2"),
         (dict(pinned={"where": ["q < 1"]}), r"pinned.where: cannot use 'q < 1'"),
+        # a [pinned] section saying neither which vertices nor where crashed the checks after naming it
+        (dict(pinned={}), r"1 problem\(s\) in the scene:\n  pinned: give where \(conditions\) or box, exactly one$"),
+        (dict(pinned={"stiffness": 1.0}), r"pinned: give where \(conditions\) or box, exactly one$"),
+        (dict(pinned={"where": []}), r"pinned.where: expected at least one condition, got \[\]"),
+        (dict(ground__contacts_where=[]), r"ground.contacts_where: expected at least one condition, got \[\]"),
+        # caught by the simulator only after the precompute, naming its own argument
+        (dict(time__iterations=10**6), r"time.iterations: expected an integer from 1 to 100000, got 1000000"),
         (dict(ground__contacts=0), r"ground.contacts: expected an integer >= 1 or \"all\", got 0"),
         (dict(muscles__gait__amplitude=None), r"muscles.gait.amplitude: required"),
         (dict(time__duration=2.0), r"time: give duration or steps, not both"),
