@@ -53,10 +53,20 @@ from .effects import Effect
 from .mesh import boundary_vertices, connected_labels, part_sizes
 from .solver import SimulationError
 
-__all__ = ["CoulombContact", "ReferenceContact", "MODELS", "ALLOWANCE", "MOST_ALLOWANCE", "checked_allowance"]
+__all__ = [
+    "CoulombContact",
+    "ReferenceContact",
+    "MODELS",
+    "DEFAULT_CONTACTS",
+    "ALLOWANCE",
+    "MOST_ALLOWANCE",
+    "checked_allowance",
+]
 
 #: Contact models by name (a scene's ``ground.model``).
 MODELS = ("coulomb", "reference")
+#: How many boundary vertices each model takes as contacts unless told (None: all; the reference's tutorial: 30).
+DEFAULT_CONTACTS = {"coulomb": None, "reference": 30}
 
 #: How far below the ground (of the body's size) the Coulomb contact lets a vertex end a step, by default.
 ALLOWANCE = 2e-4

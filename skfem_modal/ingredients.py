@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .clusters import CLUSTER_BY, cluster_count_problem, rotation_clusters, seed_problem, spectral_clusters
+from .contact import DEFAULT_CONTACTS
 from .fem import _lumped_p1, _mass, _positive, scalar_basis
 from .mesh import connected_parts, sample_boundary
 from .modal import muscle_count_problem, muscle_modes
@@ -263,8 +264,8 @@ def ingredients(
     timings = {}
     # scikit-fem caches mesh data on first use; build it here, before the two threads read it
     scalar_basis(mesh)
-    if n_contacts is None and contact_model == "reference":
-        n_contacts = 30
+    if n_contacts is None:
+        n_contacts = DEFAULT_CONTACTS[contact_model]
     contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
 
     def modes():

@@ -60,11 +60,11 @@ from .checks import (
     _positive_scalar,
     _pulled_to_ground,
 )
-from .contact import ALLOWANCE, CoulombContact, ReferenceContact, checked_allowance
+from .contact import ALLOWANCE, DEFAULT_CONTACTS, CoulombContact, ReferenceContact, checked_allowance
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive
 from .ingredients import ingredients, timed
-from .mesh import _signed_measures, boundary_vertices, check_mesh, validated
+from .mesh import _signed_measures, boundary_vertices, check_mesh, sample_boundary, validated
 from .modal import muscle_modes
 from .model import Model
 from .solver import MAX_ITERATIONS, TOL, LocalGlobal, SimulationError, make_backends
@@ -288,6 +288,9 @@ def _from_mesh(
         say("simulator set-up")
         placed = dict(active_labels=made.active_labels, contact_vertices=made.contact_vertices)
         sim = cls(mesh, made.B, made.muscles, made.labels, **placed, **_taken_by(ModalMuscle.__init__, arguments))
+    if n_contacts is None:
+        # the contact vertices are the model's default: another model (or a ground put in later) takes its own
+        sim._default_contacts = {"candidates": contact_candidates}
     sim.timings = {**made.timings, **sim.timings}
     sim.weights = made.weights
     return sim
@@ -555,6 +558,7 @@ class ModalMuscle:
         self._n_clusters = self._model.elasticity.n_clusters
         self._n_active_clusters = int(active_labels.max()) + 1 if self._n_muscles else 0
         self.iterations = 0
+        self._default_contacts = None  # see from_mesh and _model_contact_vertices
         _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
 
     def _build(self, h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices):
@@ -736,15 +740,17 @@ class ModalMuscle:
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
 
-    def _new_contact(self, setting, **changes) -> None:
-        """A fresh contact on the same vertices and ground, its settings changed."""
+    def _new_contact(self, setting, vertices=None, **changes) -> None:
+        """A fresh contact on the same ground, its settings changed (and its ``vertices``, if given)."""
         contact = self._model.contact
         if contact is None:
             raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
         settings = {**self._contact, **changes}
         _clear_of_ground(self._mesh, contact.ground, self._up, _allowance(settings))  # a smaller allowance
         self._contact = settings
-        self._put_contact(contact.vertices, contact.ground)
+        if vertices is not None:
+            self._contact_vertices = vertices
+        self._put_contact(contact.vertices if vertices is None else vertices, contact.ground)
 
     def _put_contact(self, vertices, ground) -> None:
         """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old)."""
@@ -760,8 +766,19 @@ class ModalMuscle:
     def contact_model(self, value) -> None:
         self._contact = _contact_settings(value, None, None, None)
         if self._model.contact is not None:
-            self._new_contact("contact_model")
+            self._new_contact("contact_model", vertices=self._model_contact_vertices())
             _warn_if_idle(self._solver, self._model.contact, "warm_start")
+
+    def _model_contact_vertices(self):
+        """The contact model's own default vertices when from_mesh chose them by default, else None (kept).
+
+        (A simulator built with ``n_contacts``, or directly with ``contact_vertices`` or all boundary
+        vertices, keeps its vertices whatever the model.)
+        """
+        if self._default_contacts is None:
+            return None
+        chosen = sample_boundary(self._mesh, DEFAULT_CONTACTS[self._contact["model"]], **self._default_contacts)
+        return np.unique(chosen)  # ascending, as the constructor keeps them
 
     friction = _contact_setting(
         "friction",
@@ -815,7 +832,8 @@ class ModalMuscle:
         _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
         contact = self._model.contact
         if contact is None:
-            self._contact_vertices = boundary_vertices(self._mesh)
+            default = self._model_contact_vertices()
+            self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
         self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
         if contact is None:
             _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")

@@ -5,6 +5,7 @@ import pytest
 
 from skfem_modal import ModalMuscle, caterpillar, creature, linear_modal_analysis, mass_matrix
 from skfem_modal.clusters import spectral_clusters
+from skfem_modal.mesh import boundary_vertices
 from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes
 
 
@@ -121,6 +122,29 @@ def test_live_settings_on_every_3d_backend(solid, backend):
     sim.h, sim.max_iter, sim.friction = 0.005, 6, 0.1
     fresh = build(solid, backend=backend, h=0.005, max_iter=6, friction=0.1)
     np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("model, other", [("coulomb", "reference"), ("reference", "coulomb")])
+def test_switching_the_contact_model_takes_its_default_vertices(model, other):
+    # from_mesh picks each model's default contact vertices (coulomb: every boundary vertex, reference: 30
+    # sampled): a switched simulator kept the old model's, and crawled 0.04 instead of the tutorial's 4.4
+    mesh = caterpillar(nx=24, ny=12)
+    kw = dict(n_muscles=2, n_weights=4, n_clusters=6, h=0.01, gravity=[0.0, -9.8], ground=float(mesh.p[1].min()) - 0.05)
+    switched = ModalMuscle.from_mesh(mesh, contact_model=model, **kw)
+    switched.contact_model = other
+    fresh = ModalMuscle.from_mesh(mesh, contact_model=other, **kw)
+    assert switched.contact_vertices.size == {"coulomb": boundary_vertices(mesh).size, "reference": 30}[other]
+    np.testing.assert_array_equal(switched.contact_vertices, fresh.contact_vertices)
+    np.testing.assert_allclose(trajectory(switched), trajectory(fresh), rtol=0, atol=1e-12)
+    # a ground put in later takes the model's too
+    floating = ModalMuscle.from_mesh(mesh, **{**kw, "ground": None})
+    floating.contact_model = other
+    floating.ground = kw["ground"]
+    np.testing.assert_array_equal(floating.contact_vertices, fresh.contact_vertices)
+    # vertices asked for by number stay, whatever the model
+    counted = ModalMuscle.from_mesh(mesh, contact_model=model, n_contacts=12, **kw)
+    counted.contact_model = other
+    assert counted.contact_vertices.size == 12
 
 
 READ_ONLY = ["mesh", "B", "D", "labels", "active_labels", "mu", "gamma", "rho", "pinned", "contact_vertices"]
