@@ -31,6 +31,15 @@ than :data:`HOVER_CLEARANCE` of its size, barely moves, and something other
 than gravity holds it up (a push upwards of at least half a step of free
 fall), with no pins and no mass-proportional damping (drag) to do it.
 
+A body can sink into the ground too: the reference contact holds only
+its sampled points, and only their velocity (a symmetric square at h = 0.2
+sank 41 % of its size in its first step), and the Coulomb contact only its
+candidates (three of them let a caterpillar fall through the ground). Given
+the deepest boundary vertex's depth each step, relative to its body's size,
+the monitor reports one deeper than the contact holds: twice the Coulomb
+contact's allowance, or :data:`SINK_LIMIT` of the size under the reference
+contact (whose feet sink a few percent by design).
+
 A third measure says when the muscles themselves are the cause: the largest
 commanded activation as a fraction of its muscle's ceiling. Beyond 1 the
 muscles ask for more deformation than ``max_s`` (a gait amplitude of 20
@@ -54,6 +63,7 @@ __all__ = [
     "PUSH_LIMIT",
     "HOVER_STEPS",
     "HOVER_CLEARANCE",
+    "SINK_LIMIT",
 ]
 
 #: A spread this many times the rest spread (or this many times smaller) is not physical.
@@ -64,6 +74,8 @@ PUSH_LIMIT = 1.0
 HOVER_STEPS = 3
 #: Clear of the ground by this much of its size, a body is in the air (the Coulomb contact's allowance is 2e-4).
 HOVER_CLEARANCE = 1e-3
+#: A vertex this far into the ground, of its body's size, has sunk under any contact (the reference's feet: 4-14 %).
+SINK_LIMIT = 0.25
 
 
 def _beyond_limits(push, ratio):
@@ -135,6 +147,14 @@ class MotionMonitor:
         self._fall = fall  # how far free fall moves a body in a step (its second difference)
         self._hovering = 0  # steps in a row held still in the air
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
+        self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
+        contact = sim.model.contact
+        self._contact = None if contact is None else (sim.contact_model, sim.allowance, contact.vertices.size)
+        if contact is not None:
+            self._contact += (contact.boundary_sizes.size,)
+        self._deepest_allowed = math.inf
+        if contact is not None:
+            self._deepest_allowed = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
     def _spread(self, z) -> float:
         return float(self._spreads(z[None])[0])
@@ -149,7 +169,7 @@ class MotionMonitor:
         squared = np.einsum("ij,ij->i", states @ self._gram, states) - np.einsum("ij,ij->i", mean, mean)
         return np.sqrt(np.maximum(squared, 0.0))
 
-    def update(self, step: int, z, a=None, clearance=None) -> None:
+    def update(self, step: int, z, a=None, clearance=None, depth=None) -> None:
         """Take the state after ``step`` steps.
 
         Parameters
@@ -161,6 +181,9 @@ class MotionMonitor:
         clearance : float, optional
             How far the lowest boundary vertex is above the ground (negative: below it), with a
             ground: to tell a body held in the air.
+        depth : float, optional
+            How far the deepest boundary vertex is below the ground, of its body's size (0 if
+            none is), with a ground: to tell a body sinking into it.
         """
         self._commanded(step, a)
         com = self._com_rows @ z
@@ -182,6 +205,10 @@ class MotionMonitor:
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
+        if depth is not None and depth > self.deepest:
+            self.deepest = depth
+            if depth > self._deepest_allowed:
+                self.first_problem_step.setdefault("sink", step)
 
     def run_problems(self, states) -> dict:
         """The first steps of a run from rest whose push or spread is not physical, all at once.
@@ -221,6 +248,26 @@ class MotionMonitor:
         else:
             self._hovering = 0
 
+    def _sinking(self) -> str:
+        """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""
+        step = self.first_problem_step["sink"]
+        model, allowance, candidates, boundary = self._contact
+        went = f"from step {step} (t = {step * self.h:g}) vertices went into the ground, up to {self.deepest:.3g} "
+        went += "of the body's size"
+        if model == "reference":
+            return (
+                f"{went}: the reference contact holds only its sampled points, and only their velocity; the Coulomb "
+                'contact (ground.model = "coulomb") holds every vertex'
+            )
+        if candidates < boundary:
+            return (
+                f"{went}, deeper than the Coulomb contact's allowance ({allowance:.3g}): it holds only its "
+                f"contact candidates ({candidates} of the {boundary} boundary vertices: ground.contacts, "
+                "ground.contacts_where), and "
+                'the others sank; take them all (ground.contacts = "all", the default)'
+            )
+        return f"{went}, deeper than the Coulomb contact's allowance ({allowance:.3g}): the contact did not hold it"
+
     def _commanded(self, step: int, a) -> None:
         """The step's activations against the ceilings."""
         if a is not None and self._ceilings is not None:
@@ -251,7 +298,8 @@ class MotionMonitor:
             ``physical``, ``warnings`` (sentences), ``largest_ceiling_fraction``
             (the largest activation over its ceiling), ``body_size`` (largest
             rest extent), ``spread_ratio`` (least and largest),
-            ``largest_push_body_sizes`` and ``first_problem_step``.
+            ``largest_push_body_sizes``, ``deepest_body_sizes`` (the deepest any vertex
+            went into the ground, of its body's size) and ``first_problem_step``.
         """
         texts = []
         low, high = self.spread_ratio
@@ -277,6 +325,8 @@ class MotionMonitor:
                 "contact at a large time step keeps its points where each step started them): the Coulomb contact "
                 '(ground.model = "coulomb") or a smaller time.step lands it'
             )
+        if "sink" in self.first_problem_step:
+            texts.append(self._sinking())
         if "non_finite" in self.first_problem_step:
             step = self.first_problem_step["non_finite"]
             texts.append(f"at step {step} (t = {step * self.h:g}) the state became non-finite")
@@ -307,5 +357,6 @@ class MotionMonitor:
             "body_size": self.size,
             "spread_ratio": [low, high],
             "largest_push_body_sizes": self.push,
+            "deepest_body_sizes": self.deepest,
             "first_problem_step": dict(self.first_problem_step),
         }

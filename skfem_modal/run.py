@@ -320,7 +320,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         # every boundary vertex, every step: the deepest any went below the ground
         log["penetration"] = max(log["penetration"], depth)
         log["relative"] = max(log["relative"], relative)
-        log["monitor"].update(step, z, a, clearance)
+        log["monitor"].update(step, z, a, clearance, relative if contact is not None else None)
 
 
 def _measured(sim, log: dict) -> dict:

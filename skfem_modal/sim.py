@@ -113,6 +113,18 @@ def _allowance(settings: dict) -> float:
     return settings.get("allowance", ALLOWANCE)
 
 
+def _model_contact_vertices(mesh, model: str, default: dict | None):
+    """The contact model's own default vertices when from_mesh chose them by default, else None (kept).
+
+    ``default``: how from_mesh chose them (its ``contact_candidates``), or None. A simulator built
+    with ``n_contacts``, or directly with ``contact_vertices`` or all boundary vertices, keeps its
+    vertices whatever the model.
+    """
+    if default is None:
+        return None
+    return np.unique(sample_boundary(mesh, DEFAULT_CONTACTS[model], **default))  # ascending, as the constructor's
+
+
 def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
     """The contact effect of a contact model's settings (``_contact_settings``)."""
     settings = dict(settings)
@@ -766,19 +778,8 @@ class ModalMuscle:
     def contact_model(self, value) -> None:
         self._contact = _contact_settings(value, None, None, None)
         if self._model.contact is not None:
-            self._new_contact("contact_model", vertices=self._model_contact_vertices())
+            self._new_contact("contact_model", _model_contact_vertices(self._mesh, value, self._default_contacts))
             _warn_if_idle(self._solver, self._model.contact, "warm_start")
-
-    def _model_contact_vertices(self):
-        """The contact model's own default vertices when from_mesh chose them by default, else None (kept).
-
-        (A simulator built with ``n_contacts``, or directly with ``contact_vertices`` or all boundary
-        vertices, keeps its vertices whatever the model.)
-        """
-        if self._default_contacts is None:
-            return None
-        chosen = sample_boundary(self._mesh, DEFAULT_CONTACTS[self._contact["model"]], **self._default_contacts)
-        return np.unique(chosen)  # ascending, as the constructor keeps them
 
     friction = _contact_setting(
         "friction",
@@ -832,7 +833,7 @@ class ModalMuscle:
         _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
         contact = self._model.contact
         if contact is None:
-            default = self._model_contact_vertices()
+            default = _model_contact_vertices(self._mesh, self._contact["model"], self._default_contacts)
             self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
         self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
         if contact is None:

@@ -226,3 +226,46 @@ def test_a_body_pinned_in_the_air_or_falling_through_drag_is_not_hovering():
         for step in range(1, 10):
             monitor.update(step, state_of(sim, rest), clearance=clearance)
         assert monitor.finish(warn=False)["first_problem_step"] == expected
+
+
+def _sink_scene(model, step, **ground):
+    return Scene.from_dict(
+        {
+            "mesh": {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}},
+            "subspace": {"weights": 6, "clusters": 8},
+            "muscles": {"count": 0},
+            "gravity": {"acceleration": [0.0, -9.8]},
+            "ground": {"model": model, "offset": 0.05, **ground},
+            "time": {"step": step, "steps": 60},
+        }
+    )
+
+
+def test_a_body_sinking_through_the_ground_between_its_contact_candidates_is_reported():
+    # three candidates let a caterpillar fall through the ground (118 % of its size with one), reported as physical
+    with pytest.warns(MotionWarning) as caught:
+        summary = run_scene(_sink_scene("coulomb", 0.01, contacts=3), None)
+    motion, ground = summary["motion"], summary["ground"]
+    assert not motion["physical"] and set(motion["first_problem_step"]) == {"sink"}
+    assert motion["deepest_body_sizes"] == ground["worst_penetration_relative"] > 0.1
+    (text,) = [str(w.message) for w in caught if "into the ground" in str(w.message)]
+    assert "deeper than the Coulomb contact's allowance (0.0002): it holds only its contact candidates (3 of" in text
+    assert 'take them all (ground.contacts = "all", the default)' in text
+    # every boundary vertex a candidate (the default): held, nothing said
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        held = run_scene(_sink_scene("coulomb", 0.01), None)["motion"]
+    assert held["physical"] and 0.0 < held["deepest_body_sizes"] <= 2e-4
+
+
+def test_the_reference_contacts_feet_may_sink_a_little_but_not_a_quarter_of_the_body():
+    monitor_of = lambda summary: summary["motion"]  # noqa: E731
+    # its 30 points at h = 0.01: the feet sink a few percent by design, not reported
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        small = monitor_of(run_scene(_sink_scene("reference", 0.01), None))
+    assert small["physical"] and 0.0 < small["deepest_body_sizes"] < 0.25
+    # four points (the corners of the bottom): the belly between them goes through
+    with pytest.warns(MotionWarning, match=r"the reference contact holds only its sampled points"):
+        deep = monitor_of(run_scene(_sink_scene("reference", 0.01, contacts=4), None))
+    assert not deep["physical"] and "sink" in deep["first_problem_step"] and deep["deepest_body_sizes"] > 0.25
