@@ -111,22 +111,22 @@ def checked_allowance(value, name: str = "allowance") -> float:
     return allowance
 
 
-def _gram_inverse(G, L) -> np.ndarray | None:
-    """``(L L^T)^-1`` (m, m) from ``G = L L^T`` for ``L`` (m, n) of full row rank, else None.
+def _gram_inverse(G) -> np.ndarray | None:
+    """``G^-1`` (m, m) for ``G = L L^T`` well conditioned (a Cholesky factor's reciprocal condition above 1e-12).
 
-    Full rank as ``np.linalg.matrix_rank`` says; that SVD is only made when a Cholesky factor of
-    ``G`` does not show it at once (reciprocal condition above 1e-12), so a well-posed set of
-    contact points costs a factor and its inverse (m x m: the right-hand sides are the m
-    rows, not the n columns; 15 x 96 took 13 us in LAPACK's solve, its inverse 2).
+    A well-posed set of contact points costs a factor and its inverse (m x m: the right-hand
+    sides are the m rows, not the n columns; 15 x 96 took 13 us in LAPACK's solve, its inverse
+    2). None otherwise: rows that depend on each other, or nearly (``G``'s condition is ``L``'s
+    squared), or whose products leave float64's range (a time step of 1000 made ``G`` 1e-319, and
+    its inverse NaN); the caller then solves with ``L`` itself, by least squares.
     """
     factor, info = lapack.dpotrf(G)
     if info == 0 and lapack.dpocon(factor, np.abs(G).sum(axis=0).max())[0] > 1e-12:
         upper = lapack.dpotri(factor)[0]  # the inverse's upper triangle, zeros below (scipy cleans them)
         inverse = upper + upper.T
         inverse.flat[:: G.shape[0] + 1] *= 0.5  # (np.triu's masks cost 13 us each)
-        return inverse
-    if np.linalg.matrix_rank(L) == L.shape[0]:
-        return np.linalg.inv(G)
+        if np.isfinite(inverse).all():
+            return inverse
     return None
 
 
@@ -308,7 +308,7 @@ class ReferenceContact(_Ground):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < L.shape[1] and (X := _gram_inverse(self._gram.take(rows, 0).take(rows, 1), L)) is not None:
+        elif rows.size < L.shape[1] and (X := _gram_inverse(self._gram.take(rows, 0).take(rows, 1))) is not None:
             # reference: the least change of force that meets every constraint exactly,
             # H^-1 L^T (L L^T)^-1 (and its heights) from the rows made once
             dz, dheights = self._pull[:, rows] @ X, self._pull_up[:, rows] @ X

@@ -125,6 +125,22 @@ def _model_contact_vertices(mesh, model: str, default: dict | None):
     return np.unique(sample_boundary(mesh, DEFAULT_CONTACTS[model], **default))  # ascending, as the constructor's
 
 
+def _checked_activation(a, m: int) -> np.ndarray:
+    """Muscle activations checked: shape (m,), finite; None: zero (the muscles at rest)."""
+    if a is None:
+        return np.zeros(m)
+    if m == 0:
+        if np.size(a):
+            raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
+        return np.zeros(0)
+    a = np.asarray(a, dtype=np.float64).ravel()
+    if a.shape != (m,):
+        raise ValueError(f"activation must have one value per muscle ({m}), got {a.size}")
+    if not np.isfinite(a).all():  # the method: half the cost of np.all's dispatch, every step
+        raise ValueError(f"activation must be finite, got {a.tolist()}")
+    return a
+
+
 def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
     """The contact effect of a contact model's settings (``_contact_settings``)."""
     settings = dict(settings)
@@ -974,19 +990,7 @@ class ModalMuscle:
     # ------------------------------------------------------------------ step
     def _activation(self, a) -> np.ndarray:
         """The muscles' activation checked, shape (m,); None: zero (the muscles at rest)."""
-        m = self._n_muscles
-        if a is None:
-            return np.zeros(m)
-        if m == 0:
-            if np.size(a):
-                raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
-            return np.zeros(0)
-        a = np.asarray(a, dtype=np.float64).ravel()
-        if a.shape != (m,):
-            raise ValueError(f"activation must have one value per muscle ({m}), got {a.size}")
-        if not np.isfinite(a).all():  # the method: half the cost of np.all's dispatch, every step
-            raise ValueError(f"activation must be finite, got {a.tolist()}")
-        return a
+        return _checked_activation(a, self._n_muscles)
 
     def step(self, z, z_dot, a=None, *, velocity: bool = False):
         """Advance one time step.
@@ -1021,6 +1025,8 @@ class ModalMuscle:
         with np.errstate(over="ignore", invalid="ignore"):
             try:
                 z_next, self.iterations = self._solver.step(self._backends, z, z_dot, a, self._model.contact)
+            except np.linalg.LinAlgError as err:  # (a contact's correction at a huge step, say): the step's trouble
+                raise SimulationError(f"the step's linear algebra failed: {err} (time step h = {self.h:g})") from err
             except SimulationError:
                 # a state given non-finite is the caller's, not the step's (checked only then: it costs a step)
                 for name, value in (("z", z), ("z_dot", z_dot)):

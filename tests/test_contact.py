@@ -597,22 +597,23 @@ def test_a_run_with_coulomb_contact_does_not_depend_on_what_ran_before():
         np.testing.assert_array_equal(run(sim, gaits[1]), expected)
 
 
-def test_a_contact_sets_gram_inverse_and_its_rank_test():
+def test_a_contact_sets_gram_inverse_and_when_it_declines():
     # the reference contact's least-norm correction of a new set: (L L^T)^-1 by a Cholesky factor and its
-    # inverse (the symmetric fill-in from the upper triangle), the rank test only when the factor cannot tell
+    # inverse (the symmetric fill-in from the upper triangle); None, for the caller's least squares on L, when
+    # that is not well posed in float64
     from skfem_modal.contact import _gram_inverse
 
     L = np.random.default_rng(1).standard_normal((5, 12))
     G = L @ L.T
-    np.testing.assert_allclose(_gram_inverse(G, L), np.linalg.inv(G), rtol=1e-12)
-    assert _gram_inverse(L[[0, 1, 1]] @ L[[0, 1, 1]].T, L[[0, 1, 1]]) is None  # a repeated row: no exact solution
-    # well posed (reciprocal condition 4.5e-12, the factor's path) and full rank past the factor's test
-    # (4.5e-14, the rank test's path): inverted both, to what float64 holds of G
-    for step, most in ((1e-5, 1e-5), (1e-6, 1e-3)):
-        near = L.copy()
-        near[1] = near[0] + step * L[1]
-        X = _gram_inverse(near @ near.T, near)
-        assert np.abs((near @ near.T) @ X - np.eye(5)).max() < most
+    np.testing.assert_allclose(_gram_inverse(G), np.linalg.inv(G), rtol=1e-12)
+    assert _gram_inverse(L[[0, 1, 1]] @ L[[0, 1, 1]].T) is None  # a repeated row: no exact solution
+    near = L.copy()
+    near[1] = near[0] + 1e-5 * L[1]  # reciprocal condition 4.5e-12: inverted, to what float64 holds of G
+    assert np.abs((near @ near.T) @ _gram_inverse(near @ near.T) - np.eye(5)).max() < 1e-5
+    near[1] = near[0] + 1e-6 * L[1]  # 4.5e-14: declined (its inverse holds 1e-3 of the identity)
+    assert _gram_inverse(near @ near.T) is None
+    # rows of 1e-160 (a time step of 1000): G is 1e-319, subnormal, and its inverse was NaN and inf
+    assert _gram_inverse((1e-160 * L) @ (1e-160 * L).T) is None
 
 
 def test_a_contact_sets_checks_read_each_vertex_as_coulomb_says():

@@ -12,7 +12,7 @@ from skfem_modal.mesh import beam2d
 from skfem_modal.monitor import PUSH_LIMIT, CeilingWarning, MotionMonitor, MotionWarning
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
-from skfem_modal.sim import ModalMuscle
+from skfem_modal.sim import ModalMuscle, SimulationError
 
 
 @pytest.fixture(scope="module")
@@ -269,3 +269,34 @@ def test_the_reference_contacts_feet_may_sink_a_little_but_not_a_quarter_of_the_
     with pytest.warns(MotionWarning, match=r"the reference contact holds only its sampled points"):
         deep = monitor_of(run_scene(_sink_scene("reference", 0.01, contacts=4), None))
     assert not deep["physical"] and "sink" in deep["first_problem_step"] and deep["deepest_body_sizes"] > 0.25
+
+
+def test_the_reference_contact_at_a_huge_step_is_reported_not_crashed():
+    # at h = 1000 a new contact set's Gram matrix underflowed (1e-319): 'Singular matrix', exit 2, outputs written
+    scene = Scene.from_dict(
+        {
+            "mesh": {"shape": "creature"},
+            "muscles": {"count": 4, "gait": {"amplitude": [0.4] * 4, "period": [1.0, 0.8, 0.6, 0.9]}},
+            "time": {"step": 1000.0, "steps": 10},
+            "gravity": {"acceleration": [0.0, 0.0, -9.8]},
+            "ground": {"model": "reference"},
+        }
+    )
+    with pytest.warns(MotionWarning, match=r"the time step h = 1000 is too large for this scene"):
+        summary = run_scene(scene, None)
+    assert summary["status"] == "completed" and not summary["motion"]["physical"]
+    assert {"push", "sink"} <= set(summary["motion"]["first_problem_step"])
+
+
+def test_a_steps_failing_linear_algebra_is_a_simulation_error_naming_it(beam_sim, monkeypatch):
+    sim = ModalMuscle.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, n_weights=3, n_clusters=4, h=0.01,
+                                gravity=[0.0, -9.8], ground=-0.3, contact_model="reference")  # fmt: skip
+
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(sim.model.contact, "project", singular)
+    z, z_dot, _ = sim.rest_state()
+    failed = r"the step's linear algebra failed: Singular matrix \(time step h = 0.01\)"
+    with pytest.raises(SimulationError, match=failed):
+        sim.step(z, z_dot)
