@@ -178,13 +178,16 @@ def _basis(B, N: int) -> np.ndarray:
     return B
 
 
-def _gravity_and_up(gravity, up, dim: int):
-    """Gravity, shape (dim,), or None, and the up axis it pulls down along (or the one given), checked."""
+def _gravity_and_up(gravity, up, dim: int, ground: bool = True):
+    """Gravity, shape (dim,), or None, and the up axis it pulls down along (or the one given), checked.
+
+    ``ground``: whether there is one (without, any gravity goes: :func:`~skfem_modal.units.up_axis`).
+    """
     if up is not None:
         up = _axis(up, dim)
     if gravity is not None:
         gravity = _array(gravity, (dim,), "gravity")
-    return gravity, up_axis(gravity, dim, up)
+    return gravity, up_axis(gravity, dim, up, ground)
 
 
 def _pins(pinned, pin_stiffness, n: int):

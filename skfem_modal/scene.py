@@ -835,7 +835,8 @@ class Scene:
         """The up axis: ``ground.up``, or the axis gravity pulls down along (:func:`~skfem_modal.units.up_axis`)."""
         g = self.config["ground"]
         gravity = self.config["gravity"]
-        return up_axis(None if gravity is None else gravity["acceleration"], self.dim, None if g is None else g["up"])
+        acceleration = None if gravity is None else gravity["acceleration"]
+        return up_axis(acceleration, self.dim, None if g is None else g["up"], ground=g is not None)
 
     def contact_candidates(self) -> np.ndarray | None:
         g = self.config["ground"]
@@ -1211,7 +1212,7 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
         errors.append(f"ground.up: expected an axis index in 0..{dim - 1}, got {up}")
     else:
         try:
-            up = up_axis(acc, dim, up)
+            up = up_axis(acc, dim, up, ground=ground is not None)
             if ground is not None:
                 _pulled_to_ground(acc, ground, up)
         except ValueError as err:

@@ -566,7 +566,7 @@ class ModalMuscle:
         _fits_float64(mesh, mu, gamma, rho, h, gravity, damping)
         self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
         self._backend = _backend_name(backend)
-        gravity, self._up = _gravity_and_up(gravity, up, dim)
+        gravity, self._up = _gravity_and_up(gravity, up, dim, ground is not None)
         self._contact = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
@@ -763,7 +763,7 @@ class ModalMuscle:
             self._model.remove("gravity")
         else:
             value = _array(value, (self.dim,), "gravity")
-            up_axis(value, self.dim, self._up)  # pulls down along up, or an error naming both
+            up_axis(value, self.dim, self._up, self.ground is not None)  # pulls down along up onto a ground
             _pulled_to_ground(value, self.ground, self._up)
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
@@ -846,6 +846,7 @@ class ModalMuscle:
             self._rebuild()
             return
         value = float(_array(value, (), "ground"))
+        _pulled_to_ground(self.gravity, value, self._up)  # (a floating body's gravity may pull any way)
         _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
         contact = self._model.contact
         if contact is None:
@@ -864,7 +865,7 @@ class ModalMuscle:
     def up(self, value) -> None:
         value = _axis(value, self.dim)
         if self.gravity is not None:
-            up_axis(self.gravity, self.dim, value)  # gravity must pull down along it
+            up_axis(self.gravity, self.dim, value, self.ground is not None)  # gravity must pull down along it
         _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
         self._up = value
         if self._model.contact is not None:

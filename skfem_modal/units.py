@@ -43,14 +43,16 @@ def _vector(values) -> str:
     return "[" + ", ".join(f"{float(v):g}" for v in values) + "]"
 
 
-def up_axis(gravity, dim: int, up: int | None = None) -> int:
+def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> int:
     """The index of the up axis: the one given, or the one gravity pulls down along.
 
     Without ``up``, the up axis is the axis of gravity's largest component
     (the first on ties), which must point down (negative); without gravity
     it is the last axis (y in 2D, z in 3D). Gravity that has no component
     along ``-up`` would never pull a body onto a ground below it: an error
-    naming both.
+    naming both. Without a ground (``ground=False``) any gravity goes: a
+    floating body stands on nothing (the up axis is then the one given, the
+    one gravity pulls down along, or the last).
 
     Parameters
     ----------
@@ -60,6 +62,8 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
         2 or 3.
     up : int, optional
         An axis index in ``0..dim-1``.
+    ground : bool
+        Whether there is a ground for gravity to pull the body onto.
 
     Returns
     -------
@@ -86,6 +90,8 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
     ValueError: gravity [8.49, -4.9] pulls most along +x, so the up axis is not the one it pulls along: give it...
     >>> up_axis([8.49, -4.9], 2, up=1)
     1
+    >>> up_axis([9.8, 0.0], 2, ground=False)  # a floating body falling along +x
+    1
     """
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
@@ -97,6 +103,8 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
     if g is None or not np.any(g):
         return dim - 1 if up is None else int(up)
     down = int(np.argmax(np.abs(g)))
+    if not ground:
+        return int(up) if up is not None else down if g[down] < 0 else dim - 1
     if up is None:
         if g[down] > 0:
             below = int(np.argmin(g))
@@ -107,9 +115,10 @@ def up_axis(gravity, dim: int, up: int | None = None) -> int:
                     f"gravity along -{_AXES[down]}"
                 )
             raise ValueError(
-                f"gravity {_vector(g)} pulls along +{_AXES[down]}, so no axis points up against it: give "
-                f"gravity along -{_AXES[down]} (for an outline traced in image coordinates, y down, mirror "
-                'the mesh first: mesh.flip = ["y"] in a scene, skfem_modal.mirror in Python)'
+                f"gravity {_vector(g)} pulls along +{_AXES[down]}, so no axis points up against it onto a "
+                f"ground: give gravity along -{_AXES[down]} (or mirror the mesh along {_AXES[down]} first: "
+                f'mesh.flip = ["{_AXES[down]}"] in a scene, skfem_modal.mirror in Python; an outline traced '
+                "in image coordinates has y down)"
             )
         return down
     if not g[up] < 0:

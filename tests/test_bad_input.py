@@ -7,6 +7,7 @@ from skfem import MeshTri
 import skfem_modal as sm
 from skfem_modal.clusters import spectral_clusters
 from skfem_modal.mesh import MeshError, boundary_vertices, connected_parts, mesh_summary
+from skfem_modal.scene import Scene
 from skfem_modal.sim import ModalMuscle
 from skfem_modal.subspace import laplacian, skinning_eigenmodes
 
@@ -170,6 +171,28 @@ def test_an_incline_steeper_than_45_degrees_asks_for_the_up_axis_by_name():
     with pytest.raises(ValueError, match="so no axis points up against it"):  # nothing pulls down at all
         up_axis([8.49, 4.9], 2)
     assert up_axis([8.49, -4.9], 2, up=1) == 1
+    # the advice names the axis gravity pulls along (it said flip y for a gravity along +x)
+    with pytest.raises(ValueError, match=r'mirror the mesh along x first: mesh.flip = \["x"\]'):
+        up_axis([9.8, 0.0], 2)
+
+
+def test_a_floating_body_may_fall_any_way():
+    # without a ground nothing needs an up axis: gravity along +x was refused, naming ground.up
+    from skfem_modal.units import up_axis
+
+    assert up_axis([9.8, 0.0], 2, ground=False) == 1 and up_axis([0.0, -9.8, 0.0], 3, ground=False) == 1
+    scene = Scene.from_dict({"mesh": {"shape": "caterpillar", "params": {"nx": 12, "ny": 6}},
+                             "gravity": {"acceleration": [9.8, 0.0]}, "time": {"steps": 10}})  # fmt: skip
+    sim = scene.build()
+    z, z_dot, _ = sim.rest_state()
+    start = sim.com(z)
+    for _ in range(10):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+    # free fall along +x as implicit Euler has it: g h^2 (1 + 2 + ... + 10)
+    np.testing.assert_allclose(sim.com(z) - start, [9.8 * sim.h**2 * 55, 0.0], atol=1e-9)
+    with pytest.raises(ValueError, match=r"gravity \[9.8, 0.0\] has no component along -y"):
+        sim.ground = -1.0  # a ground needs gravity pulling onto it
+    assert sim.ground is None
 
 
 def test_a_hand_made_basis_is_named_when_its_columns_depend_and_taken_when_sparse():
