@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .mesh import check_mesh
+from .modal import muscle_modes
 from .sim import ModalMuscle
 
 __all__ = ["FullSpaceSimulator"]
@@ -63,3 +64,33 @@ class FullSpaceSimulator(ModalMuscle):
             if "ModalMuscle.__init__()" in str(err):
                 raise TypeError(str(err).replace("ModalMuscle.__init__()", "FullSpaceSimulator()")) from None
             raise
+
+    @classmethod
+    def from_mesh(cls, mesh, n_muscles=4, *, muscle_signs=None, mu=1e5, gamma=None, lam=None, rho=1e3, h=0.02,
+                  pinned=None, **kwargs):  # fmt: skip
+        """A full-space simulator of a mesh, its muscles the mesh's lowest modes.
+
+        Parameters
+        ----------
+        mesh : skfem.MeshTri or skfem.MeshTet
+        n_muscles : int
+            Muscle modes: the lowest modes but the rigid ones (:func:`~skfem_modal.modal.muscle_modes`).
+        muscle_signs : array_like of +1 / -1, shape (n_muscles,), optional
+            Flip muscles.
+        mu, gamma, lam, rho, h, pinned :
+            As for :meth:`ModalMuscle.from_mesh <skfem_modal.sim.ModalMuscle.from_mesh>`: the material
+            (``gamma`` and ``lam`` default to ``mu``), the time step, the pinned vertices.
+        **kwargs
+            The constructor's other settings (``gravity``, ``ground``, ``max_iter``, ...).
+
+        Examples
+        --------
+        >>> from skfem_modal import beam2d
+        >>> sim = FullSpaceSimulator.from_mesh(beam2d(2.0, 0.5, 8, 2), n_muscles=1, h=0.01)
+        >>> sim.rest_state()[0].shape, sim.n_muscles  # the positions of 27 vertices
+        ((54,), 1)
+        """
+        check_mesh(mesh)
+        D = muscle_modes(mesh, n_muscles, mu=mu, lam=lam, rho=rho, pinned=pinned, signs=muscle_signs)
+        gamma = mu if gamma is None else gamma
+        return cls(mesh, D, mu=mu, gamma=gamma, rho=rho, h=h, pinned=pinned, **kwargs)

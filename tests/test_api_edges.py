@@ -176,3 +176,16 @@ def test_the_full_space_simulator_given_points_for_a_mesh_names_the_mesh():
     mesh = sm.caterpillar(nx=8, ny=4)
     with pytest.raises(TypeError, match=r"^mesh: expected a linear skfem.MeshTri or skfem.MeshTet, got ndarray"):
         sm.FullSpaceSimulator(mesh.p, None, mu=1.0, rho=1.0, h=0.01)  # AttributeError: no attribute 't'
+
+
+def test_the_full_space_simulator_is_made_from_a_mesh_as_the_reduced_one():
+    # it inherited ModalMuscle.from_mesh, which passed a subspace and clusters it does not take (a TypeError)
+    mesh = sm.beam2d(2.0, 0.5, 8, 2)
+    kw = dict(mu=1e4, rho=1e3, h=0.01, gravity=[0.0, -9.8])
+    sim = sm.FullSpaceSimulator.from_mesh(mesh, n_muscles=2, muscle_signs=[1, -1], **kw)
+    D = sm.muscle_modes(mesh, 2, mu=1e4, rho=1e3, signs=[1, -1])
+    built = sm.FullSpaceSimulator(mesh, D, gamma=1e4, **kw)
+    np.testing.assert_array_equal(sim.D, built.D)
+    z, z_dot, _ = sim.rest_state()
+    a = 0.5 * sim.ceilings
+    np.testing.assert_array_equal(sim.step(z, z_dot, a), built.step(z, z_dot, a))
