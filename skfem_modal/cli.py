@@ -282,6 +282,8 @@ def cmd_info(args) -> int:
         c = scene.config
         dim = info["dim"]
         r = c["subspace"]["weights"] * (dim + 1) * dim
+        # more columns than DOFs span them all: the run keeps as many as there are DOFs (with a warning)
+        subspace = f"subspace {r}" if r <= mesh.p.size else f"subspace {mesh.p.size} (of {r} columns: the whole space)"
         print(f"scene: {c['name']} ({scene.source})")
         print(
             f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {dim}D, "
@@ -292,7 +294,7 @@ def cmd_info(args) -> int:
         mat = scene.material()
         print("material: " + ", ".join(f"{k} = {v:g}" for k, v in mat.items()))
         print(
-            f"sizes: {mesh.p.size} DOFs, subspace {r}, {c['subspace']['clusters']} clusters, "
+            f"sizes: {mesh.p.size} DOFs, {subspace}, {c['subspace']['clusters']} clusters, "
             f"{c['muscles']['count']} muscles"
         )
         print(

@@ -212,7 +212,7 @@ def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
             # (numerically) dependent columns: a rank-revealing QR drops them
             Q, R, _ = sla.qr(Bm, mode="economic", pivoting=True)
             keep = np.abs(np.diag(R)) > 1e-10 * np.abs(R[0, 0])
-            _warn_dropped(keep)
+            _warn_dropped(keep, B.shape[1])
             Q = Q[:, keep]
         Q /= root[:, None]
         return Q
@@ -224,17 +224,22 @@ def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
     except np.linalg.LinAlgError:
         vals, vecs = np.linalg.eigh(G)
         keep = vals > 1e-10 * vals.max()
-        _warn_dropped(keep)
+        _warn_dropped(keep, B.shape[1])
         return B @ (vecs[:, keep] / np.sqrt(vals[keep]))
 
 
-def _warn_dropped(keep: np.ndarray) -> None:
-    """Say how many columns were dropped as linear combinations of the others, and what is left (if any were)."""
-    dropped = int(np.count_nonzero(~keep))
-    if dropped:
+def _warn_dropped(keep: np.ndarray, columns: int) -> None:
+    """Say how many of ``columns`` were dropped as combinations of the others, and what is left (if any were).
+
+    ``keep`` (k,): which of the first ``k`` the factorisation kept; the others (more columns than rows) are
+    dropped too.
+    """
+    kept = int(np.count_nonzero(keep))
+    if kept < columns:
+        wide = f"; with more columns than its {keep.size} rows, at most that many stay" if columns > keep.size else ""
         warnings.warn(
-            f"mass_orthonormalize: dropped {dropped} of {keep.size} columns, linear combinations of the others "
-            f"(to 1e-10 relative): the basis has {keep.size - dropped}",
+            f"mass_orthonormalize: dropped {columns - kept} of {columns} columns, linear combinations of the others "
+            f"(to 1e-10 relative{wide}): the basis has {kept}",
             RuntimeWarning,
             stacklevel=3,  # where mass_orthonormalize was called
         )

@@ -297,6 +297,18 @@ def test_a_tiny_body_is_orthonormalised_in_order_without_a_warning():
     with pytest.warns(RuntimeWarning, match=r"dropped 1 of 49 columns, linear combinations of the others.*has 48"):
         dropped = mass_orthonormalize(np.hstack([B, B[:, :1] * 3 + B[:, 1:2]]), M)
     assert dropped.shape[1] == 48
+    # more columns than rows: the ones beyond are dropped too, and counted (it said it dropped none of 564)
+    wide = np.random.default_rng(0).standard_normal((30, 48))
+    with pytest.warns(RuntimeWarning, match=r"dropped 18 of 48 columns, .*more columns than its 30 rows.*has 30$"):
+        assert mass_orthonormalize(wide, M[:30, :30]).shape == (30, 30)
+
+
+def test_info_says_a_subspace_of_more_columns_than_dofs_is_the_whole_space(capsys, tmp_path):
+    # 47 weights on a 64-vertex tetrahedral cube: 564 columns, 192 DOFs; info said 564, the run used 192
+    path = tmp_path / "scene.toml"
+    path.write_text('[mesh]\nshape = "box3d"\nparams = { nx = 3, ny = 3, nz = 3 }\n[subspace]\nweights = 47\n')
+    assert main(["info", str(path)]) == 0
+    assert "sizes: 192 DOFs, subspace 192 (of 564 columns: the whole space)" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("offset", [1e6, 1e8])
