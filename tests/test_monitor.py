@@ -183,7 +183,8 @@ def default_crawl_summary():
         return run_scene(Scene.default(), None)
 
 
-def _hover_scene(model, **ground):
+def _ground_scene(model, step=0.3, steps=10, **ground):
+    """A caterpillar without muscles dropped from 0.05 above the ground."""
     return Scene.from_dict(
         {
             "mesh": {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}},
@@ -191,7 +192,7 @@ def _hover_scene(model, **ground):
             "muscles": {"count": 0},
             "gravity": {"acceleration": [0.0, -9.8]},
             "ground": {"model": model, "offset": 0.05, **ground},
-            "time": {"step": 0.3, "steps": 10},
+            "time": {"step": step, "steps": steps},
         }
     )
 
@@ -202,12 +203,12 @@ def test_a_body_held_in_the_air_by_the_contact_is_reported_hovering(tmp_path, ca
     The run said "completed", physical, with nothing under the body (issue: the caterpillar never lands).
     """
     with pytest.warns(MotionWarning, match=r"from step 1 \(t = 0.3\) the body stayed in the air, 0.025 body sizes"):
-        motion = run_scene(_hover_scene("reference"), None)["motion"]
+        motion = run_scene(_ground_scene("reference"), None)["motion"]
     assert not motion["physical"] and motion["first_problem_step"] == {"hover": 1}
     # the Coulomb contact lands it at the same step: nothing said
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
-        landed = run_scene(_hover_scene("coulomb"), None)["motion"]
+        landed = run_scene(_ground_scene("coulomb"), None)["motion"]
     assert landed["physical"] and landed["largest_push_body_sizes"] > 0.1  # the ground stopped a fall of 0.44 sizes
 
 
@@ -228,23 +229,10 @@ def test_a_body_pinned_in_the_air_or_falling_through_drag_is_not_hovering():
         assert monitor.finish(warn=False)["first_problem_step"] == expected
 
 
-def _sink_scene(model, step, **ground):
-    return Scene.from_dict(
-        {
-            "mesh": {"shape": "caterpillar", "params": {"nx": 24, "ny": 12}},
-            "subspace": {"weights": 6, "clusters": 8},
-            "muscles": {"count": 0},
-            "gravity": {"acceleration": [0.0, -9.8]},
-            "ground": {"model": model, "offset": 0.05, **ground},
-            "time": {"step": step, "steps": 60},
-        }
-    )
-
-
 def test_a_body_sinking_through_the_ground_between_its_contact_candidates_is_reported():
     # three candidates let a caterpillar fall through the ground (118 % of its size with one), reported as physical
     with pytest.warns(MotionWarning) as caught:
-        summary = run_scene(_sink_scene("coulomb", 0.01, contacts=3), None)
+        summary = run_scene(_ground_scene("coulomb", 0.01, 60, contacts=3), None)
     motion, ground = summary["motion"], summary["ground"]
     assert not motion["physical"] and set(motion["first_problem_step"]) == {"sink"}
     assert motion["deepest_body_sizes"] == ground["worst_penetration_relative"] > 0.1
@@ -254,7 +242,7 @@ def test_a_body_sinking_through_the_ground_between_its_contact_candidates_is_rep
     # every boundary vertex a candidate (the default): held, nothing said
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
-        held = run_scene(_sink_scene("coulomb", 0.01), None)["motion"]
+        held = run_scene(_ground_scene("coulomb", 0.01, 60), None)["motion"]
     assert held["physical"] and 0.0 < held["deepest_body_sizes"] <= 2e-4
 
 
@@ -263,11 +251,11 @@ def test_the_reference_contacts_feet_may_sink_a_little_but_not_a_quarter_of_the_
     # its 30 points at h = 0.01: the feet sink a few percent by design, not reported
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
-        small = monitor_of(run_scene(_sink_scene("reference", 0.01), None))
+        small = monitor_of(run_scene(_ground_scene("reference", 0.01, 60), None))
     assert small["physical"] and 0.0 < small["deepest_body_sizes"] < 0.25
     # four points (the corners of the bottom): the belly between them goes through
     with pytest.warns(MotionWarning, match=r"the reference contact holds only its sampled points"):
-        deep = monitor_of(run_scene(_sink_scene("reference", 0.01, contacts=4), None))
+        deep = monitor_of(run_scene(_ground_scene("reference", 0.01, 60, contacts=4), None))
     assert not deep["physical"] and "sink" in deep["first_problem_step"] and deep["deepest_body_sizes"] > 0.25
 
 
