@@ -526,6 +526,12 @@ def _describe(row) -> str:
     return f"{row['weights']} weights, {row['clusters']} clusters{by} and {it}{extra}"
 
 
+def _percent(fraction: float) -> str:
+    """A fraction as a percentage to read against thresholds: 10.36 % is "10.4", not "10" (nor "1e+02")."""
+    percent = 100.0 * fraction
+    return f"{percent:.1f}" if abs(percent) >= 1.0 else f"{percent:.2g}"
+
+
 def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
     """Plain sentences: the cheapest setting within each error threshold, and the defaults."""
     same = [r for r in rows if r["resolution"] == 1.0 and "trajectory_error" in r]
@@ -533,8 +539,8 @@ def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
     base = next((r for r in same if r["sweep"] == "base"), None)
     if base:
         lines.append(
-            f"{_describe(base)} give {100 * base['trajectory_error']:.2g} % trajectory error at "
-            f"{base['step_ms']:.3g} ms per step (the subspace alone allows {100 * base['subspace_error']:.2g} %)."
+            f"{_describe(base)} give {_percent(base['trajectory_error'])} % trajectory error at "
+            f"{base['step_ms']:.3g} ms per step (the subspace alone allows {_percent(base['subspace_error'])} %)."
         )
         for key, label in (("weights", "weights"), ("clusters", "clusters")):
             double = [r for r in same if r["sweep"] == key and r[key] == 2 * base[key]]
@@ -543,7 +549,7 @@ def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
             if double:
                 r = double[0]
                 lines.append(
-                    f"{r[key]} {label} instead of {base[key]}: {100 * r['trajectory_error']:.2g} % at "
+                    f"{r[key]} {label} instead of {base[key]}: {_percent(r['trajectory_error'])} % at "
                     f"{r['step_ms']:.3g} ms per step."
                 )
     for limit in thresholds:
@@ -553,7 +559,7 @@ def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
             times = f" ({r['step_ms'] / base['step_ms']:.2g} times the base's)" if base else ""
             lines.append(
                 f"Within {100 * limit:g} % trajectory error, the fastest setting measured is {_describe(r)}: "
-                f"{100 * r['trajectory_error']:.2g} % at {r['step_ms']:.3g} ms per step{times}."
+                f"{_percent(r['trajectory_error'])} % at {r['step_ms']:.3g} ms per step{times}."
             )
         else:
             lines.append(f"No setting measured reaches {100 * limit:g} % trajectory error.")

@@ -190,3 +190,17 @@ def test_a_study_that_loses_its_workers_says_so_in_one_line(tmp_path, tiny, caps
         "out-of-memory killer, say); a study keeps no checkpoint: run it again\n"
     )
     assert earlier_study(out) == []  # nothing half written
+
+
+def test_the_recommendations_print_errors_as_they_compare_with_the_thresholds():
+    # 10.36 % printed as "10 %" read as within 10 %; 120 % as "1.2e+02 %"
+    base = dict(resolution=1.0, sweep="base", weights=8, clusters=20, max_iterations=10, rtol=0.0, step_ms=0.08,
+                trajectory_error=0.071, subspace_error=0.0063)  # fmt: skip
+    faster = {**base, "sweep": "iterations", "max_iterations": 5, "step_ms": 0.0713, "trajectory_error": 0.1036}
+    wild = {**base, "sweep": "iterations", "max_iterations": 1, "step_ms": 0.05, "trajectory_error": 1.2}
+    lines = study.recommend([base, faster, wild], thresholds=(0.10, 0.20, 2.0))
+    assert lines[0].startswith("8 weights, 20 clusters and 10 iterations give 7.1 % trajectory error at 0.08 ms")
+    assert "(the subspace alone allows 0.63 %)" in lines[0]
+    assert lines[1].endswith("7.1 % at 0.08 ms per step (1 times the base's).")  # not the 10.4 % row
+    assert lines[2].endswith("5 iterations: 10.4 % at 0.0713 ms per step (0.89 times the base's).")
+    assert lines[3].endswith("1 iterations: 120.0 % at 0.05 ms per step (0.62 times the base's).")
