@@ -433,9 +433,9 @@ def play(
         ``gait(t) -> activations`` (shape (m,)); default: the scene's
         ``activation(t, sim.ceilings)``; a bare simulator has none.
     gait_on : bool
-        Start with the gait driving the muscles.
+        Start with the gait driving the muscles (False: the sliders, at zero).
     frames : int, optional
-        Scripted mode: draw this many frames with the gait on, then close.
+        Scripted mode: draw this many frames, then close.
         Without it the window stays until closed (q or the window's button).
     screenshot : str or path-like, optional
         Save the last frame here (PNG).
@@ -476,7 +476,7 @@ def play(
     sim, gait, name = _simulator(target, gait)
     # the first step may compile (numba): before the window opens, not in its first frame
     sim.step(*sim.rest_state())
-    player = Player(sim, gait, gait_on=gait_on or frames is not None)
+    player = Player(sim, gait, gait_on=gait_on)
     from .play_view import PlayView
 
     view = PlayView(player, off_screen=off_screen, window_size=(width, height), follow=follow, title=name)

@@ -292,6 +292,36 @@ def test_bad_controls_are_named(crawl):
         Player(sim, max_lag=0.0)
 
 
+@pytest.mark.parametrize("gait_on", [True, False])
+def test_scripted_play_starts_with_the_gait_or_the_sliders_as_asked(crawl, monkeypatch, gait_on):
+    # --no-gait with --frames was ignored: the gait drove the muscles anyway
+    import skfem_modal.play as play_module
+    import skfem_modal.play_view as view_module
+
+    scene, _ = crawl
+    started = {}
+
+    class Window:  # what the window would do with the player, without one
+        def __init__(self, player, **kwargs):
+            started["gait_on"] = player.gait_on
+            self.player = player
+
+        def run(self, frames):
+            for _ in range(frames):
+                self.player.step()
+            return dict(frames=frames, seconds=1.0, fps=frames, step_ms=0.0, draw_ms=0.0, render_ms=0.0,
+                        steps=frames, sim_time=self.player.t)  # fmt: skip
+
+        def close(self):
+            started["sliders"] = self.player.activation().tolist()
+
+    monkeypatch.setattr(play_module, "play_problem", lambda off_screen: None)
+    monkeypatch.setattr(view_module, "PlayView", Window)
+    play(scene, gait_on=gait_on, frames=5, say=lambda line: None)
+    assert started["gait_on"] is gait_on
+    assert bool(np.abs(started["sliders"]).max() > 0.0) == gait_on  # the gait's activations, or the sliders at zero
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [
