@@ -617,7 +617,7 @@ def make_executor(
     executor : concurrent.futures.Executor
     close : callable
         ``close(cancel=False)`` shuts down what was started (``cancel``:
-        tasks not yet running are dropped).
+        no task is waited for: the local pool's running ones are stopped).
     """
     if scheduler:
         try:
@@ -665,7 +665,17 @@ def make_executor(
 
     def close(cancel=False):
         try:
-            pool.shutdown(cancel_futures=cancel)
+            if cancel:
+                # a stop: the tasks running are dropped too (waiting for them, a study stopped by a signal
+                # to its own process ran its elephant reference 200 s on)
+                running = list((pool._processes or {}).values())
+                pool.shutdown(wait=False, cancel_futures=True)
+                for process in running:
+                    process.terminate()
+                for process in running:
+                    process.join(timeout=10.0)
+            else:
+                pool.shutdown()
         finally:
             for name, value in saved.items():
                 if value is None:
@@ -804,6 +814,7 @@ def run_study(
     if executor is None:  # a scheduler that does not answer: before the folder is made
         executor, close = make_executor(workers, scheduler, initializer=None if scheduler else _quiet_worker)
     started = time.perf_counter()
+    stopped = True  # until the runs are done: an interrupt or an error does not wait for the others
     try:
         os.makedirs(out_dir, exist_ok=True)
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
@@ -817,6 +828,7 @@ def run_study(
             row["step_ms"] = ms
         say("step times: " + ", ".join(f"{r['label']} {r['step_ms']:.3f} ms" for r in rows))
         modal_rows = modal_convergence(tuple(cfg["modal"]))
+        stopped = False
     except Exception as error:
         said = lost_workers(error, executor)
         if said is None:
@@ -824,7 +836,7 @@ def run_study(
         raise WorkersLost(f"the study lost its workers: {said}; a study keeps no checkpoint: run it again") from None
     finally:
         if close is not None:
-            close()
+            close(cancel=stopped)
     meta = {
         "scene": data.get("name", "scene"),
         "preset": preset,

@@ -204,3 +204,48 @@ def test_the_recommendations_print_errors_as_they_compare_with_the_thresholds():
     assert lines[1].endswith("7.1 % at 0.08 ms per step (1 times the base's).")  # not the 10.4 % row
     assert lines[2].endswith("5 iterations: 10.4 % at 0.0713 ms per step (0.89 times the base's).")
     assert lines[3].endswith("1 iterations: 120.0 % at 0.05 ms per step (0.62 times the base's).")
+
+
+def _sleep(seconds):
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+def test_a_stopped_local_pool_stops_its_running_tasks_too():
+    # closing for a stop waited for the task running: a study signalled to stop ran a reference 200 s on
+    import time
+
+    executor, close = study.make_executor(workers=1)
+    future = executor.submit(_sleep, 60.0)
+    deadline = time.time() + 60
+    while not future.running() and time.time() < deadline:
+        time.sleep(0.05)
+    (process,) = executor._processes.values()
+    clock = time.perf_counter()
+    close(cancel=True)
+    assert time.perf_counter() - clock < 10.0 and not process.is_alive()
+    # a plain close waits for the tasks, as before
+    executor, close = study.make_executor(workers=1)
+    done = executor.submit(_sleep, 0.2)
+    close()
+    assert done.result(timeout=0) == 0.2
+
+
+def test_a_study_interrupted_stops_its_pool_without_waiting(tmp_path, tiny, monkeypatch):
+    closed = []
+    made = study.make_executor
+
+    def recording(*args, **kwargs):
+        executor, close = made(*args, **kwargs)
+        return executor, lambda cancel=False: (closed.append(cancel), close(cancel))
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "make_executor", recording)
+    monkeypatch.setattr(study, "_run_references", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(FLOATING, tmp_path / "s", preset="tiny")
+    assert closed == [True]
