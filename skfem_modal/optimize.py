@@ -257,14 +257,35 @@ def read_checkpoint(path: str) -> dict:
     return state
 
 
-def _load_checkpoint(path: str, settings: dict) -> dict:
-    """A checkpoint's state, after checking it was made with these settings."""
+def _scene_changes(then, now, prefix: str = "") -> list[tuple[str, object, object]]:
+    """The keys (dotted) whose values differ between two scene dicts, with both values."""
+    if not (isinstance(then, dict) and isinstance(now, dict)):
+        return [] if then == now else [(prefix.rstrip("."), then, now)]
+    changes = []
+    for key in sorted(set(then) | set(now), key=str):
+        changes += _scene_changes(then.get(key), now.get(key), f"{prefix}{key}.")
+    return changes
+
+
+def _load_checkpoint(path: str, settings: dict, data: dict | None = None) -> dict:
+    """A checkpoint's state, after checking it was made with these settings (and the scene ``data``).
+
+    The scene's name alone may change; another scene key changed is named with both values.
+    """
     state = read_checkpoint(path)
     made = state["settings"]
     changed = [key for key in settings if made.get(key) != settings[key]]
-    if changed:
-        said = "; ".join(f"{key}: {made.get(key)!r} then, {settings[key]!r} now" for key in changed)
-        raise ValueError(f"the checkpoint in {os.path.dirname(path)} was made with other settings ({said})")
+    said = []
+    if "scene" in changed and data is not None and "scene_data" in state:
+        changed.remove("scene")
+        data = json.loads(json.dumps(data))  # as kept (tuples as lists)
+        scene = [change for change in _scene_changes(state["scene_data"], data) if change[0] != "name"]
+        said = [f"scene key {key}: {then!r} then, {now!r} now" for key, then, now in scene]
+        if not scene:  # renamed: the same search, under its new name from here on
+            made["scene"], state["scene_data"] = settings["scene"], data
+    said += [f"{key}: {made.get(key)!r} then, {settings[key]!r} now" for key in changed]
+    if said:
+        raise ValueError(f"the checkpoint in {os.path.dirname(path)} was made with other settings ({'; '.join(said)})")
     return state
 
 
@@ -406,7 +427,7 @@ def run_search(
         **trial_settings,
     }
     earlier = check_output_folder(out_dir, "search")  # a file, a run or a study there: refused
-    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations) if resume else None
+    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations, data) if resume else None
     if not resume and earlier and not overwrite:
         again = "continue it with --resume (resume=True) or " if os.path.isfile(paths["checkpoint"]) else ""
         raise FileExistsError(
@@ -427,7 +448,7 @@ def run_search(
             if state is None:
                 gait = scene.config["muscles"]["gait"]
                 start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-                state = _new_state(settings, start)
+                state = _new_state(settings, start, data)
                 state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
                 os.makedirs(out_dir, exist_ok=True)
                 replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
@@ -493,11 +514,11 @@ def _check_seed(seed) -> None:
         raise ValueError(f"seed must be an integer from 0 to {SEED_MAX}, got {seed!r}")
 
 
-def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: int) -> dict:
+def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: int, data: dict) -> dict:
     """The state of the search checkpointed in ``out_dir``, checked against these settings and generations."""
     if not os.path.isfile(checkpoint):
         raise FileNotFoundError(f"no search to resume: {checkpoint} does not exist")
-    state = _load_checkpoint(checkpoint, settings)
+    state = _load_checkpoint(checkpoint, settings, data)
     if state["generation"] > generations:
         raise ValueError(
             f"the search in {out_dir} already has {state['generation']} generations, more than the {generations} "
@@ -507,8 +528,8 @@ def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: i
     return state
 
 
-def _new_state(settings: dict, x0) -> dict:
-    """A new search's state: CMA-ES at ``x0``, seeded by the settings' seed."""
+def _new_state(settings: dict, x0, data: dict) -> dict:
+    """A new search's state: CMA-ES at ``x0``, seeded by the settings' seed; ``data`` the scene searched."""
     import cma
 
     # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
@@ -516,6 +537,7 @@ def _new_state(settings: dict, x0) -> dict:
     es = cma.CMAEvolutionStrategy(x0.tolist(), settings["sigma0"], options)
     state = {"es": es, "history": [], "generation": 0, "rollouts": 0, "seconds": 0.0, "settings": settings}
     state["numpy_random"] = np.random.get_state()
+    state["scene_data"] = json.loads(json.dumps(data))  # what a resume names the changes of
     return state
 
 

@@ -136,6 +136,13 @@ def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
         run_search(TINY, tmp_path, generations=2, popsize=5, seed=3, steps=60, resume=True)
     with pytest.raises(ValueError, match="objective"):
         search(tmp_path, resume=True, objective="aligned")
+    # a scene key changed is named (it said two hashes); its name alone may change
+    stepped = copy.deepcopy(TINY)
+    stepped["time"] = {**stepped.get("time", {}), "step": 0.02}
+    with pytest.raises(ValueError, match=r"\(scene key time.step: 0.01 then, 0.02 now\)"):
+        run_search(stepped, tmp_path, generations=2, popsize=4, seed=3, steps=60, resume=True)
+    renamed = {**copy.deepcopy(TINY), "name": "the same crawl, renamed"}
+    assert run_search(renamed, tmp_path, generations=2, popsize=4, seed=3, steps=60, resume=True)["generations"] == 2
     with pytest.raises(ValueError, match="exclude each other"):
         search(tmp_path, resume=True, overwrite=True)
     with pytest.raises(FileNotFoundError, match="no search to resume"):
