@@ -461,6 +461,9 @@ def run_search(
                 _save(paths, data, state)
                 replacing = _remove_replaced(replacing, paths)
                 bar.update()
+        bar.close()
+        # (within the try: a stop while it draws says, as any other, what the checkpoint holds)
+        _write_plot(paths["plot"], state["history"], objective)
     except KeyboardInterrupt:
         if bar:
             bar.close()
@@ -471,8 +474,6 @@ def run_search(
             bar.close()
         done, kept = _stopped(paths, data, objective, replacing)
         raise SearchWorkersLost(str(lost), done, generations, out_dir, kept) from lost
-    bar.close()
-    _write_plot(paths["plot"], state["history"], objective)
     return _result(state, paths, precompute)
 
 

@@ -198,6 +198,24 @@ def test_ctrl_c_in_the_first_generation_says_nothing_was_checkpointed(tiny_scene
     assert not (tmp_path / "cli" / "checkpoint.pkl").exists()
 
 
+def test_ctrl_c_while_the_last_generation_is_drawn_says_what_the_checkpoint_holds(tmp_path, monkeypatch):
+    # a stop while fitness.png was drawn, after the last generation: a bare "interrupted", no resume line, no picture
+    draw = optimize._write_plot
+    calls = []
+
+    def interrupted_once(*args):
+        calls.append(args)
+        if len(calls) == 1:
+            raise KeyboardInterrupt
+        draw(*args)
+
+    monkeypatch.setattr(optimize, "_write_plot", interrupted_once)
+    with pytest.raises(SearchInterrupted) as stop:
+        search(tmp_path, workers=1)
+    assert stop.value.generations == 2 and "2 of 2" in str(stop.value)
+    assert len(calls) == 2 and (tmp_path / "fitness.png").exists()  # drawn again from the checkpoint
+
+
 def test_ctrl_c_before_the_first_checkpoint_of_an_overwrite_keeps_the_earlier_search(tmp_path, monkeypatch):
     """--overwrite removed the earlier search's files as it started: a Ctrl-C in its first generation left
     nothing to resume (an audit). They are kept until the new search's first checkpoint."""
