@@ -206,21 +206,25 @@ def test_the_recommendations_print_errors_as_they_compare_with_the_thresholds():
     assert lines[3].endswith("1 iterations: 120.0 % at 0.05 ms per step (0.62 times the base's).")
 
 
-def _sleep(seconds):
+def _sleep(seconds, started=None):
+    import pathlib
     import time
 
+    if started is not None:
+        pathlib.Path(started).write_text("running")
     time.sleep(seconds)
     return seconds
 
 
-def test_a_stopped_local_pool_stops_its_running_tasks_too():
+def test_a_stopped_local_pool_stops_its_running_tasks_too(tmp_path):
     # closing for a stop waited for the task running: a study signalled to stop ran a reference 200 s on
     import time
 
     executor, close = study.make_executor(workers=1)
-    future = executor.submit(_sleep, 60.0)
+    started = tmp_path / "started"
+    executor.submit(_sleep, 60.0, str(started))
     deadline = time.time() + 60
-    while not future.running() and time.time() < deadline:
+    while not started.exists() and time.time() < deadline:  # running in the worker, not only handed to it
         time.sleep(0.05)
     (process,) = executor._processes.values()
     clock = time.perf_counter()
