@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground
-from .contact import ALLOWANCE, MOST_ALLOWANCE
+from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -359,7 +359,7 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             'How far below the ground a vertex may end a step, a share of the body\'s size (model "coulomb"; '
-            "default 2e-4, at most 0.005). Larger is cheaper: fewer steps run their iterations again for a vertex "
+            "default 2e-4, at most 0.001). Larger is cheaper: fewer steps run their iterations again for a vertex "
             "they missed (docs/contact.md, what the allowance costs).",
             "",
             _allowance,
@@ -905,7 +905,7 @@ class Scene:
         if ground is None or ground["contacts"] == "all":
             return None
         if ground["contacts"] is None:
-            return 30 if ground["model"] == "reference" else None
+            return DEFAULT_CONTACTS[ground["model"]]
         return ground["contacts"]
 
     def build(self, progress=None, backend: str = "auto"):
@@ -936,7 +936,8 @@ class Scene:
                 n_active_clusters=c["subspace"]["active_clusters"],
                 seed=c["subspace"]["seed"],
                 lam=self.material()["lam"],
-                n_contacts=self.contact_count(),
+                # not asked for: the model's default, which a switch of model then follows
+                n_contacts=None if c["ground"] is None or c["ground"]["contacts"] is None else self.contact_count(),
                 contact_candidates=self.contact_candidates(),
                 max_iter=c["time"]["iterations"],
                 tol=c["time"]["tol"],

@@ -429,7 +429,7 @@ class ModalMuscle:
         ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
     allowance : float, optional
         ``coulomb`` only: how far below the ground a vertex may end a step, a
-        share of the body's size in (0, 0.005] (default 2e-4); larger is cheaper.
+        share of the body's size in (0, 0.001] (default 2e-4); larger is cheaper.
     stickiness : float, optional
         ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
         velocity of contacting points, 0 lets them slide freely.
@@ -768,21 +768,30 @@ class ModalMuscle:
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
 
-    def _new_contact(self, setting, vertices=None, **changes) -> None:
-        """A fresh contact on the same ground, its settings changed (and its ``vertices``, if given)."""
+    def _new_contact(self, setting, vertices=None, settings=None, **changes) -> None:
+        """A fresh contact on the same ground: its settings changed, or ``settings`` (and ``vertices``, if given).
+
+        Checked first: a refused one changes nothing.
+        """
         contact = self._model.contact
         if contact is None:
             raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
-        settings = {**self._contact, **changes}
+        settings = {**self._contact, **changes} if settings is None else settings
         _clear_of_ground(self._mesh, contact.ground, self._up, _allowance(settings))  # a smaller allowance
         self._contact = settings
         if vertices is not None:
             self._contact_vertices = vertices
-        self._put_contact(contact.vertices if vertices is None else vertices, contact.ground)
+        self._put_contact(contact.vertices if vertices is None else vertices, contact.ground, setting)
 
-    def _put_contact(self, vertices, ground) -> None:
-        """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old)."""
-        self._model.replace(_contact_effect(self._space, self._contact, vertices, ground, self._up))
+    def _put_contact(self, vertices, ground, setting=None) -> None:
+        """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old).
+
+        ``setting``: the one assigned, when it replaces a contact: a run goes on with the new one.
+        """
+        contact = _contact_effect(self._space, self._contact, vertices, ground, self._up)
+        if setting is not None and self._model.contact is not None:
+            contact.follow(self._model.contact, setting)
+        self._model.replace(contact)
         self._rebuild()
 
     @property
@@ -792,10 +801,15 @@ class ModalMuscle:
 
     @contact_model.setter
     def contact_model(self, value) -> None:
-        self._contact = _contact_settings(value, None, None, None)
-        if self._model.contact is not None:
-            self._new_contact("contact_model", _model_contact_vertices(self._mesh, value, self._default_contacts))
-            _warn_if_idle(self._solver, self._model.contact, "warm_start")
+        settings = _contact_settings(value, None, None, None)
+        if settings["model"] == self._contact["model"]:
+            return  # the model it has: its settings (friction, allowance, ...) stay
+        if self._model.contact is None:
+            self._contact = settings
+            return
+        vertices = _model_contact_vertices(self._mesh, value, self._default_contacts)
+        self._new_contact("contact_model", vertices, settings)
+        _warn_if_idle(self._solver, self._model.contact, "warm_start")
 
     friction = _contact_setting(
         "friction",
