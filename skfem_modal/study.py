@@ -674,9 +674,6 @@ def make_executor(
                     process.terminate()
                 for process in running:
                     process.join(timeout=10.0)
-                    if process.is_alive():  # (a worker that would not stop: not left behind)
-                        process.kill()
-                        process.join(timeout=10.0)
             else:
                 pool.shutdown()
         finally:
