@@ -149,11 +149,10 @@ class MotionMonitor:
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
         contact = sim.model.contact
-        self._contact = None if contact is None else (sim.contact_model, sim.allowance, contact.vertices.size)
-        if contact is not None:
-            self._contact += (contact.boundary_sizes.size,)
+        self._contact = None  # with a ground: its model, allowance, candidates and boundary vertices
         self._deepest_allowed = math.inf
         if contact is not None:
+            self._contact = (sim.contact_model, sim.allowance, contact.vertices.size, contact.boundary_sizes.size)
             self._deepest_allowed = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
     def _spread(self, z) -> float:
