@@ -179,12 +179,13 @@ class _Ground(Effect):
     def follow(self, earlier, setting: str) -> None:
         """Take over a run from ``earlier``, the contact this one replaces since ``setting`` was assigned.
 
-        A run goes on from where the last step ended (as with ``earlier``) under the same model; under
-        another one, that state is a new run's start, checked as one, and the refusal says why.
+        A run goes on from where the last step ended (as with ``earlier``) under the same model and
+        ground plane; under another model, that state is a new run's start, checked as one, and the
+        refusal says why (another up axis or height: checked as one too).
         """
-        if type(earlier) is type(self):
+        if type(earlier) is type(self) and (earlier.up, earlier.ground) == (self.up, self.ground):
             self._end = earlier._end
-        else:
+        elif type(earlier) is not type(self):
             self.replaced_for = setting
 
     def finish_step(self, z) -> None:

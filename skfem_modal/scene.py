@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground
-from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE
+from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE, checked_allowance
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -87,7 +87,11 @@ def _some(v):
 
 
 def _allowance(v):
-    return None if 0 < v <= MOST_ALLOWANCE else f"a number above 0 and at most {MOST_ALLOWANCE:g}"
+    try:
+        checked_allowance(v)  # the contact's own rule
+    except ValueError:
+        return f"a number above 0 and at most {MOST_ALLOWANCE:g}"
+    return None
 
 
 def _at_least_one(v):

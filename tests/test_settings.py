@@ -268,3 +268,19 @@ def test_a_reference_scene_switched_to_coulomb_holds_every_boundary_vertex():
     sim.contact_model = "coulomb"
     with pytest.raises(ValueError, match="assigning contact_model made a contact of another model, which goes on"):
         sim.step(z, z_dot)
+
+
+def test_a_contact_goes_on_from_the_last_step_only_on_the_same_ground_plane():
+    # a new up axis or ground height makes the last step's end a new run's start, checked as one
+    from skfem_modal.contact import CoulombContact
+
+    sim = build(ingredients(caterpillar(nx=12, ny=6)))
+    space, vertices, ground = sim.model.space, sim.contact_vertices, sim.ground
+    earlier = CoulombContact(space, vertices, ground, 1)
+    earlier._end = np.ones(space.r)
+    planes = ((ground, 1), (ground, 0), (ground - 1.0, 1))
+    same, other_up, lower = (CoulombContact(space, vertices, height, up) for height, up in planes)
+    for contact in (same, other_up, lower):
+        contact.follow(earlier, "allowance")
+    assert same._end is earlier._end and other_up._end is None and lower._end is None
+    assert same.replaced_for is None and other_up.replaced_for is None
