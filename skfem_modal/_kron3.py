@@ -37,7 +37,7 @@ import numpy as np
 
 from ._fast import dot as _dot
 from .rotations import HORN, QUAT_TO_R, certify_levels, next_squarings
-from .solver import ActivationRows
+from .solver import ActivationRows, StateLayout
 
 __all__ = ["KroneckerBackend", "separable_rows", "separable_columns", "separable_square", "separable_watch"]
 
@@ -164,6 +164,12 @@ def _column_blocks(V):
     return blocks.reshape(K, 4 * q)
 
 
+def _iterate_layout(p, K, up):
+    """An iterate ``Z[i]`` (p watched heights in column ``up``, z's K rows, the trailing row ending in 1) as a state."""
+    z_index = ((p + np.arange(K))[:, None] * 4 + np.arange(3)).ravel()  # z[3 s + b] = Z[p + s, b]
+    return StateLayout((p + K + 1) * 4, z_index, np.arange(p) * 4 + up, (p + K) * 4 + 3)
+
+
 class KroneckerBackend:
     """Buffers and state of the Kronecker-form 3D iterations (see the module docstring).
 
@@ -186,6 +192,7 @@ class KroneckerBackend:
         # U (p, K): the contact's watched heights are U Z[:, up]; they ride
         # along in the global product as p more rows of Z, first, so that
         # they and z's rows take C and the activation in one write each
+        watching = U is not None
         U = np.zeros((0, K)) if U is None else U
         p = U.shape[0]
         m = YA.shape[0] - 1 if YA is not None else 0
@@ -246,10 +253,12 @@ class KroneckerBackend:
         self.RT16, self.trace = self.RT[:, :16], self.RT[:, 16:]
         self.C_z_block = self.C_input[:K]  # the same z, as (K, 3)
         self.outputs = [Zk[p : p + K, :3] for Zk in self.Z]
-        self.z_flat = np.empty(3 * K)  # a contiguous z for the contact projection
+        # a watching contact corrects an iterate in place; another gets a contiguous copy of z
+        self.layout = _iterate_layout(p, K, up) if watching else None
+        self.z_flat = np.empty(3 * K)
         self.z_block = self.z_flat.reshape(K, 3)
         # per number of squarings s: each iteration's operands (iterates,
-        # powers, rotations, the squarings' (input, output) pairs), and the
+        # powers, rotations, the squarings' (input, output) pairs, z, the whole iterate), and the
         # rows of levels 1..s for the traces
         self._views = [
             [
@@ -262,7 +271,8 @@ class KroneckerBackend:
                     self.R[i, : 4 * n].reshape(n, 16),
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
                     self.outputs[i + 1],
-                    self.Z[i + 1, :p, up] if p else None,
+                    self.Z[i + 1].reshape(-1),
+                    self.Z[i + 1, :p, up] if watching else None,
                 )
                 for i in range(max_iter)
             ]
@@ -346,7 +356,9 @@ class KroneckerBackend:
         RT, RT16, trace = self.RT, self.RT16, self.trace
         dot, matmul, divide = _dot, np.matmul, np.divide
         first = self.k
-        for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new, watched in self._views[self.s][first : first + count]:
+        layout = self.layout
+        views = self._views[self.s][first : first + count]
+        for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new, state, watched in views:
             # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)
             dot(F16, HORN_BLOCK, P0)
@@ -355,9 +367,13 @@ class KroneckerBackend:
             dot(P_last, QQ_TO_BLOCK_TRACE, RT)
             divide(RT16, trace, R16)
             dot(Wt, R, Z_new)
-            if contact is not None:
+            if contact is None:
+                continue
+            if layout is not None:
+                contact.project(state, watched, layout)
+            else:
                 np.copyto(self.z_block, z_new)
-                if contact.project(self.z_flat, watched):
+                if contact.project(self.z_flat):
                     np.copyto(z_new, self.z_block)
         self.k = first + count
         return self.Z_rows[first : self.k + 1]

@@ -17,7 +17,7 @@ import numpy as np
 
 from ._fast import dot
 from .rotations import ROT2
-from .solver import ActivationRows
+from .solver import ActivationRows, StateLayout
 
 __all__ = ["Step2Backend", "features", "from_rotations"]
 
@@ -59,12 +59,14 @@ class Step2Backend:
         two_n = self.G.shape[0]
         self.max_batch, self.r, self.n = max_iter, r, two_n // 2
         self.normalize = normalize
-        # the contact's watched values ride along: one product gives z and them
+        # the contact's watched values ride along, and a 1 for its constant terms: one product gives
+        # z and them, the contact's state
         watch = getattr(model.contact, "watch", None)
         self.fused = watch is not None
-        watch = np.zeros((0, r)) if watch is None else watch
-        extend = lambda X: np.vstack([X, watch @ X])  # noqa: E731
-        self.W_c = np.empty((r + watch.shape[0], two_n + 1))
+        p = 0 if watch is None else watch.shape[0]
+        extend = (lambda X: np.vstack([X, watch @ X, np.zeros((1, X.shape[1]))])) if self.fused else (lambda X: X)
+        size = r + p + 1 if self.fused else r
+        self.W_c = np.empty((size, two_n + 1))
         self.W_c[:, :two_n] = extend(from_rotations(W_all))
         self.c = self.W_c[:, two_n]
         self.activation = None
@@ -74,6 +76,8 @@ class Step2Backend:
             self.activation = ActivationRows([(features(model.A), self.G[rows:]), (WA, self.W_c[:, rows:two_n])])
         self.C_operator = np.ascontiguousarray(extend(model.C))
         self.C_input = np.ones(2 * r + 1)
+        if self.fused:
+            self.C_operator[-1, 2 * r] = 1.0  # the state's 1, from C_input's
         self.C_z, self.C_z_dot = self.C_input[:r], self.C_input[r : 2 * r]
         self.cs_1 = np.ones(two_n + 1)  # the unit pairs, then a 1 for c
         self.cs_flat = self.cs_1[:two_n]
@@ -81,12 +85,14 @@ class Step2Backend:
         self.cos, self.sin = self.cs[:, 0], self.cs[:, 1]
         self.norm = np.empty(self.n)
         self.norm_column = self.norm[:, None]
-        self.Y = np.empty((max_iter + 1, r + watch.shape[0]))  # iterates, then what the contact watches
+        self.Y = np.empty((max_iter + 1, size))  # iterates, then what the contact watches and its 1
         self.Z = self.Y[:, :r]
         # views made once: indexing costs as much as a small product
         self.rows = list(self.Y)
         self.z_rows = list(self.Z)
-        self.watched_rows = list(self.Y[:, r:]) if self.fused else [None] * (max_iter + 1)
+        self.watched_rows = list(self.Y[:, r : r + p]) if self.fused else [None] * (max_iter + 1)
+        # the contact corrects a row of Y, z and the watched values together
+        self.layout = StateLayout(size, np.arange(r), r + np.arange(p), size - 1) if self.fused else None
         self.k = 0
 
     def start(self, z, z_dot, a) -> None:
@@ -125,7 +131,10 @@ class Step2Backend:
                 divide(cs, norm_column, cs)
             dot(W_c, cs_1, y)
             if contact is not None:
-                contact.project(z_next, watched)
+                if self.layout is not None:
+                    contact.project(y, watched, self.layout)
+                else:
+                    contact.project(z_next)
             z = z_next
         self.k = last
         return self.Z[first : last + 1]

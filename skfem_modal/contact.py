@@ -232,6 +232,7 @@ class ReferenceContact(_Ground):
         self.watch = self.Je_up
         self.n_points = vertices.size
         self.active_count = 0
+        self._mask = np.empty(vertices.size, bool)  # the active points, made in place
 
     def bind(self, system, h, gravity=None) -> None:
         """Take the factored system of time step ``h`` (a new one clears the cached corrections; gravity: unused)."""
@@ -245,11 +246,12 @@ class ReferenceContact(_Ground):
         self._pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
         self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
         self.solve, self.h = system.solve, float(h)
-        self._cache: OrderedDict = OrderedDict()
+        # per layout (None: a plain z), the corrections of the active sets met, the latest used last
+        self._caches: dict = {}
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_cache"] = OrderedDict()
+        state["_caches"] = {}
         state.pop("_dot", None)
         return state
 
@@ -279,41 +281,63 @@ class ReferenceContact(_Ground):
             self.p_target = self.p_start
             self.below = up_start < self.ground  # at the current iterate
             self.n_below = np.count_nonzero(self.below)
+            self._ground = np.array(self.ground)  # (numpy compares with an array faster than with a float)
 
-    def project(self, z, watched=None) -> bool:
+    def project(self, z, watched=None, layout=None) -> bool:
         """Project the active contacts of a global solution, in place; True if it changed.
 
         Parameters
         ----------
-        z : ndarray, shape (r,)
+        z : ndarray, shape (r,), or (layout.size,) with a layout
             Corrected in place.
         watched : ndarray, shape (p,), optional
             ``watch @ z`` (the contact heights) if the caller has it; corrected along with ``z``.
+        layout : StateLayout, optional
+            ``z`` is a backend's state vector holding z and ``watched`` (a view into it) where
+            ``layout`` says: corrected in place, with corrections made once for the layout.
         """
         heights = self._dot(self.Je_up, z) if watched is None else watched
         if self.push_out:
-            return self._project_positions(z, heights)
+            return self._project_positions(z, heights, layout)
         # active: below the plane at the current iterate and moving into it
+        self.active_count = 0
         if self.n_below:
-            mask = np.less(heights, self.limit)
+            mask = np.less(heights, self.limit, self._mask)
             mask &= self.below
             if np.count_nonzero(mask):
-                self._apply(z, heights, mask)
-            else:
-                self.active_count = 0
-        else:
-            self.active_count = 0
-        below = np.less(heights, self.ground, self.below)
-        self.n_below = np.count_nonzero(below)
+                self._apply(z, heights, mask, layout)
+        self.n_below = np.count_nonzero(np.less(heights, self._ground, self.below))
         return self.active_count > 0
 
-    def _projection(self, mask: np.ndarray):
-        """The active points' position rows and correction matrices (cached per active set)."""
+    def _correction(self, mask: np.ndarray, layout):
+        """An active set's correction, cached per layout and set: the points, and what :meth:`_apply` takes.
+
+        Plain: ``(active, rows, Je_rows, dz, dheights)`` (:meth:`_projection`). With a layout whose state
+        holds a 1, ``[active, rows, read, write, targets]``: ``read @ state`` is the rows' positions less their
+        targets (``targets``, the targets' array its column of the 1 was last written from).
+        """
+        cache = self._caches.get(layout)
+        if cache is None:
+            cache = self._caches[layout] = OrderedDict()
         key = mask.tobytes()
-        entry = self._cache.get(key)
+        entry = cache.get(key)
         if entry is not None:
-            self._cache.move_to_end(key)
+            cache.move_to_end(key)
             return entry
+        active, rows, Je_rows, dz, dheights = entry = self._projection(mask)
+        if layout is not None:
+            # in the state's own coordinates: the heights are entries of the state, corrected with it
+            read, write = np.zeros((rows.size, layout.size)), np.zeros((layout.size, rows.size))
+            read[:, layout.z_index] = Je_rows
+            write[layout.z_index], write[layout.watched_index] = -dz, -dheights
+            entry = [active, rows, read, write, None]
+        cache[key] = entry
+        if len(cache) > _CACHE_SIZE:
+            cache.popitem(last=False)
+        return entry
+
+    def _projection(self, mask: np.ndarray):
+        """The active points, their position rows, and the corrections of ``z`` and the heights per unit of them."""
         dim = self.dim
         active = np.flatnonzero(mask)
         rows = (active[:, None] * dim + np.arange(dim)).ravel()
@@ -341,21 +365,25 @@ class ReferenceContact(_Ground):
         dz = np.ascontiguousarray(dz * factor)
         Je_rows = self.Je[rows]
         Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
-        entry = (active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor))
-        self._cache[key] = entry
-        if len(self._cache) > _CACHE_SIZE:
-            self._cache.popitem(last=False)
-        return entry
+        return active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor)
 
-    def _apply(self, z, heights, mask) -> None:
-        """Correct ``z`` and its contact heights in place for an active set."""
-        active, rows, Je_rows, dz, dheights = self._projection(mask)
-        self.active_count = active.size
-        delta = self.p_target[rows] - dot(Je_rows, z)
-        z += dot(dz, delta)
-        heights += dot(dheights, delta)
+    def _apply(self, z, heights, mask, layout) -> None:
+        """Correct ``z`` (or a layout's state) and its contact heights in place for an active set."""
+        entry = self._correction(mask, layout)
+        self.active_count = entry[0].size
+        if layout is None:
+            _, rows, Je_rows, dz, dheights = entry
+            delta = self.p_target[rows] - dot(Je_rows, z)
+            z += dot(dz, delta)
+            heights += dot(dheights, delta)
+            return
+        _, rows, read, write, targets = entry
+        if targets is not self.p_target:  # a new step's targets, read through the state's 1
+            read[:, layout.one_index] = -self.p_target[rows]
+            entry[4] = self.p_target
+        z += dot(write, dot(read, z))
 
-    def _project_positions(self, z, heights) -> bool:
+    def _project_positions(self, z, heights, layout) -> bool:
         """Position rule: no contact point ends below its target height."""
         tol = 1e-12 * max(1.0, abs(self.ground))
         mask = heights < self.target - tol
@@ -366,7 +394,7 @@ class ReferenceContact(_Ground):
         for _ in range(4):
             np.copyto(z, z_tent)
             np.copyto(heights, heights_tent)
-            self._apply(z, heights, mask)
+            self._apply(z, heights, mask, layout)
             # a correction moves other points too: add any now below target
             violated = heights < self.target - tol
             if not (violated & ~mask).any():

@@ -44,7 +44,9 @@ driver calls:
 ``iterate(count, contact)``
     run ``count`` iterations, the contact (or None) projecting each global
     solution (``contact.project(z, watched)``, where a backend may compute
-    ``watched = contact.watch @ z`` within its own products); return the
+    ``watched = contact.watch @ z`` within its own products, and keep both
+    in one state vector it describes by a :class:`StateLayout`:
+    ``contact.project(state, watched, layout)``); return the
     last iterate before them and the ``count`` new ones as rows, shape
     (count + 1, q), whose differences have the norms of the differences of
     the ``z``'s;
@@ -80,7 +82,15 @@ from . import _accel
 from ._fast import dot
 from .rotations import closest_rotations3, rotations2_flat
 
-__all__ = ["LocalGlobal", "PlainBackend", "ActivationRows", "SimulationError", "make_backends", "BACKENDS"]
+__all__ = [
+    "LocalGlobal",
+    "PlainBackend",
+    "ActivationRows",
+    "StateLayout",
+    "SimulationError",
+    "make_backends",
+    "BACKENDS",
+]
 
 # A step whose contact missed vertices that ended below the ground is run again, seeing them, up to
 # this many times; what is still below after that is held up at its end (a kick: velocity d / h).
@@ -101,6 +111,29 @@ class SimulationError(RuntimeError):
     def __init__(self, message: str, step: int | None = None):
         super().__init__(message if step is None else f"step {step}: {message}")
         self.message, self.step = message, step
+
+
+class StateLayout:
+    """Where a backend keeps an iterate's ``z`` and the contact's watched values, in one flat state vector.
+
+    A contact that watches (``contact.watch``) corrects such a state in place with corrections it
+    makes once for the layout, so the backend copies nothing in or out.
+
+    Parameters
+    ----------
+    size : int
+        Length of the state vector.
+    z_index : ndarray of int, shape (r,)
+        ``z = state[z_index]``.
+    watched_index : ndarray of int, shape (p,)
+        ``contact.watch @ z = state[watched_index]``.
+    one_index : int
+        An entry of the state that always holds 1 (a contact's constant terms ride on it).
+    """
+
+    def __init__(self, size, z_index, watched_index, one_index):
+        self.size, self.z_index, self.watched_index = int(size), np.asarray(z_index), np.asarray(watched_index)
+        self.one_index = int(one_index)
 
 
 class ActivationRows:
