@@ -266,7 +266,8 @@ def ingredients(
     scalar_basis(mesh)
     if n_contacts is None:
         n_contacts = DEFAULT_CONTACTS[contact_model]
-    contacts = sample_boundary(mesh, n_contacts, contact_candidates) if ground is not None else None
+    count = None if isinstance(n_contacts, str) else n_contacts  # "all": sample_boundary's None
+    contacts = sample_boundary(mesh, count, contact_candidates) if ground is not None else None
 
     def modes():
         clock = time.perf_counter()

@@ -45,7 +45,10 @@ commanded activation as a fraction of its muscle's ceiling. Beyond 1 the
 muscles ask for more deformation than ``max_s`` (a gait amplitude of 20
 swells the body by itself at any time step); the monitor warns
 (:class:`CeilingWarning`) and blames the muscles, not the time step, for a
-spread or push it reports.
+spread or push it reports. Given the material's ``mu / (rho |g|)``, the size
+its own weight strains a body by 100 %, it blames a material too soft for a
+body more than :data:`~skfem_modal.units.FAR` times that size (a ghost with
+``mu = 1e-3`` turns inside out under its weight at any time step).
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ import math
 import warnings
 
 import numpy as np
+
+from .units import FAR
 
 __all__ = [
     "MotionMonitor",
@@ -104,6 +109,11 @@ class MotionMonitor:
         Its basis ``B``, ``com``, ``h`` and rest state are used.
     gravity : array_like, shape (dim,), optional
         The scene's gravitational acceleration (the push leaves it out).
+    weight_scale : float, optional
+        ``mu / (rho |g|)``, the size its own weight strains a body of the material by 100 %
+        (:func:`~skfem_modal.units.material_length_scales`): a body more than
+        :data:`~skfem_modal.units.FAR` times as large collapses under its weight at any time step,
+        and a spread is blamed on the material, not on the time step.
 
     Examples
     --------
@@ -117,8 +127,9 @@ class MotionMonitor:
     True
     """
 
-    def __init__(self, sim, gravity=None):
+    def __init__(self, sim, gravity=None, weight_scale=None):
         dim = self.dim = sim.dim
+        self.weight_scale = weight_scale
         self._mean = self._gram = None  # the full space's state is the positions themselves
         if sim.B is not None:
             B = np.asarray(sim.B)
@@ -288,6 +299,26 @@ class MotionMonitor:
         self._commanded(step, a)
         self.first_problem_step.setdefault("non_finite", step)
 
+    @property
+    def _too_soft(self) -> bool:
+        return self.weight_scale is not None and self.size > FAR * self.weight_scale
+
+    def _blame(self, overdriven: bool) -> str:
+        """What makes a spread or push: the muscles beyond their ceilings, a material too soft, or the time step."""
+        if overdriven:
+            return (
+                "the muscles, driven beyond their ceilings, cause it: keep the activations (muscles.gait.amplitude, "
+                "muscles.table) within [-1, 1] of the ceilings, or raise muscles.max_s"
+            )
+        if self._too_soft:
+            return (
+                f"the material is too soft to carry the body's own weight (the body is "
+                f"{self.size / self.weight_scale:.3g} times mu / (rho |g|) = {self.weight_scale:.3g}, the size its "
+                "weight strains by 100 %): it collapses at any time step; a stiffer material (material.mu) or a "
+                "lighter one (material.rho) holds it"
+            )
+        return f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step"
+
     def finish(self, warn: bool = True) -> dict:
         """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
 
@@ -308,7 +339,7 @@ class MotionMonitor:
             size = f"grew to {high:.3g} times" if high > SPREAD_LIMIT else f"shrank to {low:.3g} times"
             texts.append(
                 f"from step {step} (t = {step * self.h:g}) the body {size} its rest size"
-                + ("" if overdriven else ": no force in this scene deforms it so far")
+                + ("" if overdriven or self._too_soft else ": no force in this scene deforms it so far")
             )
         if "push" in self.first_problem_step:
             step = self.first_problem_step["push"]
@@ -331,12 +362,7 @@ class MotionMonitor:
             texts.append(f"at step {step} (t = {step * self.h:g}) the state became non-finite")
         physical = not texts
         if texts and (overdriven or {"spread", "push"} & set(self.first_problem_step)):
-            texts.append(
-                "the muscles, driven beyond their ceilings, cause it: keep the activations (muscles.gait.amplitude, "
-                "muscles.table) within [-1, 1] of the ceilings, or raise muscles.max_s"
-                if overdriven
-                else f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step"
-            )
+            texts.append(self._blame(overdriven))
         categories = [MotionWarning] * len(texts)
         if overdriven:
             step = self.first_problem_step["ceilings"]

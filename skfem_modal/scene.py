@@ -940,8 +940,8 @@ class Scene:
                 n_active_clusters=c["subspace"]["active_clusters"],
                 seed=c["subspace"]["seed"],
                 lam=self.material()["lam"],
-                # not asked for: the model's default, which a switch of model then follows
-                n_contacts=None if c["ground"] is None or c["ground"]["contacts"] is None else self.contact_count(),
+                # not asked for (None): the model's default, which a switch of model then follows
+                n_contacts=None if c["ground"] is None else c["ground"]["contacts"],
                 contact_candidates=self.contact_candidates(),
                 max_iter=c["time"]["iterations"],
                 tol=c["time"]["tol"],

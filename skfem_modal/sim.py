@@ -227,7 +227,7 @@ def _from_mesh(
     h=0.02,
     gravity=None,
     ground=None,
-    n_contacts: int | None = None,
+    n_contacts: int | str | None = None,
     contact_candidates=None,
     up=None,
     contact_model="coulomb",
@@ -266,9 +266,9 @@ def _from_mesh(
     connected part of the mesh, so separate bodies turn apart), clustering
     on the first ``cluster_weights`` weights (default ``n_weights``); with a
     ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
-    (default: every boundary vertex with the ``coulomb`` contact, 30 with
-    the ``reference`` one, as its tutorial), among ``contact_candidates``
-    if given. With ``pinned``
+    or ``"all"`` of them (default: every boundary vertex with the ``coulomb``
+    contact, 30 with the ``reference`` one, as its tutorial), among
+    ``contact_candidates`` if given. With ``pinned``
     vertices the muscles are the modes of the body clamped there.
     ``progress(stage)``, if given, is called before each stage (``True``:
     each stage printed to stderr). With
@@ -292,7 +292,7 @@ def _from_mesh(
     arguments = {name: value for name, value in locals().items() if name not in ("cls", "mesh")}
     arguments["gamma"] = mu if gamma is None else gamma
     # settings used late are checked before any work
-    if n_contacts is not None:
+    if n_contacts is not None and not (isinstance(n_contacts, str) and n_contacts == "all"):
         _count(n_contacts, "n_contacts")
     _backend_name(backend)
     _acceleration_name(acceleration)

@@ -188,6 +188,25 @@ def test_info_and_run_agree_on_the_contact_points(tmp_path, capsys):
     assert summary["sizes"]["contact_points"] == boundary
 
 
+@pytest.mark.parametrize("model", ["reference", "coulomb"])
+def test_contacts_all_takes_every_boundary_vertex_under_either_model(tmp_path, capsys, model):
+    """'all' is all, not the model's default (the reference's 30: info said all, the run took 30)."""
+    ground = f'[ground]\nmodel = "{model}"\ncontacts = "all"\n'
+    path = write_scene(tmp_path, "[time]\nsteps = 2\n[gravity]\nacceleration = [0.0, -9.8]\n" + ground)
+    boundary = sm.boundary_vertices(SMALL).size
+    assert boundary > 30
+    assert main(["info", str(path)]) == 0
+    assert f"contact at all {boundary} boundary vertices" in capsys.readouterr().out
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["sizes"]["contact_points"] == boundary
+    ground = float(SMALL.p[1].min()) - 0.1
+    small = dict(n_muscles=2, n_weights=4, n_clusters=4, gravity=[0.0, -9.8], ground=ground, contact_model=model)
+    sim = sm.ModalMuscle.from_mesh(SMALL, **small, n_contacts="all")
+    assert sim.contact_vertices.size == boundary
+    with pytest.raises(ValueError, match="n_contacts must be a positive integer, got 'every'"):
+        sm.ModalMuscle.from_mesh(SMALL, ground=0.0, gravity=[0.0, -9.8], n_contacts="every")
+
+
 def test_info_counts_contacts_among_the_candidates(tmp_path, capsys):
     ground = '[ground]\ncontacts = 5\ncontacts_where = ["y <= -0.5"]\n'
     path = write_scene(tmp_path, "[gravity]\nacceleration = [0.0, -9.8]\n" + ground)

@@ -3,6 +3,7 @@
 import copy
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -138,6 +139,28 @@ def test_a_huge_time_step_is_reported_in_the_terminal_and_the_summary(tmp_path, 
     data["time"] = {"step": 1e3, "steps": 20}
     with pytest.warns(MotionWarning):
         run_scene(Scene.from_dict(data), None)
+
+
+GHOST = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "ghost.obj"
+
+
+def test_a_body_too_soft_for_its_weight_is_blamed_on_the_material_not_the_time_step(tmp_path, capsys):
+    """A ghost of mu = 1e-3 turns inside out under its weight at any step: the advice names the material."""
+    path = tmp_path / "soft.toml"
+    path.write_text(
+        f'[mesh]\nfile = "{GHOST}"\nnormalize = true\n[material]\nmu = 1e-3\n[muscles]\ncount = 4\n'
+        "[time]\nsteps = 100\n[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.05\n"
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
+    scale, spread, blame = capsys.readouterr().err.splitlines()
+    assert "it would collapse under its own weight" in scale  # the scene's ScaleWarning, before the run
+    assert spread.endswith("the body grew to 4.31 times its rest size")  # (not 'no force deforms it so far')
+    assert "smaller time.step" not in blame and blame.startswith(
+        "skfem-modal run: warning: the material is too soft to carry the body's own weight (the body is 1.96e+07 "
+        "times mu / (rho |g|) = 1.02e-07"
+    )
+    motion = json.loads((tmp_path / "out" / "summary.json").read_text())["motion"]
+    assert not motion["physical"] and motion["warnings"][-1] == blame.removeprefix("skfem-modal run: warning: ")
 
 
 def test_a_time_step_that_leaves_a_free_body_undetermined_is_refused_before_any_work(tmp_path, capsys):
