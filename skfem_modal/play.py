@@ -19,6 +19,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections import deque
 
@@ -375,16 +376,18 @@ def virtual_display(size=(1280, 800)):
     Raises
     ------
     PlayError
-        When Xvfb is not installed or does not start.
+        When Xvfb is not installed or does not start, or ended while the block ran (with what it
+        wrote; an error in the block gets that as a note).
     """
     if shutil.which("Xvfb") is None:
         raise PlayError("Xvfb is not installed (Debian: apt-get install xvfb)")
     read, write = os.pipe()
+    log = tempfile.TemporaryFile()  # the server's own messages, for a report of why it failed
     server = subprocess.Popen(
         ["Xvfb", "-displayfd", str(write), "-screen", "0", f"{size[0]}x{size[1]}x24", "-nolisten", "tcp"],
         pass_fds=(write,),
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        stderr=log,
         preexec_fn=_end_with_parent if sys.platform.startswith("linux") else None,
     )
     os.close(write)
@@ -392,16 +395,22 @@ def virtual_display(size=(1280, 800)):
         with os.fdopen(read) as pipe:
             number = pipe.readline().strip()
         if not number:
-            raise PlayError(f"Xvfb did not start (exit code {server.wait(timeout=10)})")
+            raise PlayError(f"Xvfb did not start (exit code {server.wait(timeout=10)}){_said(log)}")
         previous = os.environ.get("DISPLAY")
         os.environ["DISPLAY"] = f":{number}"
         try:
             yield os.environ["DISPLAY"]
+        except BaseException as err:
+            if server.poll() is not None:  # the block's trouble may be the server's
+                err.add_note(f"Xvfb on :{number} had ended (exit code {server.returncode}){_said(log)}")
+            raise
         finally:
             if previous is None:
                 os.environ.pop("DISPLAY", None)
             else:
                 os.environ["DISPLAY"] = previous
+        if server.poll() is not None:
+            raise PlayError(f"Xvfb on :{number} ended while in use (exit code {server.returncode}){_said(log)}")
     finally:
         server.terminate()
         try:
@@ -409,6 +418,14 @@ def virtual_display(size=(1280, 800)):
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+        log.close()
+
+
+def _said(log) -> str:
+    """What a server wrote to its log file (the last lines), as ': ...', or ''."""
+    log.seek(0)
+    text = log.read().decode(errors="replace").strip()
+    return f": {text[-2000:]}" if text else ""
 
 
 def play(

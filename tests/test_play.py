@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -389,6 +392,26 @@ def display():
             os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = window_class
 
 
+def test_a_virtual_display_whose_server_ends_in_use_says_so(display):
+    """A window test that lost its X server says that, with the server's exit code (not just 'bad X connection')."""
+
+    def servers():
+        children = Path(f"/proc/{os.getpid()}/task/{threading.get_native_id()}/children").read_text().split()
+        return {int(pid) for pid in children if Path(f"/proc/{pid}/comm").read_text().strip() == "Xvfb"}
+
+    before = servers()
+    with pytest.raises(PlayError, match=r"Xvfb on :\d+ ended while in use \(exit code -9\)"):
+        with virtual_display():  # a second server beside the module's
+            (pid,) = servers() - before
+            os.kill(pid, signal.SIGKILL)
+            stat = Path(f"/proc/{pid}/stat")
+            for _ in range(200):  # until it has died (a zombie, until virtual_display reaps it)
+                if not stat.exists() or stat.read_text().split(")")[-1].split()[0] == "Z":
+                    break
+                time.sleep(0.01)
+    assert os.environ["DISPLAY"] == display  # the module's display is back
+
+
 def test_a_display_with_an_off_screen_window_class_is_refused(display, monkeypatch):
     assert play_problem() is None
     monkeypatch.setenv("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
@@ -403,8 +426,15 @@ def run_driver(*args, env=None):
         timeout=300,
         env=env,
     )
-    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.returncode == 0, f"exit code {result.returncode}, {_display_state()}: {result.stderr[-3000:]}"
     return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def _display_state() -> str:
+    """DISPLAY and whether its server's socket is there: what a window that could not connect was given."""
+    display = os.environ.get("DISPLAY", "")
+    socket = Path("/tmp/.X11-unix") / f"X{display.lstrip(':').split('.')[0]}"
+    return f"DISPLAY={display!r} (socket {socket} {'there' if socket.exists() else 'missing'})"
 
 
 @pytest.mark.parametrize("scene", ["default", str(EXAMPLES / "creature_crawl.toml")])
