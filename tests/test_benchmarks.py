@@ -70,3 +70,10 @@ def test_bench_backends_runs_and_says_what_auto_takes():
     assert list(rows) == ["caterpillar (2D)", "seal 4 w x 10 cl", "seal 8 w x 20 cl"]
     assert [row[-1] for row in rows.values()] == ["numba", "numba", "numpy"]  # auto: numpy in 3D from 20 clusters
     assert [int(row[-5]) for row in rows.values()] == [48, 48, 96]  # the subspace: 12 coordinates a weight in 3D
+
+
+def test_bench_recorded_states_runs_and_prints_a_time_per_scene():
+    out = bench("bench_recorded_states.py", "float")
+    name, time, unit, *_ = out.split()
+    assert (name, unit) == ("float", "us") and 0.0 < float(time) < 1e5
+    assert "(36 states, numpy)" in out  # every 5th of the float scene's 180 steps
