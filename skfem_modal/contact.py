@@ -77,6 +77,8 @@ ALLOWANCE = 2e-4
 MOST_ALLOWANCE = 1e-3
 
 _CACHE_SIZE = 512
+# layouts whose corrections the reference contact keeps (a simulator's backends, rebuilt when settings change)
+_LAYOUTS = 4
 # passes of the active set in one projection before the exact solve (half changing whole sets, half one vertex)
 _PASSES = 16
 # vertices below the ground joining the active set per pass, at most
@@ -318,6 +320,8 @@ class ReferenceContact(_Ground):
         """
         cache = self._caches.get(layout)
         if cache is None:
+            if len(self._caches) >= _LAYOUTS:  # a rebuilt backend's layout replaces its old one's: the oldest go
+                del self._caches[next(iter(self._caches))]
             cache = self._caches[layout] = OrderedDict()
         key = mask.tobytes()
         entry = cache.get(key)

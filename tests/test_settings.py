@@ -284,3 +284,38 @@ def test_a_contact_goes_on_from_the_last_step_only_on_the_same_ground_plane():
         contact.follow(earlier, "allowance")
     assert same._end is earlier._end and other_up._end is None and lower._end is None
     assert same.replaced_for is None and other_up.replaced_for is None
+
+
+def test_settings_assigned_again_and_again_do_not_pile_up_contact_corrections():
+    """Each assignment of max_iter rebuilds the backends; the reference contact's corrections for the old ones go.
+
+    Its corrections are kept per backend's state layout (about 120 kB a layout here): 40 rebuilds kept
+    4.8 MB more, growing with every one, before the old layouts' were let go.
+    """
+    import tracemalloc
+
+    from skfem_modal import box3d
+
+    mesh = box3d(8, 3, 3, (2.0, 0.5, 0.5))
+    ground = float(mesh.p[1].min()) - 0.01
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=2, n_weights=4, n_clusters=4, gravity=[0.0, -9.8, 0.0],
+                                ground=ground, contact_model="reference", backend="numpy")  # fmt: skip
+    state = sim.rest_state()
+
+    def rebuilds(count):
+        nonlocal state
+        for i in range(count):
+            sim.max_iter = 10 + i % 2
+            for _ in range(5):
+                state = (*sim.step(state[0], state[1], state[2], velocity=True), state[2])
+
+    rebuilds(20)
+    assert sim.model.contact.active_count > 0  # it rests on the ground: corrections are made
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        rebuilds(40)
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 1.5e6
