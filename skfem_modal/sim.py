@@ -336,7 +336,7 @@ def _stage_reporter(progress):
 
 
 #: The public attributes a simulator sets itself (its settings are properties)
-_ATTRIBUTES = frozenset({"dim", "mass", "timings", "iterations", "weights"})
+_ATTRIBUTES = frozenset({"timings", "iterations", "weights"})
 # settings named as elsewhere
 _ALIASES = {"dt": "h", "time_step": "h", "timestep": "h", "step_size": "h", "iterations_max": "max_iter"}
 
@@ -511,6 +511,8 @@ class ModalMuscle:
     labels = _fixed("labels", "Passive rotation cluster of each element, shape (nT,).")
     active_labels = _fixed("active_labels", "Muscle rotation cluster of each element, shape (nT,).")
     mu = _fixed("mu", "Passive stiffness.")
+    dim = _fixed("dim", "The dimension, 2 or 3.")
+    mass = _fixed("mass", "Lumped vertex masses, one per DOF, shape (n * dim,) (from rho).")
     gamma = _fixed("gamma", "Muscle stiffness.")
     rho = _fixed("rho", "Density.")
     pinned = _fixed("pinned", "Pinned vertices (empty without pins).")
@@ -578,7 +580,8 @@ class ModalMuscle:
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
         self._mu, self._gamma, self._rho = mu, gamma, rho
-        self.dim, self.mass = dim, np.repeat(_lumped_p1(mesh, rho_e), dim)
+        self._dim, self._mass = dim, np.repeat(_lumped_p1(mesh, rho_e), dim)
+        self._mass.flags.writeable = False  # the effects were built from it: changed in place, only some would follow
         self._space = Subspace(mesh, B) if B is not None else FullSpace(mesh)
         self.timings = {"validate": time.perf_counter() - clock}
         self._build(h, D, w_mu, w_gamma, max_s, gravity, pinned, pin_stiffness, damping, ground, contact_vertices)
@@ -1235,15 +1238,19 @@ def simulate(sim, steps: int, activation=None, state=None):
 def _steps(sim, steps: int, activation, z, z_dot):
     """The generator behind :func:`simulate` (its arguments checked at the call, not at the first step)."""
     zero = np.zeros(sim.n_muscles)
-    h = sim.h
+    # the time as start + k h since h was last assigned (a live setting): exactly i h while it is not
+    h, start, since = sim.h, 0.0, 0
     for i in range(steps):
-        a = zero if activation is None else activation(i * h)
+        if sim.h != h:
+            start, since, h = start + since * h, 0, sim.h
+        a = zero if activation is None else activation(start + since * h)
         clock = time.perf_counter()
         try:
             z_next, z_dot = sim.step(z, z_dot, a, velocity=True)
         except SimulationError as err:
             raise SimulationError(err.message, step=i + 1) from None
         seconds = time.perf_counter() - clock
-        record = StepRecord(i + 1, (i + 1) * h, z_next, z_dot, a, seconds, sim.iterations, sim.residual, z)
+        since += 1
+        record = StepRecord(i + 1, start + since * h, z_next, z_dot, a, seconds, sim.iterations, sim.residual, z)
         z = z_next
         yield record

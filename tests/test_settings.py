@@ -147,7 +147,20 @@ def test_switching_the_contact_model_takes_its_default_vertices(model, other):
     assert counted.contact_vertices.size == 12
 
 
-READ_ONLY = ["mesh", "B", "D", "labels", "active_labels", "mu", "gamma", "rho", "pinned", "contact_vertices"]
+READ_ONLY = [
+    "mesh",
+    "B",
+    "D",
+    "labels",
+    "active_labels",
+    "mu",
+    "gamma",
+    "rho",
+    "pinned",
+    "contact_vertices",
+    "dim",
+    "mass",
+]
 
 
 @pytest.mark.parametrize("name", READ_ONLY)
@@ -319,3 +332,27 @@ def test_settings_assigned_again_and_again_do_not_pile_up_contact_corrections():
     finally:
         tracemalloc.stop()
     assert grown < 1.5e6
+
+
+def test_simulate_follows_a_time_step_assigned_mid_run(flat):
+    """simulate's clock (and the gait it reads) takes h as it is at each step, not as it was at the start."""
+    from skfem_modal import simulate
+
+    sim = build(flat)
+    h = sim.h
+    times = []
+    for record in simulate(sim, 20, lambda t: (times.append(t), np.full(sim.n_muscles, 0.1 * t))[1]):
+        if record.step == 10:
+            sim.h = h / 2
+        last = record
+    expected_starts = [k * h for k in range(10)] + [10 * h + k * h / 2 for k in range(10)]
+    np.testing.assert_allclose(times, expected_starts, rtol=0, atol=1e-15)
+    assert last.time == pytest.approx(10 * h + 10 * h / 2, abs=1e-15)
+    np.testing.assert_allclose(last.a, 0.1 * expected_starts[-1], rtol=1e-15)
+
+
+def test_the_masses_cannot_be_changed_in_place_either(flat):
+    """Gravity and inertia were built from them: doubling them in place moved gravity's half (twice the fall)."""
+    sim = build(flat)
+    with pytest.raises(ValueError, match="read-only"):
+        sim.mass[:] *= 2.0
