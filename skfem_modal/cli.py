@@ -522,6 +522,8 @@ def cmd_transfer(args) -> int:
                 f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {r['survives']:.2f} | "
                 f"{r['alignment']:.3f} | {r['max_tilt_degrees']:.1f} | {r['seconds']:.1f} |"
             )
+        for sentence in result["not_replayed"]:
+            print(f"{sentence} (--full-space-limit)")
         searched = result["rows"][0]["travel"]
         if searched < 0:
             print(

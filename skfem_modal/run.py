@@ -204,6 +204,8 @@ def run_scene(
         raise ValueError(f"every must be a positive integer, got {every!r}")
     if out_dir is not None:
         clear_earlier_run(out_dir, overwrite)
+    if sim is not None:
+        _check_built_from(scene, sim)
     started = time.perf_counter()
     if sim is None:
         sim = scene.build(progress=_stage_printer(progress))
@@ -262,6 +264,32 @@ def run_scene(
     return summary
 
 
+def _check_built_from(scene, sim) -> None:
+    """Refuse a simulator that was not built from ``scene`` (another mesh, or other muscles), naming the difference."""
+    mesh, theirs = scene.mesh, sim.mesh
+    if theirs.p.shape != mesh.p.shape or theirs.t.shape != mesh.t.shape or not np.array_equal(theirs.p, mesh.p):
+        raise ValueError(
+            f"sim was not built from this scene: its mesh has {theirs.p.shape[1]} vertices in {theirs.p.shape[0]}D "
+            f"and {theirs.t.shape[1]} elements, the scene's {mesh.p.shape[1]} in {mesh.p.shape[0]}D and "
+            f"{mesh.t.shape[1]}{'' if theirs.p.shape != mesh.p.shape else ' (or they lie elsewhere)'}: "
+            "build it with scene.build()"
+        )
+    if sim.n_muscles != scene.config["muscles"]["count"]:
+        raise ValueError(
+            f"sim was not built from this scene: it has {sim.n_muscles} muscles, the scene "
+            f"{scene.config['muscles']['count']} (muscles.count): build it with scene.build()"
+        )
+
+
+def _live_settings(sim) -> dict:
+    """The simulator's settings as the run used them (a simulator handed to run_scene may differ from its scene)."""
+    names = ("h", "max_iter", "tol", "rtol", "etol", "warm_start", "acceleration", "backend", "gravity", "ground",
+             "up", "contact_model", "friction", "allowance", "stickiness", "push_out", "pin_stiffness",
+             "damping_mass", "damping_stiffness", "max_s")  # fmt: skip
+    values = {name: getattr(sim, name) for name in names}
+    return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in values.items()}
+
+
 def _summary_start(scene, sim, precompute: float) -> dict:
     """What a run's summary says before its first step: the scene, its sizes, the precompute."""
     return {
@@ -284,6 +312,7 @@ def _summary_start(scene, sim, precompute: float) -> dict:
         "timings": {"precompute_s": dict(sim.timings), "precompute_total_s": precompute},
         "steps": scene.n_steps,
         "h": sim.h,
+        "settings": _live_settings(sim),
         "status": "running",
     }
 

@@ -799,7 +799,10 @@ class ModalMuscle:
 
     @property
     def contact_model(self) -> str:
-        """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's)."""
+        """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's).
+
+        A model switched back to takes the settings it had (``friction``, ``allowance``, ...).
+        """
         return self._contact["model"]
 
     @contact_model.setter
@@ -807,6 +810,9 @@ class ModalMuscle:
         settings = _contact_settings(value, None, None, None)
         if settings["model"] == self._contact["model"]:
             return  # the model it has: its settings (friction, allowance, ...) stay
+        earlier = getattr(self, "_contact_earlier", {})
+        self._contact_earlier = {**earlier, self._contact["model"]: self._contact}
+        settings = earlier.get(settings["model"], settings)
         if self._model.contact is None:
             self._contact = settings
             return

@@ -73,6 +73,7 @@ def replay(
     full_space_limit: int = 10_000,
     full_space_rtol: float = 1e-8,
     progress=None,
+    skipped: list | None = None,
 ) -> list[dict]:
     """Replay a gait up the ladder of accuracy (module docs).
 
@@ -94,6 +95,8 @@ def replay(
         The full space's stopping rule (relative change per iteration; at most 2000 iterations a step).
     progress : callable, optional
         Called with each setting's label before it runs.
+    skipped : list, optional
+        Gets a sentence for each full-space replay left out (its mesh over ``full_space_limit``).
 
     Returns
     -------
@@ -117,13 +120,21 @@ def replay(
     settings = {"steps": steps, "direction": direction, "objective": objective}
     settings.update(tip_limit=tip_limit, tip_weight=tip_weight)
     plans = [(label, _scaled(data, scene.config, n_elements, f), "reduced") for label, f in LADDER]
-    if n_elements <= full_space_limit:
-        plans.append(("full space", data, "full"))
+    skipped = [] if skipped is None else skipped
+
+    def full_space(label, variant, elements):
+        if elements <= full_space_limit:
+            plans.append((label, variant, "full"))
+        else:
+            skipped.append(
+                f"{label}: not replayed, {elements} elements, more than the full-space limit {full_space_limit}"
+            )
+
+    full_space("full space", data, n_elements)
     if not scene.config["mesh"]["file"]:
         coarse = resolution_scene(data, 0.5)
         plans.append(("half resolution, as searched", coarse, "reduced"))
-        if Scene.from_dict(coarse, base_dir=base_dir).mesh.t.shape[1] <= full_space_limit:
-            plans.append(("half resolution, full space", coarse, "full"))
+        full_space("half resolution, full space", coarse, Scene.from_dict(coarse, base_dir=base_dir).mesh.t.shape[1])
     rows = []
     for label, variant, space in plans:
         say(label)
@@ -186,7 +197,8 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     Returns
     -------
     result : dict
-        ``rows`` (:func:`replay`'s) and ``csv`` (the path written).
+        ``rows`` (:func:`replay`'s), ``csv`` (the path written) and ``not_replayed``: the full-space replays
+        left out, each a sentence saying why (the mesh is over ``full_space_limit``).
     """
     from .optimize import read_checkpoint
     from .scene import Scene, read_scene_file
@@ -205,6 +217,7 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     gait = scene.config["muscles"]["gait"]
     if gait is None:
         raise ValueError(f"{scene_path} holds no muscles.gait: it is not a search's best gait")
+    skipped = []
     rows = replay(
         data,
         {**gait, "phase": gait["phase"] or [0.0] * len(gait["amplitude"])},
@@ -216,10 +229,11 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         base_dir=out_dir,
         full_space_limit=full_space_limit,
         progress=progress,
+        skipped=skipped,
     )
     path = os.path.join(out_dir, TRANSFER_FILE)
     with written_whole(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    return {"rows": rows, "csv": path}
+    return {"rows": rows, "csv": path, "not_replayed": skipped}

@@ -415,11 +415,18 @@ def test_gait_transfer_replays_up_the_ladder(tmp_path, capsys):
     assert [r["setting"] for r in written] == list(rows) and float(written[-1]["travel"]) == half["travel"]
     assert main(["transfer", str(tmp_path), "--full-space-limit", "100"]) == 0
     out = capsys.readouterr().out
-    assert "| as searched | 408 |" in out and "| full space |" not in out  # over the limit: skipped
+    assert "| as searched | 408 |" in out and "| full space |" not in out  # over the limit: skipped, and said
+    assert "full space: not replayed, 408 elements, more than the full-space limit 100 (--full-space-limit)" in out
+    assert ("| half resolution, full space |" in out) == (half["elements"] <= 100)
     # the half-resolution copy's full space too, once it is over the limit (it ran whatever the limit)
     assert main(["transfer", str(tmp_path), "--full-space-limit", "1"]) == 0
     out = capsys.readouterr().out
-    assert "| half resolution, as searched |" in out and "full space" not in out
+    assert "| half resolution, as searched |" in out and "| full space |" not in out
+    assert "| half resolution, full space |" not in out
+    assert (
+        f"half resolution, full space: not replayed, {half['elements']} elements, more than the full-space limit 1"
+        in out
+    )
 
 
 def test_a_scene_without_a_ground_is_no_search_for_travel(tmp_path):

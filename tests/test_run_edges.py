@@ -55,3 +55,33 @@ def test_a_folder_given_as_the_scene_is_named_a_folder(tmp_path, capsys):
 
     assert main(["run", str(tmp_path)]) == 2  # it said 'scene file not found'
     assert f"scene file {str(tmp_path)!r} is a folder: give the .toml file in it" in capsys.readouterr().err
+
+
+SMALL_GROUND = {
+    "mesh": {"shape": "caterpillar", "params": {"nx": 20, "ny": 10}},
+    "muscles": {"count": 2},
+    "time": {"steps": 4},
+    "gravity": {"acceleration": [0.0, -9.8]},
+    "ground": {},
+}
+
+
+def test_run_scene_refuses_a_simulator_built_from_another_scene():
+    scene = Scene.from_dict(SMALL_GROUND)
+    other = Scene.from_dict({**SMALL_GROUND, "mesh": {"shape": "caterpillar", "params": {"nx": 10, "ny": 5}}})
+    with pytest.raises(ValueError, match=r"sim was not built from this scene: its mesh has \d+ vertices in 2D"):
+        run_scene(scene, None, sim=other.build())
+    more_muscles = Scene.from_dict({**SMALL_GROUND, "muscles": {"count": 3}})
+    with pytest.raises(ValueError, match="it has 3 muscles, the scene 2 \\(muscles.count\\)"):
+        run_scene(scene, None, sim=more_muscles.build())
+
+
+def test_the_summary_says_the_settings_a_handed_simulator_ran_with():
+    """A simulator assigned h and friction after its build runs with them: the summary says so, beside the scene."""
+    scene = Scene.from_dict(SMALL_GROUND)
+    sim = scene.build()
+    sim.h, sim.friction = 0.005, 0.0
+    summary = run_scene(scene, None, sim=sim)
+    assert summary["settings"]["h"] == summary["h"] == 0.005 and summary["settings"]["friction"] == 0.0
+    assert summary["scene"]["time"]["step"] == 0.01 and summary["scene"]["ground"]["friction"] is None  # (0.5)
+    assert summary["settings"]["contact_model"] == "coulomb" and summary["settings"]["gravity"] == [0.0, -9.8]

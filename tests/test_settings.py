@@ -356,3 +356,18 @@ def test_the_masses_cannot_be_changed_in_place_either(flat):
     sim = build(flat)
     with pytest.raises(ValueError, match="read-only"):
         sim.mass[:] *= 2.0
+
+
+def test_a_contact_model_switched_back_to_keeps_its_settings(flat):
+    """friction 0.1, to the reference model and back: 0.1 again (it was silently the default 0.5)."""
+    sim = build(flat, contact_model="coulomb", friction=0.1, allowance=5e-4)
+    sim.contact_model = "reference"
+    sim.stickiness = 0.25
+    assert (sim.friction, sim.allowance, sim.stickiness) == (None, None, 0.25)
+    sim.contact_model = "coulomb"
+    assert (sim.friction, sim.allowance, sim.stickiness) == (0.1, 5e-4, None)
+    sim.contact_model = "reference"
+    assert sim.stickiness == 0.25
+    same = build(flat, contact_model="reference", stickiness=0.25)
+    state = sim.rest_state()
+    np.testing.assert_array_equal(sim.step(*state), same.step(*state))
