@@ -298,7 +298,8 @@ class Damping(Effect):
         Its Hessian ``K`` (the passive stiffness at rest).
     mass, stiffness : float
         ``alpha`` (1 / time: damps all motion, like drag) and ``beta`` (time:
-        damps deformation).
+        damps deformation; ``K`` is the stiffness at rest, so rigid rotation away
+        from the rest orientation is damped too: the term is not corotated).
     """
 
     name = "damping"

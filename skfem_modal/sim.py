@@ -447,7 +447,10 @@ class ModalMuscle:
         Rayleigh damping: the dissipation ``(z - z0)^T (alpha BMB + beta H) (z - z0) / 2h``
         with ``alpha = damping_mass`` (1/time, damps all motion, like drag)
         and ``beta = damping_stiffness`` (time, damps deformation; ``H`` the
-        passive Hessian at rest).
+        passive Hessian at rest, so it damps rigid rotation away from the rest
+        orientation too: a caterpillar spinning freely at h = 0.002 kept 0.8 % of
+        its angular momentum after 1 s with beta = 0.001, 99 % without; for bodies
+        that turn, keep beta well below the time they take to turn).
     max_iter : int
         Local/global iterations per step, at most.
     tol : float
