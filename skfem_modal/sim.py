@@ -149,6 +149,34 @@ def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
     return ReferenceContact(space, vertices, ground, up, **settings)
 
 
+def _new_contact(sim, setting, vertices=None, settings=None, **changes) -> None:
+    """A simulator's fresh contact on its ground: its settings changed, or ``settings`` (and ``vertices``, if given).
+
+    Checked first: a refused one changes nothing.
+    """
+    contact = sim._model.contact
+    if contact is None:
+        raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
+    settings = {**sim._contact, **changes} if settings is None else settings
+    _clear_of_ground(sim._mesh, contact.ground, sim._up, _allowance(settings))  # a smaller allowance
+    sim._contact = settings
+    if vertices is not None:
+        sim._contact_vertices = vertices
+    _put_contact(sim, contact.vertices if vertices is None else vertices, contact.ground, setting)
+
+
+def _put_contact(sim, vertices, ground, setting=None) -> None:
+    """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old).
+
+    ``setting``: the one assigned, when it replaces a contact: a run goes on with the new one.
+    """
+    contact = _contact_effect(sim._space, sim._contact, vertices, ground, sim._up)
+    if setting is not None and sim._model.contact is not None:
+        contact.follow(sim._model.contact, setting)
+    sim._model.replace(contact)
+    sim._rebuild()
+
+
 def _fixed(name: str, doc: str):
     """A read-only setting: reading gives the value, assigning explains why it cannot change."""
 
@@ -189,7 +217,7 @@ def _contact_setting(name: str, model: str, check, doc: str):
                 f"{name} is a setting of contact_model='{model}'; this simulator uses "
                 f"contact_model='{self._contact['model']}'"
             )
-        self._new_contact(name, **{name: value})
+        _new_contact(self, name, **{name: value})
 
     return property(get, put, doc=doc)
 
@@ -774,32 +802,6 @@ class ModalMuscle:
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
 
-    def _new_contact(self, setting, vertices=None, settings=None, **changes) -> None:
-        """A fresh contact on the same ground: its settings changed, or ``settings`` (and ``vertices``, if given).
-
-        Checked first: a refused one changes nothing.
-        """
-        contact = self._model.contact
-        if contact is None:
-            raise AttributeError(f"{setting}: this simulator has no ground (build it with ground=...)")
-        settings = {**self._contact, **changes} if settings is None else settings
-        _clear_of_ground(self._mesh, contact.ground, self._up, _allowance(settings))  # a smaller allowance
-        self._contact = settings
-        if vertices is not None:
-            self._contact_vertices = vertices
-        self._put_contact(contact.vertices if vertices is None else vertices, contact.ground, setting)
-
-    def _put_contact(self, vertices, ground, setting=None) -> None:
-        """Put in a fresh contact of the current settings (what one kept from earlier steps was about the old).
-
-        ``setting``: the one assigned, when it replaces a contact: a run goes on with the new one.
-        """
-        contact = _contact_effect(self._space, self._contact, vertices, ground, self._up)
-        if setting is not None and self._model.contact is not None:
-            contact.follow(self._model.contact, setting)
-        self._model.replace(contact)
-        self._rebuild()
-
     @property
     def contact_model(self) -> str:
         """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's).
@@ -820,7 +822,7 @@ class ModalMuscle:
             self._contact = settings
             return
         vertices = _model_contact_vertices(self._mesh, value, self._default_contacts)
-        self._new_contact("contact_model", vertices, settings)
+        _new_contact(self, "contact_model", vertices, settings)
         _warn_if_idle(self._solver, self._model.contact, "warm_start")
 
     friction = _contact_setting(
@@ -878,7 +880,7 @@ class ModalMuscle:
         if contact is None:
             default = _model_contact_vertices(self._mesh, self._contact["model"], self._default_contacts)
             self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
-        self._put_contact(self._contact_vertices if contact is None else contact.vertices, value)
+        _put_contact(self, self._contact_vertices if contact is None else contact.vertices, value)
         if contact is None:
             _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
 
@@ -895,7 +897,7 @@ class ModalMuscle:
         _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
         self._up = value
         if self._model.contact is not None:
-            self._new_contact("up")
+            _new_contact(self, "up")
 
     @property
     def pin_stiffness(self):
