@@ -32,7 +32,7 @@ from .mesh import mesh_summary
 from .monitor import MotionMonitor
 from .outputs import clear_earlier_run
 from .scene import Scene
-from .sim import SimulationError, simulate
+from .sim import SimulationError, live_settings, simulate
 from .units import material_length_scales
 
 __all__ = ["run_scene", "Progress"]
@@ -283,10 +283,7 @@ def _check_built_from(scene, sim) -> None:
 
 def _live_settings(sim) -> dict:
     """The simulator's settings as the run used them (a simulator handed to run_scene may differ from its scene)."""
-    names = ("h", "max_iter", "tol", "rtol", "etol", "warm_start", "acceleration", "backend", "gravity", "ground",
-             "up", "contact_model", "friction", "allowance", "stickiness", "push_out", "pin_stiffness",
-             "damping_mass", "damping_stiffness", "max_s")  # fmt: skip
-    values = {name: getattr(sim, name) for name in names}
+    values = {name: getattr(sim, name) for name in live_settings(type(sim))}
     return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in values.items()}
 
 

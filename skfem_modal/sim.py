@@ -369,16 +369,21 @@ _ATTRIBUTES = frozenset({"timings", "iterations", "weights"})
 _ALIASES = {"dt": "h", "time_step": "h", "timestep": "h", "step_size": "h", "iterations_max": "max_iter"}
 
 
-def _nearest_setting(cls, name: str) -> str:
-    """'': or a hint naming the settings of ``cls`` a misspelt ``name`` may mean."""
-    import difflib
-
+def live_settings(cls) -> list[str]:
+    """The settings of a simulator class one can assign (live ones), sorted by name."""
     kinds = {a: getattr(cls, a) for a in dir(cls) if not a.startswith("_")}
-    settings = sorted(
+    return sorted(
         a
         for a, kind in kinds.items()
         if isinstance(kind, property) and not getattr(kind.fset, "fixed", kind.fset is None)
     )
+
+
+def _nearest_setting(cls, name: str) -> str:
+    """'': or a hint naming the settings of ``cls`` a misspelt ``name`` may mean."""
+    import difflib
+
+    settings = live_settings(cls)
     near = [_ALIASES[name]] if name in _ALIASES else difflib.get_close_matches(name, settings, n=3)
     if near:
         return f": did you mean {' or '.join(map(repr, near))}?"
