@@ -40,7 +40,9 @@ CONFIGS = [
         {"muscles": MUSCLES, "gravity": {"acceleration": [0.0, -9.8]}, "ground": {"offset": 0.15, "model": "coulomb"}},
     ),
     ("+ muscles + pinned", {"muscles": MUSCLES, "pinned": {"where": ["y == min"]}}),
-    ("+ muscles + damping", {"muscles": MUSCLES, "damping": {"mass": 0.5, "stiffness": 0.001}}),
+    ("+ muscles + damping (mass)", {"muscles": MUSCLES, "damping": {"mass": 0.5}}),
+    # the corotated stiffness damping: the start rotations and the offset, each step
+    ("+ muscles + damping (stiffness)", {"muscles": MUSCLES, "damping": {"stiffness": 0.001}}),
 ]
 
 

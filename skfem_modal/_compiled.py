@@ -62,17 +62,26 @@ class Compiled3Backend:
 
     def __init__(self, model, max_iter):
         muscles = model.A is not None
-        self.G = np.vstack([model.G] + ([model.A[0]] if muscles else []))
-        self.W = np.hstack([model.W] + ([model.WA[0]] if muscles else []))
+        r = model.space.r
+        # with the corotated damping an iterate is [z, 1], and G's column of the 1 holds the offset
+        self.model = model if model.corotated is not None else None
+        one = int(self.model is not None)
+        G = np.vstack([model.G] + ([model.A[0]] if muscles else []))
+        W = np.hstack([model.W] + ([model.WA[0]] if muscles else []))
+        self.G, self.W = np.zeros((G.shape[0], r + one)), np.zeros((r + one, W.shape[1]))
+        self.G[:, :r], self.W[:r] = G, W
+        self.passive_offset = self.G[: model.G.shape[0], r] if one else None
         self.activation = None
         if muscles and model.n_muscles:
             rows = model.G.shape[0]
-            self.activation = ActivationRows([(model.A, self.G[rows:]), (model.WA, self.W[:, rows:])])
+            self.activation = ActivationRows([(model.A, self.G[rows:, :r]), (model.WA, self.W[:r, rows:])])
         self.C = np.ascontiguousarray(model.C)
-        r = model.space.r
+        self.r = r
         self.input = np.ones(2 * r + 1)
+        self.c = np.ones(r + one)
         self.max_batch = max_iter
-        self.Y = np.empty((max_iter + 1, r))
+        self.Y = np.ones((max_iter + 1, r + one))
+        self.Z = self.Y[:, :r]
         self.q = np.zeros((self.G.shape[0] // 9, 4))  # the last rotations: warm starts
         self.warm = False
         self.kernels = None
@@ -83,17 +92,21 @@ class Compiled3Backend:
             self.kernels = _accel.kernels()
         if self.activation is not None:
             self.activation.write(a)
-        r = z.size
+        r = self.r
         self.input[:r], self.input[r : 2 * r] = z, z_dot
-        self.c = self.C @ self.input
-        self.Y[0] = z
+        self.c[:r] = self.C @ self.input
+        if self.model is not None:
+            offset, shift = self.model.start_terms(z)
+            self.passive_offset[:] = offset
+            self.c[:r] += shift
+        self.Z[0] = z
         self.k = 0
 
     def start_row(self):
         return self.Y[0]
 
     def restart(self, z) -> None:
-        np.copyto(self.Y[self.k], z)
+        np.copyto(self.Z[self.k], z)
 
     def _run(self, first, count) -> None:
         """Iterations ``first + 1 .. first + count``; any a kernel cannot certify made by numpy."""
@@ -115,7 +128,7 @@ class Compiled3Backend:
         else:
             for it in range(first + 1, first + count + 1):
                 self._run(it - 1, 1)
-                contact.project(self.Y[it])
+                contact.project(self.Z[it])
         self.k = first + count
         return self.Y[first : self.k + 1]
 
@@ -123,4 +136,4 @@ class Compiled3Backend:
         return True
 
     def result(self, k):
-        return self.Y[k].copy()
+        return self.Z[k].copy()

@@ -148,10 +148,10 @@ def separable_watch(watch, up, rtol=1e-11):
     return U if _close(W3, expected, rtol) else None
 
 
-def _row_blocks(Y, scale):
-    """(q, 3, K) -> the (q, 4, K + 1) row blocks ``[[Y / w, 0], [0, shift]]`` (shift left 0)."""
+def _row_blocks(Y, scale, extra=0):
+    """(q, 3, K) -> the (q, 4, K + 1 + extra) row blocks ``[[Y / w, 0, 0], [0, shift, 0]]`` (shift left 0)."""
     q, _, K = Y.shape
-    blocks = np.zeros((q, 4, K + 1))
+    blocks = np.zeros((q, 4, K + 1 + extra))
     blocks[:, :3, :K] = Y / scale[:, None, None]
     return blocks
 
@@ -164,10 +164,11 @@ def _column_blocks(V):
     return blocks.reshape(K, 4 * q)
 
 
-def _iterate_layout(p, K, up):
-    """An iterate ``Z[i]`` (p watched heights in column ``up``, z's K rows, the trailing row ending in 1) as a state."""
+def _iterate_layout(p, K, up, extra=0):
+    """An iterate ``Z[i]`` (p watched heights in column ``up``, z's K rows, the trailing row ending in 1,
+    ``extra`` constant rows) as a state."""
     z_index = ((p + np.arange(K))[:, None] * 4 + np.arange(3)).ravel()  # z[3 s + b] = Z[p + s, b]
-    return StateLayout((p + K + 1) * 4, z_index, np.arange(p) * 4 + up, (p + K) * 4 + 3)
+    return StateLayout((p + K + 1 + extra) * 4, z_index, np.arange(p) * 4 + up, (p + K) * 4 + 3)
 
 
 class KroneckerBackend:
@@ -187,8 +188,12 @@ class KroneckerBackend:
     name = "numpy (Kronecker form)"
     exact = False
 
-    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0):
+    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0, corotated=None):
         n, _, K = Y.shape
+        # with the corotated damping (``corotated``: the model, for its start terms), Z has three more
+        # rows, [I3, 0], and the passive clusters' row blocks three more columns for the offset they add
+        self.model = corotated
+        extra = 3 if corotated is not None else 0
         # U (p, K): the contact's watched heights are U Z[:, up]; they ride
         # along in the global product as p more rows of Z, first, so that
         # they and z's rows take C and the activation in one write each
@@ -201,32 +206,37 @@ class KroneckerBackend:
         nc = self.nc
         # the two big operands of an iteration's products in Fortran order:
         # OpenBLAS multiplies them by a 4-column right side a fifth faster
-        self.Yt = np.asfortranarray(_row_blocks(Y, scale).reshape(4 * n, K + 1))
+        self.Yt = np.asfortranarray(_row_blocks(Y, scale, extra).reshape(4 * n, K + 1 + extra))
         self.shift_column = self.Yt[3::4, K]
-        # rows: the watched heights, z, the trailing row
-        self.Wt = np.zeros((p + K + 1, 4 * n + 3), order="F")
+        self.offset_blocks = self.Yt.reshape(n, 4, K + 1 + extra)[: n - n_active, :3, K + 1 :]  # (cluster, e, d)
+        self.passive_scale = scale[: n - n_active, None, None]
+        # rows: the watched heights, z, the trailing row, the constant rows
+        self.Wt = np.zeros((p + K + 1 + extra, 4 * n + 3), order="F")
         self.Wt[p : p + K, : 4 * n] = _column_blocks(V)
         self.Wt[p + K, 3] = 1.0  # picks the 1 of cluster 0's rotation block: Z's trailing row
+        self.Wt[p + K + 1 + np.arange(extra), 4 * n + np.arange(extra)] = 1.0  # the rotations' I3 rows
         self.Wt[:p, : 4 * n] = U @ self.Wt[p : p + K, : 4 * n]
         self.C_slot = self.Wt[: p + K, 4 * n :]
         self.activation = None
         if m:
             # the active clusters' F rows (not their shift rows, which the
             # step keeps) and columns, affine in the activation
-            rows = np.stack([_row_blocks(YA[k], scale[nc:])[:, :3] for k in range(m + 1)])
+            rows = np.stack([_row_blocks(YA[k], scale[nc:], extra)[:, :3] for k in range(m + 1)])
             cols = np.stack([_column_blocks(VA[k]) for k in range(m + 1)])
-            Yt_active = self.Yt.reshape(n, 4, K + 1)[nc:, :3]
+            Yt_active = self.Yt.reshape(n, 4, K + 1 + extra)[nc:, :3]
             assert np.shares_memory(Yt_active, self.Yt), "the active rows must be a view of the operator"
             cols = np.concatenate([np.einsum("pk,mkc->mpc", U, cols), cols], axis=1)
             self.activation = ActivationRows([(rows, Yt_active), (cols, self.Wt[: p + K, 4 * nc : 4 * n])])
         # C = [P_z, P_v, C_ext] [Z; Z_dot; I3], and the watched heights' U C
         C_operator = np.hstack([Pz, Pv, c_ext.reshape(K, 3)])
         self.C_operator = np.vstack([U @ C_operator, C_operator])
+        self.shift_operator = np.vstack([U, np.eye(K)])  # the start terms' shift of z, and of the heights
         self.C_input = np.zeros((2 * K + 3, 3))
         self.C_input[2 * K :] = np.eye(3)
         # iterates Z (with the trailing row), rotations (with the I3 rows), powers
-        self.Z = np.zeros((max_iter + 1, p + K + 1, 4))
+        self.Z = np.zeros((max_iter + 1, p + K + 1 + extra, 4))
         self.Z[:, p + K, 3] = 1.0
+        self.Z[:, p + K + 1 + np.arange(extra), np.arange(extra)] = 1.0
         self.R = np.zeros((max_iter, 4 * n + 3, 4))
         self.R[:, 4 * n :, :3] = np.eye(3)
         # level first: each level's traces are one matrix-vector product over
@@ -254,13 +264,21 @@ class KroneckerBackend:
         self.C_z_block = self.C_input[:K]  # the same z, as (K, 3)
         self.outputs = [Zk[p : p + K, :3] for Zk in self.Z]
         # a watching contact corrects an iterate in place; another gets a contiguous copy of z
-        self.layout = _iterate_layout(p, K, up) if watching else None
+        self.layout = _iterate_layout(p, K, up, extra) if watching else None
         self.z_flat = np.empty(3 * K)
         self.z_block = self.z_flat.reshape(K, 3)
-        # per number of squarings s: each iteration's operands (iterates,
-        # powers, rotations, the squarings' (input, output) pairs, z, the whole iterate), and the
-        # rows of levels 1..s for the traces
-        self._views = [
+        self._views, self._trace_rows = self._iteration_views(p, up if watching else None)
+
+    def _iteration_views(self, p, up):
+        """Views made once, per number of squarings ``s``: each iteration's operands and the traces' rows.
+
+        An iteration's operands: its iterate and the next, the first and last powers, the rotations
+        (and as 16 a cluster), the squarings' (input, output) pairs, the next z, the whole next
+        iterate and its watched heights (column ``up``; None: no contact watches). The traces' rows:
+        the powers of levels 1..s and where their traces go.
+        """
+        n, max_iter = self.n, self.max_batch
+        views = [
             [
                 (
                     self.Z[i, p:],
@@ -272,19 +290,20 @@ class KroneckerBackend:
                     tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
                     self.outputs[i + 1],
                     self.Z[i + 1].reshape(-1),
-                    self.Z[i + 1, :p, up] if watching else None,
+                    self.Z[i + 1, :p, up] if up is not None else None,
                 )
                 for i in range(max_iter)
             ]
             for s in range(MAX_SQUARINGS + 1)
         ]
-        self._trace_rows = [
+        trace_rows = [
             (
                 self.powers_rows[max_iter * n : (s + 1) * max_iter * n],
                 self.levels_flat[max_iter * n : (s + 1) * max_iter * n],
             )
             for s in range(MAX_SQUARINGS + 1)
         ]
+        return views, trace_rows
 
     @classmethod
     def build(cls, model, max_iter):
@@ -323,7 +342,9 @@ class KroneckerBackend:
             U = separable_watch(model.contact.watch, up)
             if U is None:
                 return None
-        return cls(Y, V, YA, VA, Pz_s, Pv_s, np.ascontiguousarray(C[:, 2 * r]), scale, n_active, max_iter, U, up)
+        corotated = model if model.corotated is not None else None
+        C_ext = np.ascontiguousarray(C[:, 2 * r])
+        return cls(Y, V, YA, VA, Pz_s, Pv_s, C_ext, scale, n_active, max_iter, U, up, corotated)
 
     def start(self, z, z_dot, a) -> None:
         if self.activation is not None:
@@ -331,6 +352,11 @@ class KroneckerBackend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
+        if self.model is not None:
+            offset, shift = self.model.start_terms(z)
+            self.C_slot += self.shift_operator @ shift.reshape(self.K, 3)
+            # the offset's F[d, e] to the block's (e, d), scaled as the rows
+            np.divide(offset.reshape(-1, 3, 3).transpose(0, 2, 1), self.passive_scale, out=self.offset_blocks)
         np.copyto(self.Z0, self.C_z_block)
         if not self.shifted:
             # |F| / sqrt(3), the root mean square singular value: the best

@@ -55,17 +55,27 @@ class Step2Backend:
         muscles = model.A is not None
         G_all = np.vstack([G] + ([model.A[0]] if muscles else []))
         W_all = np.hstack([W] + ([model.WA[0]] if muscles else []))
-        self.G = features(G_all)
-        two_n = self.G.shape[0]
-        self.max_batch, self.r, self.n = max_iter, r, two_n // 2
-        self.normalize = normalize
-        # the contact's watched values ride along, and a 1 for its constant terms: one product gives
-        # z and them, the contact's state
+        # an iterate is [z, 1, the contact's watched values]: the 1 (when the contact watches, or the
+        # corotated damping offsets the rotations) carries constant terms, the watched values ride along,
+        # so that one product gives the contact's whole state
         watch = getattr(model.contact, "watch", None)
         self.fused = watch is not None
+        self.model = model if model.corotated is not None else None
+        has_one = self.fused or self.model is not None
         p = 0 if watch is None else watch.shape[0]
-        extend = (lambda X: np.vstack([X, watch @ X, np.zeros((1, X.shape[1]))])) if self.fused else (lambda X: X)
-        size = r + p + 1 if self.fused else r
+        size = r + has_one + p
+
+        def extend(X):
+            ones = [np.zeros((1, X.shape[1]))] if has_one else []
+            return np.vstack([X] + ones + ([watch @ X] if self.fused else []))
+
+        self.extend = extend
+        self.G = np.zeros((G_all.shape[0] // 2, r + has_one))  # the pairs of [z, 1]: the 1's column the offset's
+        self.G[:, :r] = features(G_all)
+        two_n = self.G.shape[0]
+        self.passive_offset = self.G[: G.shape[0] // 2, r] if has_one else None
+        self.max_batch, self.r, self.n = max_iter, r, two_n // 2
+        self.normalize = normalize
         self.W_c = np.empty((size, two_n + 1))
         self.W_c[:, :two_n] = extend(from_rotations(W_all))
         self.c = self.W_c[:, two_n]
@@ -73,11 +83,11 @@ class Step2Backend:
         if muscles and model.n_muscles:
             rows = G.shape[0] // 2
             WA = np.stack([extend(Wk) for Wk in from_rotations(model.WA)])
-            self.activation = ActivationRows([(features(model.A), self.G[rows:]), (WA, self.W_c[:, rows:two_n])])
+            self.activation = ActivationRows([(features(model.A), self.G[rows:, :r]), (WA, self.W_c[:, rows:two_n])])
         self.C_operator = np.ascontiguousarray(extend(model.C))
         self.C_input = np.ones(2 * r + 1)
-        if self.fused:
-            self.C_operator[-1, 2 * r] = 1.0  # the state's 1, from C_input's
+        if has_one:
+            self.C_operator[r, 2 * r] = 1.0  # the state's 1, from C_input's
         self.C_z, self.C_z_dot = self.C_input[:r], self.C_input[r : 2 * r]
         self.cs_1 = np.ones(two_n + 1)  # the unit pairs, then a 1 for c
         self.cs_flat = self.cs_1[:two_n]
@@ -85,14 +95,16 @@ class Step2Backend:
         self.cos, self.sin = self.cs[:, 0], self.cs[:, 1]
         self.norm = np.empty(self.n)
         self.norm_column = self.norm[:, None]
-        self.Y = np.empty((max_iter + 1, size))  # iterates, then what the contact watches and its 1
+        self.Y = np.empty((max_iter + 1, size))  # iterates, then the 1 and what the contact watches
+        self.Y[:, r : r + has_one] = 1.0  # (the product keeps it: row r of W_c is the 1's)
         self.Z = self.Y[:, :r]
         # views made once: indexing costs as much as a small product
         self.rows = list(self.Y)
         self.z_rows = list(self.Z)
-        self.watched_rows = list(self.Y[:, r : r + p]) if self.fused else [None] * (max_iter + 1)
+        self.g_rows = list(self.Y[:, : r + has_one])  # what G multiplies
+        self.watched_rows = list(self.Y[:, r + 1 :]) if self.fused else [None] * (max_iter + 1)
         # the contact corrects a row of Y, z and the watched values together
-        self.layout = StateLayout(size, np.arange(r), r + np.arange(p), size - 1) if self.fused else None
+        self.layout = StateLayout(size, np.arange(r), r + 1 + np.arange(p), r) if self.fused else None
         self.k = 0
 
     def start(self, z, z_dot, a) -> None:
@@ -101,6 +113,10 @@ class Step2Backend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.c)  # a strided column: matmul
+        if self.model is not None:
+            offset, shift = self.model.start_terms(z)
+            self.passive_offset[:] = features(offset[:, None])[:, 0]
+            self.c += self.extend(shift[:, None])[:, 0]
         np.copyto(self.z_rows[0], z)
         self.k = 0
 
@@ -115,10 +131,11 @@ class Step2Backend:
         cos, sin, norm, norm_column, n = self.cos, self.sin, self.norm, self.norm_column, self.n
         hypot, divide, count_nonzero, normalize = np.hypot, np.divide, np.count_nonzero, self.normalize
         first, last = self.k, self.k + count
-        z = self.z_rows[first]
-        for y, z_next, watched in zip(self.rows[first + 1 : last + 1], self.z_rows[first + 1 : last + 1],
-                                      self.watched_rows[first + 1 : last + 1]):  # fmt: skip
-            dot(G, z, cs_flat)
+        g = self.g_rows[first]
+        for y, g_next, z_next, watched in zip(self.rows[first + 1 : last + 1], self.g_rows[first + 1 : last + 1],
+                                              self.z_rows[first + 1 : last + 1],
+                                              self.watched_rows[first + 1 : last + 1]):  # fmt: skip
+            dot(G, g, cs_flat)
             if normalize is not None:
                 normalize(cs)
             else:
@@ -135,7 +152,7 @@ class Step2Backend:
                     contact.project(y, watched, self.layout)
                 else:
                     contact.project(z_next)
-            z = z_next
+            g = g_next
         self.k = last
         return self.Z[first : last + 1]
 

@@ -60,10 +60,12 @@ _AXIAL = {
 
 
 class StepEnergy:
-    """The energy a step minimises, ``1/2 (z - c)^T H (z - c) - sum_c tr(R_c^T S_c(z))``.
+    """The energy a step minimises, ``1/2 (z - c)^T H (z - c) - sum_c w_c tr(R_c^T S_c(z))``.
 
-    That is :meth:`Model.energy <skfem_modal.model.Model.energy>` less a
-    constant of the step (``c = H^-1 (Pz z0 + Pv v0 + f)``), in a few
+    (``S_c`` with the corotated damping's offset, ``w_c`` its ``1 + beta / h`` for
+    the passive clusters, 1 for the others: see :class:`~skfem_modal.model.Model`;
+    ``c = H^-1 (Pz z0 + Pv v0 + f)`` with its shift.) That is :meth:`Model.energy
+    <skfem_modal.model.Model.energy>` less a constant of the step, in a few
     products: the cluster rows and rotations of an exact backend
     (:class:`~skfem_modal.solver.PlainBackend`), ``H`` summed from the effects.
 
@@ -84,6 +86,7 @@ class StepEnergy:
         self.dim = model.space.dim
         self.exact = PlainBackend(model)
         self.H = sum(m for m in (e.matrix(model.h) for e in model.effects) if m is not None)
+        self.rotation_scale = model.rotation_scale
         self.S = self.R = None
         self.round_off = 0.0
 
@@ -103,12 +106,14 @@ class StepEnergy:
 
     def __call__(self, z) -> float:
         """``E(z)`` up to the step's constant; keeps ``S`` and ``R`` at ``z``."""
-        d = self.dim
-        S = self.exact.rows @ z
-        R = self.exact.rotations(S)
+        d, passive = self.dim, self.exact.n_passive
+        S = self.exact.arguments(z)
+        R = self.exact.rotations(S).ravel()
         self.S, self.R = S.reshape(-1, d, d), R.reshape(-1, d, d)
         u = z - self.exact.c
-        inertia, rotated = 0.5 * float(u @ (self.H @ u)), float(R.ravel() @ S)
+        # the passive rotations weigh rotation_scale (the corotated damping's 1 + beta / h)
+        rotated = float(R @ S) + (self.rotation_scale - 1.0) * float(R[:passive] @ S[:passive])
+        inertia = 0.5 * float(u @ (self.H @ u))
         self.round_off = 1e-13 * (abs(inertia) + abs(rotated))
         return inertia - rotated
 

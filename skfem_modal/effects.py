@@ -288,25 +288,70 @@ class Pins(Effect):
 
 
 class Damping(Effect):
-    """Rayleigh damping: the dissipation ``|u - u0|^2_D / (2 h)``, ``D = alpha M + beta K``.
+    """Rayleigh damping, corotated: mass-proportional drag and a damped rate of deformation.
+
+    The dissipation of a step from ``u0`` to ``u`` is
+
+        alpha |u - u0|^2_M / (2 h)
+        + beta / (2 h) sum_e w_e |(F_e(u) - R_c) - (F_e(u0) - R0_c)|^2,
+
+    ``w_e`` the elasticity's ``mu vol`` and ``R_c`` its cluster's rotation,
+    shared with the elasticity (``R0_c`` the closest rotation at ``u0``). The
+    second term damps the change of each element's departure from its
+    cluster's rotation, so a rigid motion (a spin included) goes undamped;
+    its quadratic part is ``beta K / h`` (``K`` the elastic Hessian), as
+    stiffness-proportional Rayleigh damping. Folded into the elasticity, a
+    cluster's rotation term becomes ``(1 + b) R : (S(u) + o)`` with
+    ``b = beta / h`` and the offset ``o = b / (1 + b) (W_c R0 - S(u0))``
+    (:meth:`offset`; ``S`` the cluster rows, ``W_c`` the cluster's weight),
+    and the right-hand side gains ``-b G^T vec(R0)``.
 
     Parameters
     ----------
     inertia : Inertia
         Its mass matrix ``M``.
     elasticity : Elasticity
-        Its Hessian ``K`` (the passive stiffness at rest).
+        Its rows, weights and Hessian ``K``.
     mass, stiffness : float
         ``alpha`` (1 / time: damps all motion, like drag) and ``beta`` (time:
-        damps deformation; ``K`` is the stiffness at rest, so rigid rotation away
-        from the rest orientation is damped too: the term is not corotated).
+        damps the rate of deformation, not rigid motion).
     """
 
     name = "damping"
 
     def __init__(self, inertia, elasticity, mass=0.0, stiffness=0.0):
         self.mass_coefficient, self.stiffness_coefficient = mass, stiffness
+        self.elasticity = elasticity
         self.operator = mass * inertia.mass_matrix + stiffness * elasticity.hessian
+        dd = elasticity.dim**2
+        # each cluster's weight sum_e w_e, per row of the cluster rows
+        totals = np.bincount(elasticity.labels, elasticity.weights, minlength=elasticity.n_clusters)
+        self._row_weights = np.repeat(totals, dd)
+
+    def rotation_scale(self, h) -> float:
+        """``1 + beta / h``: the weight of the elasticity's rotation term with this damping."""
+        return 1.0 + self.stiffness_coefficient / h
+
+    def offset(self, h, S0):
+        """The rotation terms' offset and the start rotations, from the cluster rows at the start ``S0``.
+
+        Parameters
+        ----------
+        h : float
+        S0 : ndarray, shape (clusters * dim * dim,)
+            ``elasticity.rows @ u0``.
+
+        Returns
+        -------
+        offset : ndarray, shape (clusters * dim * dim,)
+            ``o``: the rotations of a step are those closest to ``S(u) + o``.
+        R0 : ndarray, shape (clusters * dim * dim,)
+            The closest rotations to ``S0``.
+        """
+        d = self.elasticity.dim
+        R0 = _ROTATIONS[d](S0.reshape(-1, d * d)).ravel()
+        b = self.stiffness_coefficient / h
+        return b / (1.0 + b) * (self._row_weights * R0 - S0), R0
 
     def matrix(self, h):
         return self.operator / h
@@ -317,4 +362,17 @@ class Damping(Effect):
     def energy(self, h, u, u0, v0, a):
         v = u - u0
         Dv = self.operator @ v
-        return float(v @ Dv) / (2 * h), Dv / h
+        E, grad = float(v @ Dv) / (2 * h), Dv / h
+        if not self.stiffness_coefficient:
+            return E, grad
+        # the rotations are the elasticity's: this term is the pair's energy less the elasticity's alone
+        d, rows, b = self.elasticity.dim, self.elasticity.rows, self.stiffness_coefficient / h
+        S, S0 = rows @ u, rows @ u0
+        offset, R0 = self.offset(h, S0)
+        R_alone = _ROTATIONS[d](S.reshape(-1, d * d)).ravel()
+        R = _ROTATIONS[d]((S + offset).reshape(-1, d * d)).ravel()
+        # (|R - R0|^2 = 2 d - 2 R : R0, a cluster's weight repeated on its d^2 rows)
+        E += float((R_alone - R) @ S - b * (S - S0) @ (R - R0) + b * self._row_weights @ (1.0 / d - R * R0))
+        # (the rotations are optimal: their derivatives drop out)
+        grad = grad + rows.T @ (R_alone - (1.0 + b) * R + b * R0)
+        return E, grad

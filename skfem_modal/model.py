@@ -10,7 +10,10 @@ factors ``H`` once, and keeps what the iterations use: the cluster rows ``G``
 the dense products ``W = H^-1 G^T``, ``W_A = H^-1 A^T`` and
 ``C = H^-1 [Pz | Pv | f]``. Changing ``h`` or an effect reassembles these
 (cheap: sums of ``r x r`` matrices and one small factorisation); the
-expensive reductions stay in the effects. The stepping lives elsewhere
+expensive reductions stay in the effects. With the corotated stiffness
+damping the passive rotations are those closest to ``G u + o`` and weigh
+``1 + b`` (``b = beta / h``), and the right-hand side gains ``-b G^T vec(R0)``,
+``o`` and ``R0`` made at each step's start (:meth:`Model.start_terms`). The stepping lives elsewhere
 (:mod:`skfem_modal.solver`).
 """
 
@@ -82,12 +85,16 @@ class Model:
     A : ndarray, shape (m + 1, active clusters * dim * dim, r), or None
         Muscle cluster rows (a subspace only; without muscles None).
     W, WA, C : ndarray
-        ``H^-1 G^T`` (r, clusters dd), ``H^-1 A_k^T`` (m + 1, r, active
+        ``H^-1 G^T`` (r, clusters dd; times :attr:`rotation_scale`), ``H^-1 A_k^T`` (m + 1, r, active
         clusters dd), ``H^-1 [Pz | Pv | f]`` (r, 2 r + 1); a subspace only.
     system : DenseSystem or SparseSystem
         The factored ``H``.
     rest : ndarray, shape (r,)
         The rest state.
+    rotation_scale : float
+        The weight of the passive rotation term, ``1 + beta / h`` with the
+        corotated stiffness damping (:class:`~skfem_modal.effects.Damping`),
+        else 1; see :meth:`start_terms`.
     scale : float
         The length of a change of ``z`` that moves the body's vertices by its
         size (mass-weighted root mean square): what makes ``z``'s changes
@@ -135,9 +142,12 @@ class Model:
             self.system = space.factor(H)
         except ValueError:
             raise ValueError(self._singular_why(H, terms)) from None
+        damping = self.named.get("damping")
+        self.corotated = damping if damping is not None and damping.stiffness_coefficient else None
+        self.rotation_scale = 1.0 if self.corotated is None else self.corotated.rotation_scale(h)
         if space.dense:
             self.C = self.system.solve(np.hstack([self.Pz, self.Pv, self.f[:, None]]))
-            self.W = self.system.solve(self.G.T)
+            self.W = self.system.solve(self.G.T) * self.rotation_scale
             if self.A is not None:
                 self.WA = np.stack([self.system.solve(Ak.T) for Ak in self.A])
         if self.contact is not None:
@@ -187,6 +197,24 @@ class Model:
         if self.space.dense:
             return self.C[:, : z.size] @ z + self.C[:, z.size : 2 * z.size] @ z_dot + self.C[:, -1]
         return self.system.solve(self.Pz @ z + self.Pv @ z_dot + self.f)
+
+    def start_terms(self, z):
+        """A step's terms from the corotated damping at its start ``z``, or None without it.
+
+        Returns
+        -------
+        offset : ndarray, shape (G rows,)
+            Added to the passive cluster rows ``G z`` before their rotations are taken.
+        shift : ndarray, shape (r,)
+            Added to the step's constant (:meth:`constant`): ``-b H^-1 G^T vec(R0)``.
+        """
+        if self.corotated is None:
+            return None
+        offset, R0 = self.corotated.offset(self.h, self.G @ z)
+        b = self.rotation_scale - 1.0
+        if self.space.dense:
+            return offset, self.W @ R0 * (-b / self.rotation_scale)
+        return offset, self.system.solve(self.G.T @ R0) * -b
 
     def energy(self, u, u0, v0, a, gradient: bool = False):
         """The energy a step minimises, at ``u``, rotations optimal (contact adds none).

@@ -431,9 +431,9 @@ SCHEMA: dict[str, Any] = {
         "stiffness": Key(
             "float",
             0.0,
-            "Stiffness-proportional Rayleigh damping beta (damps deformation). It uses the stiffness at rest, so "
-            "it damps rigid rotation away from the rest orientation too (a caterpillar spinning freely kept 0.8 % "
-            "of its angular momentum after 1 s with beta = 0.001): keep it small for bodies that turn.",
+            "Stiffness-proportional damping beta (damps the rate of deformation). Corotated: rigid motion, "
+            "turning included, goes undamped; near rest it is Rayleigh damping beta K, a mode of frequency "
+            "omega damped with the ratio beta omega / 2.",
             "time",
             _non_negative,
         ),

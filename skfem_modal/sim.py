@@ -477,13 +477,15 @@ class ModalMuscle:
         Spring stiffness; default 1e3 times the larger of the mean passive
         stiffness and the mean vertex mass over ``h^2`` per DOF.
     damping_mass, damping_stiffness : float
-        Rayleigh damping: the dissipation ``(z - z0)^T (alpha BMB + beta H) (z - z0) / 2h``
-        with ``alpha = damping_mass`` (1/time, damps all motion, like drag)
-        and ``beta = damping_stiffness`` (time, damps deformation; ``H`` the
-        passive Hessian at rest, so it damps rigid rotation away from the rest
-        orientation too: a caterpillar spinning freely at h = 0.002 kept 0.8 % of
-        its angular momentum after 1 s with beta = 0.001, 99 % without; for bodies
-        that turn, keep beta well below the time they take to turn).
+        Damping: ``alpha = damping_mass`` (1/time) damps all motion, like drag,
+        with the dissipation ``alpha (z - z0)^T BMB (z - z0) / 2h``;
+        ``beta = damping_stiffness`` (time) damps the rate of deformation,
+        corotated: each element's change of its departure from its cluster's
+        rotation, so rigid motion, turning included, goes undamped (a free spin
+        keeps its momentum as without damping), and near rest it is Rayleigh
+        damping ``beta K`` with ``K`` the elastic Hessian: a mode of frequency
+        ``omega`` has the damping ratio ``beta omega / 2``. See
+        :class:`~skfem_modal.effects.Damping`.
     max_iter : int
         Local/global iterations per step, at most.
     tol : float

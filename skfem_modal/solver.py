@@ -194,6 +194,8 @@ class PlainBackend:
                     [(model.A, self.rows_buffer[nG:]), (model.WA, self.cols_buffer[:, nG:])]
                 )
         self.Y = np.empty((2, space.r))
+        self.n_passive = model.G.shape[0]
+        self.offset = None
 
     def start(self, z, z_dot, a) -> None:
         model = self.model
@@ -205,6 +207,13 @@ class PlainBackend:
         else:
             blocks = [model.G] + ([model.muscles.rows_for(a)] if model.muscles is not None else [])
             self.rows = sps.vstack(blocks, format="csr")
+        self.offset = None
+        terms = model.start_terms(z)
+        if terms is not None:
+            offset, shift = terms
+            self.c = self.c + shift
+            self.offset = np.zeros(self.rows.shape[0])
+            self.offset[: self.n_passive] = offset
         self.z0 = np.array(z, dtype=float)
         self.Y[1] = self.z0
         self.q = None
@@ -223,13 +232,21 @@ class PlainBackend:
         R, self.q = closest_rotations3(S.reshape(-1, 9), self.q)
         return R
 
+    def arguments(self, z):
+        """The clusters' matrices whose closest rotations an iteration from ``z`` takes, flat (clusters dd,)."""
+        S = self.rows @ z
+        return S if self.offset is None else S + self.offset
+
     def iterate(self, count, contact):
         self.Y[0] = self.Y[1]
         z = self.Y[0]
-        R = self.rotations(self.rows @ z).ravel()
+        R = self.rotations(self.arguments(z)).ravel()
         if self.dense:
             z_next = self.c + self.cols_buffer @ R
         else:
+            if self.model.rotation_scale != 1.0:  # (a subspace has it in cols_buffer)
+                R = R.copy()
+                R[: self.n_passive] *= self.model.rotation_scale
             z_next = self.c + self.model.system.solve(self.rows.T @ R)
         if contact is not None:
             contact.project(z_next)
