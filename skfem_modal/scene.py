@@ -171,7 +171,9 @@ SCHEMA: dict[str, Any] = {
         "mu": Key(
             "float",
             None,
-            "Passive (ARAP) stiffness, the shear modulus. Default 1e5, or from young and poisson.",
+            "Passive (ARAP) stiffness: the energy mu / 2 |F - R|^2 per volume, which in small strains is a "
+            "material of Young's modulus mu and Poisson's ratio 0 (shear modulus mu / 2). The linear (muscle) "
+            "modes take it as the Lame mu, with lam, as the reference does. Default 1e5, or young.",
             "stress",
             _positive,
         ),
@@ -179,11 +181,19 @@ SCHEMA: dict[str, Any] = {
         "lam": Key(
             "float",
             None,
-            "First Lame parameter, used for the linear modes only (default: mu, or from young and poisson).",
+            "First Lame parameter of the linear (muscle) modes only: the simulated material has no volume term "
+            "(default: mu; from young and poisson, lambda scaled as mu is, so the modes keep their shapes).",
             "stress",
             _non_negative,
         ),
-        "young": Key("float", None, "Young's modulus (with poisson, instead of mu and lam).", "stress", _positive),
+        "young": Key(
+            "float",
+            None,
+            "Young's modulus E (with poisson, instead of mu and lam): mu = E, so small strains stretch and bend "
+            "as E does (with Poisson's ratio 0); poisson shapes the linear (muscle) modes.",
+            "stress",
+            _positive,
+        ),
         "poisson": Key(
             "float",
             None,
@@ -1050,11 +1060,17 @@ class Scene:
 
 
 def _material(m: dict) -> dict:
-    """``mu``, ``gamma``, ``lam``, ``rho`` of a validated [material] section, defaults resolved."""
+    """``mu``, ``gamma``, ``lam``, ``rho`` of a validated [material] section, defaults resolved.
+
+    From ``young`` and ``poisson``: ``mu = E``, the ARAP stiffness whose small strains are those of Young's
+    modulus E (with Poisson's ratio 0, all ARAP has), and ``lam`` the Lame lambda times ``E / mu_Lame``, so
+    that the linear modes made with ``(mu, lam)`` have the shapes of ``(mu_Lame, lambda)``.
+    """
     if m["young"] is not None:
         from .fem import lame_parameters
 
-        mu, lam = lame_parameters(m["young"], m["poisson"])
+        shear, lam = lame_parameters(m["young"], m["poisson"])
+        mu, lam = m["young"], lam * m["young"] / shear
     else:
         mu = 1e5 if m["mu"] is None else m["mu"]
         lam = mu if m["lam"] is None else m["lam"]

@@ -434,7 +434,9 @@ class ModalMuscle:
     labels : ndarray of int, shape (nT,)
         Passive rotation cluster of each element.
     mu : float or ndarray of shape (nT,)
-        Passive (ARAP) stiffness.
+        Passive (ARAP) stiffness: the energy ``mu / 2 |F - R|^2`` per volume,
+        in small strains a material of Young's modulus ``mu`` and Poisson's
+        ratio 0 (shear modulus ``mu / 2``).
     gamma : float or ndarray of shape (nT,)
         Muscle stiffness.
     rho : float or ndarray of shape (nT,)

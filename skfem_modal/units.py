@@ -144,7 +144,7 @@ def material_length_scales(mu: float, rho: float, gravity=None, duration: float 
     Parameters
     ----------
     mu, rho : float
-        Shear modulus and density.
+        Stiffness (the ARAP mu: Young's modulus at Poisson's ratio 0) and density.
     gravity : array_like, optional
     duration : float, optional
         Simulated time.
