@@ -21,6 +21,7 @@ import warnings
 import numpy as np
 
 from .interrupts import EXIT_INTERRUPTED, Terminated, terminate_as_interrupt
+from .outputs import check_output_file
 from .study import WorkersLost
 
 EXIT_OK = 0
@@ -99,37 +100,13 @@ def _material(args) -> tuple[float, float]:
     return (1.0 if args.mu is None else args.mu), (1.0 if args.lam is None else args.lam)
 
 
-def _check_vtu_out(path: str) -> None:
-    """Refuse, before any work, an output file ``modes`` could not write where it is asked to."""
-    if os.path.isdir(path):
-        raise ValueError(f"--out {path} is a directory; give a file name, e.g. {os.path.join(path, 'modes.vtu')}")
-    if not path.lower().endswith(".vtu"):
-        raise ValueError(f"--out {path}: modes writes a .vtu file (VTK XML); name it NAME.vtu")
-    folder = os.path.dirname(os.path.abspath(path))
-    while not os.path.exists(folder):  # created when the file is written
-        folder = os.path.dirname(folder)
-    if not os.path.isdir(folder) or not _writable(folder):
-        raise ValueError(f"--out {path}: {folder} is not a folder this user can write in")
-
-
-def _writable(folder: str) -> bool:
-    """Whether a file can be made in ``folder`` (tried: os.access says yes to root on a read-only one)."""
-    import tempfile
-
-    try:
-        with tempfile.TemporaryFile(dir=folder):
-            return True
-    except OSError:
-        return False
-
-
 def cmd_modes(args) -> int:
     from .export import export_modes
     from .mesh import mesh_summary, vertices_where
     from .modal import actuation_limits, hinge_count, linear_modal_analysis, natural_frequencies, rigid_mode_count
 
     mu, lam = _material(args)
-    _check_vtu_out(args.out)
+    check_output_file(args.out, "--out", ".vtu", "modes.vtu")
     mesh = parse_mesh_spec(args.mesh, args.merge)
     fixed = None
     if args.fix:

@@ -28,6 +28,7 @@ __all__ = [
     "earlier_study",
     "earlier_search",
     "check_output_folder",
+    "check_output_file",
     "listed",
     "clear_earlier_run",
     "clear_earlier_study",
@@ -97,6 +98,42 @@ def _file_in_the_way(directory: str) -> str | None:
         if parent == path:
             return None
         path = parent
+
+
+def check_output_file(path, option: str, suffix: str, example: str) -> None:
+    """Refuse, before any work, an output file that could not be written where it is asked to.
+
+    Parameters
+    ----------
+    path : str or path-like
+    option : str
+        What names it for the user (``--out``, ``--screenshot``).
+    suffix : str
+        The file's required ending (``.vtu``, ``.png``).
+    example : str
+        A file name to suggest inside a folder given instead of a file.
+
+    Raises
+    ------
+    ValueError
+        A folder, another suffix, or a folder that refuses a new file (tried: root passes the
+        permissions of a read-only folder, and /proc refuses all the same).
+    """
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ValueError(f"{option} {path} is a directory; give a file name, e.g. {os.path.join(path, example)}")
+    if not path.lower().endswith(suffix):
+        raise ValueError(f"{option} {path}: expected a {suffix} file")
+    folder = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(folder):  # made when the file is written
+        folder = os.path.dirname(folder)
+    try:
+        if not os.path.isdir(folder):
+            raise NotADirectoryError
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError:
+        raise ValueError(f"{option} {path}: {folder} is not a folder this user can write in") from None
 
 
 def _check_writable(directory: str) -> None:

@@ -25,6 +25,8 @@ from collections import deque
 
 import numpy as np
 
+from .outputs import check_output_file
+
 __all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display", "window_size_problem"]
 
 
@@ -484,8 +486,8 @@ def play(
     if problem:
         raise ValueError(problem)
     width, height = (int(v) for v in window_size)
-    if screenshot is not None and not os.fspath(screenshot).lower().endswith(".png"):
-        raise ValueError(f"screenshot must be a .png file, got {os.fspath(screenshot)!r}")
+    if screenshot is not None:
+        check_output_file(screenshot, "screenshot", ".png", "play.png")
     target = _load(target)
     problem = play_problem(off_screen)
     if problem is not None:

@@ -293,6 +293,7 @@ def _summary_start(scene, sim, precompute: float) -> dict:
         "skfem_modal": _version(),
         "python": platform.python_version(),
         "scene": scene.to_dict(),
+        "material": scene.material(),
         "mesh": mesh_summary(sim.mesh),
         "effects": list(sim.effects),
         "backend": sim.backend_used,

@@ -486,18 +486,26 @@ def read_scene_file(path) -> dict:
         raise IsADirectoryError(f"scene file {path!r} is a folder: give the .toml file in it")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"scene file not found: {path!r}")
+    suffix = os.path.splitext(path)[1].lower()
+    hint = (
+        f" (a {suffix} file is not a scene: to simulate a mesh, write a scene whose [mesh] file names it, "
+        "see docs/scenes.md)"
+        if suffix != ".toml"
+        else ""
+    )
     with open(path, "rb") as f:
-        try:
-            return tomllib.load(f)
-        except tomllib.TOMLDecodeError as err:
-            suffix = os.path.splitext(path)[1].lower()
-            hint = (
-                f" (a {suffix} file is not a scene: to simulate a mesh, write a scene whose [mesh] file names it, "
-                "see docs/scenes.md)"
-                if suffix != ".toml"
-                else ""
-            )
-            raise SceneError(f"{path}: not valid TOML: {err}{hint}") from None
+        data = f.read()
+    try:
+        text = data.decode("utf-8-sig")  # (a byte-order mark, as some editors write, is skipped)
+    except UnicodeDecodeError as err:
+        raise SceneError(
+            f"{path}: not UTF-8 text (byte {err.start} is {data[err.start : err.start + 1]!r}): a scene file is "
+            f"TOML in UTF-8; save it so{hint}"
+        ) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML: {err}{hint}") from None
 
 
 #: The keys whose values are file paths, relative to the scene file's folder (section, key).
@@ -664,33 +672,42 @@ def _read_table(path: str, count: int, errors: list[str]):
     if not os.path.isfile(path):
         errors.append(f"{where}: no such file {path!r}")
         return None
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            return _parse_table(f, path, count, errors)
+    except UnicodeDecodeError as err:
+        errors.append(f"{where}: {path!r} is not UTF-8 text (byte {err.start}): save the table as UTF-8 CSV")
+        return None
+
+
+def _parse_table(f, path: str, count: int, errors: list[str]):
+    """:func:`_read_table`'s reading of the open file ``f``."""
+    where = "muscles.table"
     rows = []
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None:
-            errors.append(f"{where}: {path!r} is empty")
-            return None
-        if _all_numbers(header):  # read as the header, the first row of values would be lost
+    reader = csv.reader(f)
+    header = next(reader, None)
+    if header is None:
+        errors.append(f"{where}: {path!r} is empty")
+        return None
+    if _all_numbers(header):  # read as the header, the first row of values would be lost
+        errors.append(
+            f"{where}: {path!r} line 1 holds numbers, not a header: the table's first line names its "
+            f"columns (e.g. time,{','.join(f'a{k + 1}' for k in range(count))})"
+        )
+        return None
+    for line, row in enumerate(reader, start=2):
+        if not any(cell.strip() for cell in row):
+            continue
+        if len(row) != count + 1:
             errors.append(
-                f"{where}: {path!r} line 1 holds numbers, not a header: the table's first line names its "
-                f"columns (e.g. time,{','.join(f'a{k + 1}' for k in range(count))})"
+                f"{where}: {path!r} line {line} has {len(row)} columns, expected {count + 1} (time and one per muscle)"
             )
             return None
-        for line, row in enumerate(reader, start=2):
-            if not any(cell.strip() for cell in row):
-                continue
-            if len(row) != count + 1:
-                errors.append(
-                    f"{where}: {path!r} line {line} has {len(row)} columns, expected {count + 1} "
-                    f"(time and one per muscle)"
-                )
-                return None
-            try:
-                rows.append([float(cell) for cell in row])
-            except ValueError:
-                errors.append(f"{where}: {path!r} line {line} holds a value that is not a number: {row}")
-                return None
+        try:
+            rows.append([float(cell) for cell in row])
+        except ValueError:
+            errors.append(f"{where}: {path!r} line {line} holds a value that is not a number: {row}")
+            return None
     if not rows:
         errors.append(f"{where}: {path!r} has no rows after its header")
         return None

@@ -851,7 +851,8 @@ def run_study(
     same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
     front = [same[i] for i in pareto_front([rows[i] for i in same])]
     lines = recommend(rows)
-    unsettled = _unsettled(references)
+    ground = scene.config["ground"]
+    unsettled = _unsettled(references, None if ground is None else ground["model"])
     if unsettled:
         lines.insert(0, unsettled)
     if scene.config["ground"] is not None:
@@ -930,17 +931,29 @@ def _reference_line(ref: dict) -> str:
     return line
 
 
-def _unsettled(references: dict) -> str | None:
-    """A sentence for the recommendation when a reference run did not settle, else None."""
+def _unsettled(references: dict, contact_model: str | None) -> str | None:
+    """A sentence for the recommendation when a reference run did not settle, else None.
+
+    ``contact_model``: the scene's ground contact model (None without a ground), for the likely cause.
+    """
     worst = max(references.values(), key=lambda ref: ref["unsettled_change"])
     if not worst["unsettled_steps"]:
         return None
     steps = sum(ref["unsettled_steps"] for ref in references.values())
+    if contact_model == "reference":
+        why = (
+            "The reference contact model can do this: each iterate picks the points it holds, and the "
+            "iterations can go round between sets."
+        )
+    else:
+        why = (
+            "Local/global iterations on every element converge slowly for a stiff body or a large time step: "
+            "a smaller step (time.step) settles sooner."
+        )
     return (
         f"The full-space reference did not settle in {steps} steps: they stopped at {worst['max_iterations']} "
         f"iterations with a last change of up to {100 * worst['unsettled_change']:.2g} % of the body's size, so it "
-        "is itself off by about that much and errors near it say little. (The reference contact model can do "
-        "this: each iterate picks the points it holds, and the iterations can go round between sets.)"
+        f"is itself off by about that much and errors near it say little. ({why})"
     )
 
 

@@ -110,7 +110,7 @@ def test_cli_modes_refuses_what_it_cannot_write_before_any_work(tmp_path, capsys
 
     monkeypatch.setattr(skfem_modal.modal, "linear_modal_analysis", never)
     cases = [
-        (["--out", str(tmp_path / "a.vtk")], "modes writes a .vtu file"),
+        (["--out", str(tmp_path / "a.vtk")], "expected a .vtu file"),
         (["--out", str(tmp_path)], "is a directory; give a file name"),
         (["--young", "1", "--poisson", "0.3", "--mu", "2"], "both give the material: give one pair"),
         # a read-only file system: os.access says yes to root there, so the folder is tried

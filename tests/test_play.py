@@ -330,7 +330,9 @@ def test_scripted_play_starts_with_the_gait_or_the_sliders_as_asked(crawl, monke
     [
         ({"frames": 0}, "frames must be a positive integer, got 0"),
         ({"off_screen": True}, "off-screen play needs a number of frames"),
-        ({"frames": 2, "screenshot": "shot.jpg"}, "screenshot must be a .png file"),
+        ({"frames": 2, "screenshot": "shot.jpg"}, "screenshot shot.jpg: expected a .png file"),
+        # found after all the frames were played, before (an audit)
+        ({"frames": 2, "screenshot": "/proc/shot.png"}, "screenshot /proc/shot.png: /proc is not a folder this user"),
         ({"frames": 2, "window_size": (100, 80)}, "window size must be at least 200 x 150"),
     ],
 )

@@ -117,12 +117,15 @@ def test_the_smallest_sides_allowed_are_drawn(run_copy, backend, size):
     assert pixels(run_copy / "last_frame.png").shape == (size[1], size[0], 3)
 
 
-@pytest.mark.parametrize("damage", ["summary", "cut rows", "cut number"])
+@pytest.mark.parametrize("damage", ["summary", "cut rows", "cut number", "cut series"])
 def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, damage):
-    # a broken summary.json gave json's own message without the file; a com.csv cut to its first rows drew
-    summary, com = run_copy / "summary.json", run_copy / "com.csv"
+    # a broken summary.json gave json's own message without the file; a com.csv cut to its first rows drew;
+    # a frames.pvd cut to its first frames drew them, the last of them as the run's last frame
+    summary, com, pvd = run_copy / "summary.json", run_copy / "com.csv", run_copy / "frames.pvd"
     if damage == "summary":
         summary.write_text(summary.read_text()[:40])
+    elif damage == "cut series":
+        pvd.write_text(pvd.read_text()[:400])
     else:
         text = com.read_text()
         com.write_text(text[: text.index("\n", text.index("\n") + 1) + 1] if damage == "cut rows" else text[:-8])
@@ -134,6 +137,7 @@ def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, da
         "summary": f"cannot read {summary}: ",
         "cut rows": f"{com} holds 1 rows, where summary.json's",
         "cut number": f"{com} ends in the middle of a row",
+        "cut series": f"{pvd} lists 3 frames, where summary.json says the run wrote",
     }
     assert expected[damage] in err
     assert sorted(os.listdir(run_copy)) == before

@@ -85,3 +85,12 @@ def test_the_summary_says_the_settings_a_handed_simulator_ran_with():
     assert summary["settings"]["h"] == summary["h"] == 0.005 and summary["settings"]["friction"] == 0.0
     assert summary["scene"]["time"]["step"] == 0.01 and summary["scene"]["ground"]["friction"] is None  # (0.5)
     assert summary["settings"]["contact_model"] == "coulomb" and summary["settings"]["gravity"] == [0.0, -9.8]
+
+
+def test_the_summary_says_the_material_simulated():
+    """summary.json's scene keeps the keys as given (mu null by default): its material block resolves them."""
+    scene = Scene.from_dict({**SMALL_GROUND, "material": {"young": 2e5, "poisson": 0.25, "rho": 900.0}})
+    summary = run_scene(scene, None)
+    assert summary["scene"]["material"]["mu"] is None
+    assert summary["material"]["mu"] == summary["material"]["gamma"] == 2e5 and summary["material"]["rho"] == 900.0
+    assert summary["material"]["lam"] == pytest.approx(2e5)  # Lame (8e4, 8e4), lambda scaled as mu

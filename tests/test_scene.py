@@ -272,3 +272,19 @@ def test_a_run_of_billions_of_steps_is_named():
         Scene.from_dict({"mesh": {"shape": "caterpillar"}, "time": {"step": 1e-9}})
     with pytest.raises(SceneError, match=r"time: time.steps makes 1e\+09 steps"):
         Scene.from_dict({"mesh": {"shape": "caterpillar"}, "time": {"steps": 10**9}})
+
+
+def test_a_scene_file_not_in_utf8_is_named_and_one_with_a_byte_order_mark_reads(tmp_path):
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes('name = "café"\n'.encode("latin-1"))
+    with pytest.raises(SceneError, match=r"latin.toml: not UTF-8 text \(byte 11"):
+        Scene.from_toml(latin)
+    marked = tmp_path / "marked.toml"
+    marked.write_bytes(b"\xef\xbb\xbf" + b'name = "marked"\n')
+    assert Scene.from_toml(marked).config["name"] == "marked"
+    table = tmp_path / "gait.csv"
+    table.write_bytes("time,a1\n0,0.1\n1,é\n".encode("latin-1"))
+    scene = tmp_path / "table.toml"
+    scene.write_text('[muscles]\ncount = 1\ntable = "gait.csv"\n')
+    with pytest.raises(SceneError, match=r"muscles.table: '.*gait.csv' is not UTF-8 text"):
+        Scene.from_toml(scene)
