@@ -169,6 +169,7 @@ def cmd_run(args) -> int:
     from .run import run_scene
     from .sim import SimulationError
 
+    _picture_options(args)
     scene = _load_scene(args.scene)
     if args.render:
         _check_render(args)
@@ -665,22 +666,52 @@ def _merge_option(p) -> None:
     )
 
 
-def _render_options(p) -> None:
+#: The picture options and their defaults (``run`` takes them only with ``--render``).
+RENDER_DEFAULTS = {"backend": "auto", "format": "gif", "max_frames": 120, "size": "1280x720"}
+
+
+def _render_options(p, unset: bool = False) -> None:
+    """The picture options; ``unset``: default None, so that :func:`_picture_options` tells which were given."""
+    default = (lambda name: None) if unset else RENDER_DEFAULTS.get
+
+    def said(text, name):  # (the help's default, which argparse leaves out for None)
+        return f"{text} (default: {RENDER_DEFAULTS[name]}, with --render)" if unset else text
+
     p.add_argument(
         "--backend",
         choices=["auto", "pyvista", "matplotlib"],
-        default="auto",
-        help="auto: pyvista where off-screen OpenGL works, else matplotlib",
+        default=default("backend"),
+        help=said("auto: pyvista where off-screen OpenGL works, else matplotlib", "backend"),
     )
-    p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format")
-    p.add_argument("--max-frames", type=_positive_int, default=120, help="frames in the animation, at most")
+    p.add_argument(
+        "--format", choices=["gif", "mp4"], default=default("format"), help=said("animation format", "format")
+    )
+    p.add_argument(
+        "--max-frames",
+        type=_positive_int,
+        default=default("max_frames"),
+        help=said("frames in the animation, at most", "max_frames"),
+    )
     p.add_argument(
         "--size",
         type=_picture_size,
-        default="1280x720",
+        default=default("size"),
         metavar="WxH",
-        help="picture size in pixels (text and lines grow with it)",
+        help=said("picture size in pixels (text and lines grow with it)", "size"),
     )
+
+
+def _picture_options(args) -> None:
+    """``run``'s picture options: refused without ``--render`` (they would change nothing), else defaults filled."""
+    given = [f"--{name.replace('_', '-')}" for name in RENDER_DEFAULTS if getattr(args, name) is not None]
+    if given and not args.render:
+        raise ValueError(
+            f"{', '.join(given)} {'sets' if len(given) == 1 else 'set'} the pictures, which run draws only with "
+            "--render: add --render (or leave them out)"
+        )
+    for name, value in RENDER_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, _picture_size(value) if name == "size" else value)
 
 
 def _run_options(p) -> None:
@@ -691,7 +722,7 @@ def _run_options(p) -> None:
     )
     p.add_argument("--every", type=_positive_int, help="write every k-th frame (default: the scene's output.every)")
     p.add_argument("--render", action="store_true", help="also draw pictures and an animation (plot extra)")
-    _render_options(p)
+    _render_options(p, unset=True)
 
 
 def _info_options(p) -> None:

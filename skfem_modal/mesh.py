@@ -712,21 +712,7 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     elif "triangle" in blocks:
         cells = np.vstack(blocks["triangle"])
         if points.shape[1] == 3:
-            z = points[:, 2]
-            extent = np.ptp(points[:, :2], axis=0).max() if len(points) else 0.0
-            if np.ptp(z) > 1e-12 * max(extent, 1.0):
-                spans = np.ptp(points, axis=0)
-                flat = [a for a in range(2) if spans[a] <= 1e-12 * max(spans.max(), 1.0)]
-                where = (
-                    f"they lie in the plane {'xy'[flat[0]]} = {points[0, flat[0]]:.6g}: turn them into the x-y plane"
-                    if flat
-                    else "a 2D mesh must be flat"
-                )
-                raise MeshError(
-                    f"mesh file {path!r}: triangles are not in a plane of constant z "
-                    f"(z spans {np.ptp(z):.3g}); {where} (a 2D mesh lies in x-y), a 3D body needs tetrahedra"
-                )
-            points = points[:, :2]
+            points = _planar_points(path, points)
     else:
         found = sorted({b.type for b in raw.cells}) or ["none"]
         raise MeshError(
@@ -1127,6 +1113,22 @@ def boundary_vertices(mesh) -> np.ndarray:
         unique, counts = np.unique(faces.T, axis=0, return_counts=True)
         once = unique[counts == 1].T
     return np.unique(once)
+
+
+def _planar_points(path: str, points: np.ndarray) -> np.ndarray:
+    """A flat triangle mesh's 3D points as 2D ones: x-y, or the other two axes of a plane x = c or y = c.
+
+    A mesh drawn in the x-z plane (a side view, z up) becomes x-y with its z as y, so that
+    its up stays up; one in y-z becomes x-y from (y, z).
+    """
+    spans = np.ptp(points, axis=0) if len(points) else np.zeros(3)
+    flat = [a for a in (2, 1, 0) if spans[a] <= 1e-12 * max(spans.max(), 1.0)]
+    if not flat:
+        raise MeshError(
+            f"mesh file {path!r}: triangles are not in a plane of constant x, y or z (they span "
+            f"{spans[0]:.3g}, {spans[1]:.3g} and {spans[2]:.3g}): a 2D mesh must be flat, a 3D body needs tetrahedra"
+        )
+    return np.ascontiguousarray(np.delete(points, flat[0], axis=1))
 
 
 def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndarray:

@@ -213,10 +213,13 @@ def run_scene(
     files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every)
     gravity = scene.config["gravity"]
     log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0, "relative": 0.0}
+    log["last"] = None  # (step, z) of the last state recorded
     g = None if gravity is None else gravity["acceleration"]
     material = scene.material()
     weight = material_length_scales(np.mean(material["mu"]), np.mean(material["rho"]), g).get("weight")
     log["monitor"] = MotionMonitor(sim, g, weight_scale=weight)
+    if files is not None:
+        files.monitor = log["monitor"]
     bar = Progress(scene.n_steps, "steps", enabled=progress)
     status, error, failure = "completed", None, None
     with HeldSignals() as held:
@@ -238,6 +241,7 @@ def run_scene(
         finally:
             with held.hold():  # the summary is written whole, whatever arrives meanwhile
                 bar.close()
+                _check_last_state(sim, log, files)
                 motion = log["monitor"].finish(warn=status != "failed")
                 if "non_finite" in motion["first_problem_step"]:
                     # the error names the cause the monitor sees (the non-finite state it says already)
@@ -331,6 +335,15 @@ def _run_steps(scene, sim, log: dict, files, bar: Progress, held: HeldSignals) -
         bar.update()
 
 
+def _check_last_state(sim, log: dict, files) -> None:
+    """The monitor's element check of the last state done (the frames written were checked as written)."""
+    if files is not None:
+        files.frame_last()
+    elif log["last"] is not None:
+        step, z = log["last"]
+        log["monitor"].check_elements(step, sim.positions(z))
+
+
 def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     """The state after ``step`` steps: into ``files`` first (its frame, its rows), then into ``log``.
 
@@ -347,6 +360,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     if files is not None:
         files.write(step, z, a, com)
     log["com"].append(com)
+    log["last"] = (step, z)
     if done is not None:
         log["seconds"].append(done.seconds)
         log["iterations"].append(done.iterations)
@@ -405,6 +419,7 @@ class _RunFiles:
         self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
         self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
         self.worst_pin = 0.0
+        self.monitor = None  # a MotionMonitor, to count the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
         self._framed = None  # the step of the last frame written
 
@@ -427,19 +442,25 @@ class _RunFiles:
         """The frame of the state after ``step`` steps (full positions only for frames written)."""
         sim = self.sim
         x = sim.positions(z)
+        if self.monitor is not None:
+            self.monitor.check_elements(step, x)
         if sim.pinned.size:
             drift = np.linalg.norm(x[sim.pinned] - sim.mesh.p.T[sim.pinned], axis=1)
             self.worst_pin = max(self.worst_pin, float(drift.max()))
         self.frames.write(step * sim.h, x, field_data={"activation": a} if sim.n_muscles else None)
         self._framed = step
 
+    def frame_last(self) -> None:
+        """The last step's frame, if ``every`` skipped it: the frames then end at the last step done."""
+        if self._last is not None and self._last[0] != self._framed:
+            self._frame(*self._last)
+
     def close(self, summary: dict) -> None:
-        """The last step's frame if ``every`` skipped it; close the files; write ``summary.json``.
+        """Close the files (the last step's frame written if it was not); write ``summary.json``.
 
         The frames, the tables and the summary then all end at the last step done.
         """
-        if self._last is not None and self._last[0] != self._framed:
-            self._frame(*self._last)
+        self.frame_last()
         frames = self.frames
         pinned = {"worst_drift_written_frames": self.worst_pin} if self.sim.pinned.size else None
         times = [frames.times[0], frames.times[-1]]

@@ -319,3 +319,17 @@ def test_a_scene_given_youngs_modulus_simulates_it():
     lame = sm.linear_modal_analysis(scene.mesh, 6, mu=shear, lam=lam)
     np.testing.assert_allclose(ours[0][3:], lame[0][3:] * 2.6e5 / shear, rtol=1e-9)
     np.testing.assert_allclose(ours[1][:, 3:], lame[1][:, 3:], atol=1e-9 * np.abs(lame[1]).max())
+
+
+def test_the_reference_stops_a_step_that_does_not_move():
+    """An audit: a floating scene's first step (at rest, the gait at 0) met no relative rule and ran all 5000
+    iterations at a change of 1e-16, and the study called its reference unsettled."""
+    from skfem_modal.scene import Scene
+
+    scene = Scene.from_dict({"mesh": {"shape": "caterpillar", "params": {"nx": 20, "ny": 10}}, "muscles": {"count": 2}})
+    ref = scene.build_reference()
+    x, x_dot, _ = ref.rest_state()
+    x_next = ref.step(x, x_dot, np.zeros(2))
+    assert ref.iterations == 1 and np.abs(x_next - x).max() <= 1e-12
+    ref.step(x, x_dot, 0.3 * scene.build().ceilings)  # moving, the relative rule decides
+    assert 5 < ref.iterations < 100

@@ -207,3 +207,12 @@ def test_ctrl_c_while_the_command_line_loads_is_said_without_a_traceback(module)
     assert process.returncode == 130 and "Traceback" not in err
     assert out == ""  # stopped before the command ran
     assert err.rstrip().endswith("interrupted") and err.count("\n") == 1
+
+
+def test_run_refuses_picture_options_without_render(tmp_path, capsys):
+    """An audit: run --size 321x240 --format mp4 without --render exited 0, drew nothing and said nothing."""
+    out = tmp_path / "out"
+    assert main(["run", "--out", str(out), "-q", "--size", "321x240", "--format", "mp4"]) == 2
+    err = capsys.readouterr().err
+    assert "--format, --size set the pictures, which run draws only with --render" in err
+    assert not out.exists()  # before any work

@@ -245,7 +245,7 @@ def test_load_refuses_curved_surfaces_and_unknown_formats(tmp_path):
     pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.3]], float)
     path = tmp_path / "surface.vtu"
     meshio.write(path, meshio.Mesh(pts, [("triangle", [[0, 1, 2]])]))
-    with pytest.raises(ValueError, match="not in a plane of constant z"):
+    with pytest.raises(ValueError, match="not in a plane of constant x, y or z"):
         load_mesh(path)
     bad = tmp_path / "mesh.unknownext"
     bad.write_text("hello")

@@ -152,9 +152,10 @@ def test_a_body_too_soft_for_its_weight_is_blamed_on_the_material_not_the_time_s
         "[time]\nsteps = 100\n[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.05\n"
     )
     assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
-    scale, spread, blame = capsys.readouterr().err.splitlines()
+    scale, spread, inverted, blame = capsys.readouterr().err.splitlines()
     assert "it would collapse under its own weight" in scale  # the scene's ScaleWarning, before the run
     assert spread.endswith("the body grew to 4.31 times its rest size")  # (not 'no force deforms it so far')
+    assert "of the elements were inside out, up to" in inverted
     assert "smaller time.step" not in blame and blame.startswith(
         "skfem-modal run: warning: the material is too soft to carry the body's own weight (the body is 1.96e+07 "
         "times mu / (rho |g|) = 1.02e-07"
@@ -311,3 +312,32 @@ def test_a_steps_failing_linear_algebra_is_a_simulation_error_naming_it(beam_sim
     failed = r"the step's linear algebra failed: Singular matrix \(time step h = 0.01\)"
     with pytest.raises(SimulationError, match=failed):
         sim.step(z, z_dot)
+
+
+def _soft_box(mu, steps):
+    return {
+        "mesh": {"shape": "box3d"},
+        "material": {"mu": mu},
+        "muscles": {"count": 0},
+        "gravity": {"acceleration": [0.0, -9.81, 0.0]},
+        "ground": {"offset": 0.0},
+        "time": {"steps": steps, "step": 0.01},
+    }
+
+
+def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_ground(tmp_path):
+    """A box of mu = 3e3 (3.3 times mu / (rho g)) folds under its weight (an audit: 1502 of 3072 tetrahedra
+    inverted, a vertex 3.9 % of its size below the ground, while summary.json said physical, no warnings)."""
+    with pytest.warns(MotionWarning, match="of the elements were inside out"):
+        summary = run_scene(Scene.from_dict(_soft_box(3e3, 60)), tmp_path / "soft", every=10)
+    motion = summary["motion"]
+    assert not motion["physical"] and motion["inverted_elements"] > 300
+    assert motion["first_problem_step"]["inverted"] % 10 == 0  # found in a frame written
+    assert "too soft to carry the body's own weight" in motion["warnings"][-1]
+    # a stiff one does not fold; and without files the last state is checked (the soft one folds there too)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        stiff = run_scene(Scene.from_dict(_soft_box(3e5, 60)), None)["motion"]
+    assert stiff["physical"] and stiff["inverted_elements"] == 0
+    with pytest.warns(MotionWarning, match="of the elements were inside out"):
+        assert run_scene(Scene.from_dict(_soft_box(3e3, 60)), None)["motion"]["inverted_elements"] > 300

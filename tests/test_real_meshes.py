@@ -249,13 +249,19 @@ def test_a_repeated_element_is_named_as_a_copy_not_as_tangled():
         make_mesh(square.p.T, t.T)
 
 
-def test_an_outline_in_another_plane_is_named(tmp_path):
+def test_an_outline_in_another_plane_is_read_with_its_up_kept(tmp_path):
+    """A side view drawn in x-z (y = 0, z up) reads as x-y with z as y; one in y-z as (y, z). (It was refused,
+    saying to turn it into x-y, with no key to do so: an audit.)"""
     points, quads = grid_cells(2, 1)
-    xz = np.column_stack([points[:, 0], np.zeros(len(points)), points[:, 1]])  # y = 0, the outline along z
-    path = tmp_path / "xz.vtu"
-    meshio.write(path, meshio.Mesh(xz, [("triangle", np.vstack([quads[:, :3], quads[:, [0, 2, 3]]]))]))
-    with pytest.raises(MeshError, match=r"z spans 1\); they lie in the plane y = 0: turn them into the x-y plane"):
-        load_mesh(path)
+    triangles = np.vstack([quads[:, :3], quads[:, [0, 2, 3]]])
+    for plane, columns in (("xz", [0, 2]), ("yz", [1, 2])):
+        xyz = np.zeros((len(points), 3))
+        xyz[:, columns] = points
+        path = tmp_path / f"{plane}.vtu"
+        meshio.write(path, meshio.Mesh(xyz, [("triangle", triangles)]))
+        mesh = load_mesh(path)
+        assert mesh.p.shape == (2, len(points))
+        np.testing.assert_allclose(np.ptp(mesh.p, axis=1), np.ptp(points, axis=0))  # 2 wide, 1 high: up kept
 
 
 def test_the_cli_says_which_file_it_cannot_read(tmp_path):

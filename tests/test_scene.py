@@ -288,3 +288,25 @@ def test_a_scene_file_not_in_utf8_is_named_and_one_with_a_byte_order_mark_reads(
     scene.write_text('[muscles]\ncount = 1\ntable = "gait.csv"\n')
     with pytest.raises(SceneError, match=r"muscles.table: '.*gait.csv' is not UTF-8 text"):
         Scene.from_toml(scene)
+
+
+def test_muscle_settings_without_muscles_are_said_to_change_nothing(tmp_path):
+    """An audit: gamma, lam, active_clusters, max_s with muscles.count = 0 ran bit-identically, without a word."""
+    table = tmp_path / "gait.csv"
+    table.write_text("time,a1\n0,0.1\n1,0.2\n")
+    data = {
+        "mesh": {"shape": "caterpillar", "params": {"nx": 10, "ny": 5}},
+        "material": {"gamma": 5e5, "lam": 3e5},
+        "subspace": {"active_clusters": 3},
+        "muscles": {"count": 0, "max_s": 1.0, "table": str(table)},
+    }
+    with pytest.warns(UserWarning, match="muscles.count = 0") as caught:
+        Scene.from_dict(data)
+    said = str(caught[0].message)
+    for key in ("material.gamma", "material.lam", "muscles.table", "subspace.active_clusters", "muscles.max_s"):
+        assert key in said
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Scene.from_dict({"mesh": {"shape": "caterpillar", "params": {"nx": 10, "ny": 5}}, "muscles": {"count": 0}})
