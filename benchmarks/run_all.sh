@@ -10,7 +10,7 @@ out=${1:-benchmark-results}
 mkdir -p "$out"
 here=$(dirname "$0")
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
-for bench in modal step backends contact iterations precompute blas_threads effects scaling optimize play render; do
+for bench in modal step backends contact iterations precompute blas_threads effects scaling optimize play render frames; do
     echo "== $bench"
     python "$here/bench_$bench.py" | tee "$out/$bench.txt"
 done

@@ -1,23 +1,43 @@
-"""ParaView / VTK output through meshio.
+"""ParaView / VTK output: ``.vtu`` files and ``.pvd`` time series.
 
 Points are always written in 3D (a 2D mesh gets z = 0) and vector fields as
 3-component arrays, which is what ParaView's *Warp By Vector* expects. Every
 file is written to a temporary name beside its target and renamed into place,
 so an interrupted write never leaves a half-written file behind.
+
+The ``.vtu`` files are VTK XML, binary and zlib-compressed in 32 KiB blocks
+(the layout meshio writes and reads, and ParaView reads), written here
+directly: a series' constant parts (connectivity, offsets, cell types, cell
+data) are encoded once (:class:`VtuPiece`), and each frame compresses only
+its points and point data, at zlib's fastest level. meshio, writing every
+part of every frame at its default level, took 260 ms a frame of the seal's
+38689 tetrahedra, ten times the simulation's own time in a run.
 """
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import os
 import secrets
+import sys
+import zlib
 
 import numpy as np
 
 from .fem import scalar_basis
 from .mesh import _signed_measures, check_mesh
 
-__all__ = ["pad3", "vtk_cells", "write_vtu", "export_modes", "atomic_path", "written_whole", "FrameWriter"]
+__all__ = [
+    "pad3",
+    "vtk_cells",
+    "VtuPiece",
+    "write_vtu",
+    "export_modes",
+    "atomic_path",
+    "written_whole",
+    "FrameWriter",
+]
 
 
 def pad3(x: np.ndarray) -> np.ndarray:
@@ -142,8 +162,92 @@ def written_whole(path):
         raise
 
 
+#: VTK's cell type numbers of the cells written here
+_VTK_CELL_TYPES = {"triangle": 5, "tetra": 10, "triangle6": 22, "tetra10": 24}
+_VTK_DATA_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "u1": "UInt8", "i1": "Int8"}
+_BLOCK = 32768  # bytes of a compressed block, as VTK and meshio write them
+_BYTE_ORDER = "LittleEndian" if sys.byteorder == "little" else "BigEndian"
+
+
+def _data_array(name: str, values, level: int) -> str:
+    """One binary ``<DataArray>``: a header of block sizes, then the zlib-compressed blocks, each base64."""
+    values = np.asarray(values)
+    values = np.ascontiguousarray(values.astype(values.dtype.newbyteorder("="), copy=False))
+    kind = _VTK_DATA_TYPES[values.dtype.str[1:]]
+    raw = values.tobytes()
+    blocks = [zlib.compress(raw[i : i + _BLOCK], level) for i in range(0, len(raw), _BLOCK)]
+    last = len(raw) - (len(blocks) - 1) * _BLOCK if blocks else 0
+    header = np.array([len(blocks), _BLOCK, last] + [len(b) for b in blocks], dtype=np.uint32)
+    encoded = base64.b64encode(header.tobytes()).decode() + base64.b64encode(b"".join(blocks)).decode()
+    components = f' NumberOfComponents="{values.shape[1]}"' if values.ndim == 2 else ""
+    return f'<DataArray type="{kind}" Name="{name}"{components} format="binary">\n{encoded}\n</DataArray>\n'
+
+
+def _vectors(value) -> np.ndarray:
+    value = np.asarray(value)
+    return pad3(value) if value.ndim == 2 and value.shape[1] == 2 else value
+
+
+class VtuPiece:
+    """The constant parts of ``.vtu`` files of one mesh, encoded once; :meth:`write` adds a state's points.
+
+    Parameters
+    ----------
+    cell_type : {"triangle", "tetra", "triangle6", "tetra10"}
+    cells : ndarray of int, shape (nT, nodes_per_cell)
+    cell_data : dict of str to ndarray of shape (nT,) or (nT, c), optional
+    """
+
+    def __init__(self, cell_type: str, cells, cell_data=None):
+        cells = np.asarray(cells, dtype=np.int64)
+        nT, per = cells.shape
+        self.n_cells = nT
+        offsets = np.arange(per, per * nT + 1, per, dtype=np.int64)
+        types = np.full(nT, _VTK_CELL_TYPES[cell_type], dtype=np.uint8)
+        self._cells = (
+            "<Cells>\n"
+            + _data_array("connectivity", cells.ravel(), 6)
+            + _data_array("offsets", offsets, 6)
+            + _data_array("types", types, 6)
+            + "</Cells>\n"
+        )
+        arrays = "".join(_data_array(name, _vectors(value), 6) for name, value in (cell_data or {}).items())
+        self._cell_data = f"<CellData>\n{arrays}</CellData>\n" if arrays else ""
+
+    def write(self, path, points, point_data=None, field_data=None) -> None:
+        """Write one ``.vtu`` file atomically.
+
+        Parameters
+        ----------
+        path : str or path-like
+        points : ndarray, shape (n, 2) or (n, 3)
+            Padded to 3D.
+        point_data : dict of str to ndarray of shape (n,) or (n, c), optional
+            Vectors with 2 components are padded to 3.
+        field_data : dict of str to array_like, optional
+            Written in ASCII with ``repr``, so the values read back exactly.
+        """
+        points = pad3(points)
+        # the state's own arrays at zlib's fastest level: a frame's time goes here (the cells went once)
+        arrays = "".join(_data_array(name, _vectors(value), 1) for name, value in (point_data or {}).items())
+        parts = [
+            '<?xml version="1.0"?>\n',
+            f'<VTKFile type="UnstructuredGrid" version="0.1" byte_order="{_BYTE_ORDER}" header_type="UInt32" '
+            'compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n',
+            _field_data(field_data) if field_data else "",
+            f'<Piece NumberOfPoints="{points.shape[0]}" NumberOfCells="{self.n_cells}">\n',
+            "<Points>\n" + _data_array("Points", points, 1) + "</Points>\n",
+            self._cells,
+            f"<PointData>\n{arrays}</PointData>\n" if arrays else "",
+            self._cell_data,
+            "</Piece>\n</UnstructuredGrid>\n</VTKFile>\n",
+        ]
+        with written_whole(path) as tmp, open(tmp, "w", encoding="ascii") as f:
+            f.write("".join(parts))
+
+
 def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=None, field_data=None):
-    """Write one ``.vtu`` file atomically.
+    """Write one ``.vtu`` file atomically (see :class:`VtuPiece`).
 
     Parameters
     ----------
@@ -151,34 +255,18 @@ def write_vtu(path, points, cell_type: str, cells, point_data=None, cell_data=No
     points : ndarray, shape (n, 2) or (n, 3)
         Padded to 3D.
     cell_type : str
-        A meshio cell type (``"triangle"``, ``"tetra"``, ...).
+        ``"triangle"``, ``"tetra"``, ``"triangle6"`` or ``"tetra10"``.
     cells : ndarray of int, shape (nT, k)
     point_data : dict of str to ndarray of shape (n,) or (n, c), optional
         Vectors with 2 components are padded to 3.
     cell_data : dict of str to ndarray of shape (nT,) or (nT, c), optional
     field_data : dict of str to ndarray, optional
     """
-    import meshio
-
-    pdata = {}
-    for name, value in (point_data or {}).items():
-        value = np.asarray(value)
-        pdata[name] = pad3(value) if value.ndim == 2 and value.shape[1] == 2 else value
-    cdata = {name: [np.asarray(value)] for name, value in (cell_data or {}).items()}
-    mesh = meshio.Mesh(
-        pad3(points), [(cell_type, np.asarray(cells, dtype=np.int64))], point_data=pdata, cell_data=cdata
-    )
-    with written_whole(path) as tmp:
-        meshio.write(tmp, mesh, file_format="vtu")
-        if field_data:
-            _insert_field_data(tmp, field_data)
+    VtuPiece(cell_type, cells, cell_data).write(path, points, point_data, field_data)
 
 
-def _insert_field_data(path: str, field_data: dict) -> None:
-    """Add a VTK ``<FieldData>`` block (meshio's VTU writer drops field data).
-
-    Values are written in ASCII with ``repr``, so they read back exactly.
-    """
+def _field_data(field_data: dict) -> str:
+    """A VTK ``<FieldData>`` block, values in ASCII with ``repr`` (they read back exactly)."""
     arrays = []
     for name, value in field_data.items():
         value = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
@@ -187,11 +275,7 @@ def _insert_field_data(path: str, field_data: dict) -> None:
             f'<DataArray type="Float64" Name="{name}" NumberOfTuples="{value.size}" '
             f'format="ascii">\n{text}\n</DataArray>\n'
         )
-    with open(path, encoding="ascii") as f:
-        xml = f.read()
-    xml = xml.replace("<Piece", "<FieldData>\n" + "".join(arrays) + "</FieldData>\n<Piece", 1)
-    with open(path, "w", encoding="ascii") as f:
-        f.write(xml)
+    return "<FieldData>\n" + "".join(arrays) + "</FieldData>\n"
 
 
 def export_modes(path, mesh, modes, eigenvalues=None, element: str | None = None) -> None:
@@ -294,14 +378,11 @@ class FrameWriter:
         self.frame_dir = os.path.join(self.directory, name)
         os.makedirs(self.frame_dir, exist_ok=True)
         self.rest = np.ascontiguousarray(mesh.p.T)
-        self.cell_type, self.cells = vtk_cells(mesh)
         nT = mesh.t.shape[1]
-        self.cell_data = {}
         for key, value in (cell_data or {}).items():
-            value = np.asarray(value)
-            if value.shape[0] != nT:
-                raise ValueError(f"cell data {key!r} needs one value per element ({nT}), got {value.shape}")
-            self.cell_data[key] = value
+            if np.shape(value)[:1] != (nT,):
+                raise ValueError(f"cell data {key!r} needs one value per element ({nT}), got {np.shape(value)}")
+        self.piece = VtuPiece(*vtk_cells(mesh), cell_data)
         self.count = 0
         self.times: list[float] = []
         self.pvd_path = os.path.join(self.directory, f"{name}.pvd")
@@ -336,7 +417,7 @@ class FrameWriter:
         filename = f"frame_{self.count:05d}.vtu"
         path = os.path.join(self.frame_dir, filename)
         fields = {"time": float(time), **(field_data or {})}
-        write_vtu(path, positions, self.cell_type, self.cells, data, self.cell_data, fields)
+        self.piece.write(path, positions, data, fields)
         self._pvd.seek(self._body_end)
         self._pvd.write(f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n')
         self._body_end = self._pvd.tell()

@@ -77,3 +77,11 @@ def test_bench_recorded_states_runs_and_prints_a_time_per_scene():
     name, time, unit, *_ = out.split()
     assert (name, unit) == ("float", "us") and 0.0 < float(time) < 1e5
     assert "(36 states, numpy)" in out  # every 5th of the float scene's 180 steps
+
+
+@pytest.mark.skipif(not os.path.isdir(SHARED), reason=f"the real meshes are not at {SHARED}")
+def test_bench_frames_runs_and_our_frames_read_back():
+    out = bench("bench_frames.py", "--frames", "2")
+    rows = {tuple(line.split()[:2]): line.split()[2:] for line in out.splitlines()[2:]}
+    assert set(rows) == {(mesh, writer) for mesh in ("seal", "caterpillar") for writer in ("ours", "meshio")}
+    assert all(0.0 < float(ms) and 0.0 < float(mb) for ms, mb in rows.values())
