@@ -184,6 +184,7 @@ class Muscles(Effect):
         scale = 1.0 / np.einsum("ik,ik->k", MD, modes)
         self.amplitude_rows = np.asarray(space.force(MD)).T * scale[:, None]
         self.amplitude_rest = (MD.T @ space.rest) * scale
+        self._body_frame = _BodyFrame(space, modes, mass, scale)
 
     @property
     def max_s(self) -> float:
@@ -213,9 +214,59 @@ class Muscles(Effect):
         c0, c1, Q = self._constants
         return E + c0 + float(c1 @ a) + float(a @ Q @ a), grad
 
-    def amplitudes(self, u) -> np.ndarray:
-        """Realised modal amplitudes of a state, shape (m,)."""
+    def amplitudes(self, u, body_frame: bool = False) -> np.ndarray:
+        """Realised modal amplitudes of a state, shape (m,).
+
+        ``body_frame``: of the displacement from the rest shape moved by the body's best rigid motion
+        (:class:`_BodyFrame`), so that a body that turned or moved is not read as muscle action; else of
+        the displacement from the rest shape where it is (for a pinned body, whose frame the pins hold).
+        """
+        if body_frame:
+            return self._body_frame.amplitudes(u)
         return self.amplitude_rows @ u - self.amplitude_rest
+
+
+class _BodyFrame:
+    """Modal amplitudes in the body's own frame, from a few operators linear in the state.
+
+    With masses ``m_i``, rest positions ``X_i`` (centre ``C``) and positions ``x_i`` (centre
+    ``c``), the best rigid motion of the rest shape onto the state is ``x ~ R (X - C) + c`` with
+    ``R`` the closest rotation to ``S = sum_i m_i x_i (X_i - C)^T`` (Kabsch). The amplitude of
+    mode ``D_k`` is the mass-weighted projection of ``R^T (x_i - c) - (X_i - C)`` on it:
+    ``(R : P_k - c . R s_k - t_k) / n_k`` with ``P_k = sum_i m_i x_i D_ki^T`` (linear in the state),
+    ``s_k = sum_i m_i D_ki``, ``t_k = sum_i m_i D_ki . (X_i - C)`` and ``n_k = sum_i m_i |D_ki|^2``.
+    At ``R = I`` and ``c = C`` it is the plain projection of ``x - X``.
+    """
+
+    def __init__(self, space, modes, mass, scale):
+        d, m = space.dim, modes.shape[1]
+        n = modes.shape[0] // d
+        m_v = mass[::d]
+        X = space.rest.reshape(n, d)
+        C = m_v @ X / m_v.sum()
+        D = modes.reshape(n, d, m)
+        # columns over the interleaved DOFs: S's (a, b) entry reads coordinate a weighted by m (X - C)_b,
+        # P_k's reads coordinate a weighted by m D_k,b
+        weights = np.zeros((n, d, d * d + m * d * d))
+        for a in range(d):
+            weights[:, a, a * d : a * d + d] = m_v[:, None] * (X - C)
+            for k in range(m):
+                start = d * d + k * d * d + a * d
+                weights[:, a, start : start + d] = m_v[:, None] * D[:, :, k]
+        rows = np.asarray(space.force(weights.reshape(n * d, -1))).T
+        self.dim = d
+        self.cov_rows, self.moment_rows = rows[: d * d], rows[d * d :].reshape(m, d * d, -1)
+        self.com_rows = np.asarray(space.force(np.kron(m_v[:, None], np.eye(d)))).T / m_v.sum()  # (d, r)
+        self.mode_sums = np.einsum("i,idk->kd", m_v, D)  # s_k
+        self.rest_terms = np.einsum("i,idk,id->k", m_v, D, X - C)  # t_k
+        self.scale = scale
+
+    def amplitudes(self, u) -> np.ndarray:
+        d = self.dim
+        R = _ROTATIONS[d]((self.cov_rows @ u).reshape(1, d * d)).reshape(d, d)
+        c = self.com_rows @ u
+        moments = np.einsum("ab,kab->k", R, (self.moment_rows @ u).reshape(-1, d, d))
+        return (moments - self.mode_sums @ (R.T @ c) - self.rest_terms) * self.scale
 
 
 class Gravity(Effect):

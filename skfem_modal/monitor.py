@@ -436,7 +436,7 @@ class MotionMonitor:
             "body_size": self.size,
             "spread_ratio": [low, high],
             "largest_push_body_sizes": self.push,
-            "deepest_body_sizes": self.deepest,
+            "deepest_body_sizes": self.deepest if self._contact is not None else None,  # (no ground: none)
             "inverted_elements": self.inverted,
             "first_problem_step": dict(self.first_problem_step),
         }

@@ -468,6 +468,20 @@ def _floor_corners(view: _View) -> np.ndarray:
     return _on_floor(corners, view.up, view.ground)
 
 
+def _time_labels(frames: list[_Frame]) -> list[str]:
+    """``t = ...`` of each frame, with the fewest decimals (3 at least) that tell their times apart.
+
+    >>> [label.split()[-1] for label in _time_labels([_Frame(t, *[None] * 4) for t in (0.0, 0.0002, 0.0004)])]
+    ['0.0000', '0.0002', '0.0004']
+    """
+    times = [f.time for f in frames]
+    for decimals in range(3, 10):
+        labels = [f"t = {t:.{decimals}f}" for t in times]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [f"t = {t!r}" for t in times]
+
+
 def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     """RGB images of the frames, drawn with matplotlib through the view's camera.
 
@@ -494,6 +508,7 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
     inches = [pixels / dpi if int(pixels / dpi * dpi) == pixels else (pixels + 0.01) / dpi for pixels in size]
     fig = plt.figure(figsize=inches, dpi=dpi)
     try:
+        labels = _time_labels(frames)
         for k, f in enumerate(frames):
             fig.clear()
             # the axes fill the picture, so the floor goes on behind the colour bar (as pyvista's does)
@@ -530,7 +545,7 @@ def _matplotlib_frames(frames: list[_Frame], view: _View, size):
             ax.set_ylim(lo[1], hi[1])
             ax.set_aspect("equal")
             ax.set_axis_off()
-            ax.text(0.02 * _DRAWING_WIDTH, 0.96, f"t = {f.time:.3f}", transform=ax.transAxes, fontsize=14, va="top")
+            ax.text(0.02 * _DRAWING_WIDTH, 0.96, labels[k], transform=ax.transAxes, fontsize=14, va="top")
             bar = fig.add_axes([_DRAWING_WIDTH + 0.02, 0.12, 0.018, 0.76])
             fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=bar).set_label(COLOUR_LABEL, fontsize=11)
             fig.canvas.draw()
@@ -601,6 +616,7 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
     text = plotter.add_text("", position=corner, font_size=_points(14, scale), color="black")
     depth = float(np.median(camera.depth(pad3(frames[0].points))))
     try:
+        labels = _time_labels(frames)
         for k, f in enumerate(frames):
             body.points = pad3(f.points)
             body.point_data["deformation"] = f.deformation
@@ -608,7 +624,7 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
                 body.compute_normals(inplace=True, cell_normals=False, auto_orient_normals=False)
                 if view.ground is not None:
                     shadow.points = _on_floor(f.points, view.up, view.ground)
-            text.SetInput(f"t = {f.time:.3f}")
+            text.SetInput(labels[k])
             # the window's centre sits left of the picture's (the colour bar takes the right)
             u = view.centres[k, 0] + (0.5 - _DRAWING_WIDTH / 2) * 2.0 * view.half_height * size[0] / size[1]
             focal = u * camera.right + view.centres[k, 1] * camera.screen_up + depth * camera.towards

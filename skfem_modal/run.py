@@ -291,12 +291,17 @@ def _live_settings(sim) -> dict:
     return {name: value.tolist() if isinstance(value, np.ndarray) else value for name, value in values.items()}
 
 
+def _source(scene) -> str:
+    """Where the scene came from: its file's absolute path (the summary is read from elsewhere), or how it was made."""
+    return os.path.abspath(scene.source) if os.path.isfile(scene.source) else scene.source
+
+
 def _summary_start(scene, sim, precompute: float) -> dict:
     """What a run's summary says before its first step: the scene, its sizes, the precompute."""
     return {
         "skfem_modal": _version(),
         "python": platform.python_version(),
-        "scene": scene.to_dict(),
+        "scene": {**scene.to_dict(), "source": _source(scene)},
         "material": scene.material(),
         "mesh": mesh_summary(sim.mesh),
         "effects": list(sim.effects),

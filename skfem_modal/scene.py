@@ -132,7 +132,8 @@ SCHEMA: dict[str, Any] = {
             "str",
             None,
             "Mesh file (any format meshio reads), relative to the scene file. "
-            "Triangles make a 2D body, tetrahedra a 3D one (quadratic `triangle6` / `tetra10` by their "
+            "Triangles make a 2D body (flat in x-y; flat in x-z or y-z, they are read as x-y from the other "
+            "two axes, so z becomes y), tetrahedra a 3D one (quadratic `triangle6` / `tetra10` by their "
             "corners, with a warning that curved edges become straight); other cells of the body's dimension "
             "beside them (quads, hexahedra, prisms) are an error, as leaving them out would leave holes; "
             "vertices no element uses are dropped, with a warning naming them.",

@@ -1011,14 +1011,21 @@ class ModalMuscle:
         return rows
 
     def muscle_amplitudes(self, z) -> np.ndarray:
-        """Realised modal amplitudes: the mass-weighted projection of ``B z - X`` on each muscle.
+        """Realised modal amplitudes: the mass-weighted projection of the displacement on each muscle.
+
+        For a free body the displacement from its rest shape moved by its best rigid
+        motion (mass-weighted, Kabsch), so that turning or travelling is not read as
+        muscle action; for a pinned one the displacement from the rest shape (the pins
+        hold the frame).
 
         Returns
         -------
         amplitudes : ndarray, shape (m,)
         """
         muscles = self._model.muscles
-        return np.zeros(0) if muscles is None else muscles.amplitudes(self._state(z))
+        if muscles is None:
+            return np.zeros(0)
+        return muscles.amplitudes(self._state(z), body_frame="pinned" not in self._model.named)
 
     def contact_positions(self, z) -> np.ndarray:
         """Positions of the contact vertices, shape (p, dim) (empty without a ground)."""

@@ -373,3 +373,27 @@ def test_skinning_eigenmodes_with_repeated_eigenvalues():
         assert abs(S[0, 1]) < 1e-10 * abs(S).max()
         np.testing.assert_array_equal(W, skinning_eigenmodes(mesh, 6)[1])
         assert B.shape == (2 * mesh.p.shape[1], 6 * 3 * 2)
+
+
+@pytest.mark.parametrize("make", [lambda: caterpillar(nx=20, ny=10), lambda: creature(cell=0.3)])
+def test_realised_amplitudes_are_the_bodys_own_not_its_turning(make):
+    """An audit: the creature turned 64 degrees read muscle 0 at +3.16 while commanded -0.22 (the rotation
+    projected on the mode). In the body's frame a rigid motion changes no amplitude; pinned, the rest frame."""
+    from skfem_modal.rotations import polar_rotations
+
+    mesh = make()
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=3, n_weights=5, n_clusters=6, h=0.01)
+    d, rest = sim.dim, sim.positions(sim.rest_state()[0])
+    mode = sim.model.muscles.modes[:, 1].reshape(-1, d)
+    bent = sim.coordinates(rest + 0.05 * mode / np.abs(mode).max())
+    amplitudes = sim.muscle_amplitudes(bent)
+    # the bent state's own amplitudes are the plain projection's (no rigid part to take out), mode 1's alone
+    np.testing.assert_allclose(amplitudes, sim.model.muscles.amplitudes(bent), atol=1e-6 * np.abs(amplitudes).max())
+    assert abs(amplitudes[1]) > 100 * np.abs(amplitudes[[0, 2]]).max()
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]]) if d == 2 else np.array([[0, -1.0, 0.3], [1.0, 0, 0], [-0.3, 0, 0]])
+    R = polar_rotations(np.eye(d) + turn)
+    moved = sim.coordinates((sim.positions(bent) - rest.mean(axis=0)) @ R.T + 0.7)
+    np.testing.assert_allclose(sim.muscle_amplitudes(moved), amplitudes, rtol=1e-9, atol=1e-12)
+    assert np.abs(sim.model.muscles.amplitudes(moved) - amplitudes).max() > 2 * np.abs(amplitudes).max()  # (plain)
+    pinned = ModalMuscle.from_mesh(mesh, n_muscles=3, n_weights=5, n_clusters=6, h=0.01, pinned=[0])
+    np.testing.assert_allclose(pinned.muscle_amplitudes(moved), pinned.model.muscles.amplitudes(moved))
