@@ -191,13 +191,3 @@ def test_amplitudes_tell_many_muscles_apart_and_keep_the_legend_off_the_curves(m
 
     plt.close(fig)
 
-
-def test_time_labels_tell_small_steps_apart():
-    """An audit: at h = 0.0002 three frames in a row read t = 0.000 (3 decimals always)."""
-    from skfem_modal.plot import _Frame, _time_labels
-
-    def labels(times):
-        return _time_labels([_Frame(t, None, None, None, None) for t in times])
-
-    assert labels([0.0, 0.0002, 0.0004, 0.0006]) == ["t = 0.0000", "t = 0.0002", "t = 0.0004", "t = 0.0006"]
-    assert labels([0.0, 0.04, 4.5]) == ["t = 0.000", "t = 0.040", "t = 4.500"]
