@@ -488,6 +488,8 @@ def cmd_transfer(args) -> int:
             print(f"  replaying: {label}", file=sys.stderr, flush=True)
 
     result = transfer_search(args.search, full_space_limit=args.full_space_limit, progress=say)
+    if result["unfinished"]:
+        warnings.warn(result["unfinished"], UserWarning, stacklevel=1)
     if not args.quiet:
         print(
             "| setting | elements | coordinates | clusters | iterations (mean) | travel | survives | alignment "

@@ -60,6 +60,7 @@ __all__ = [
     "SearchWorkersLost",
     "read_checkpoint",
     "run_search",
+    "scene_fingerprint",
     "scene_to_toml",
     "SEARCH_FILES",
     "SEED_MAX",
@@ -267,8 +268,34 @@ def _scene_changes(then, now, prefix: str = "") -> list[tuple[str, object, objec
     return changes
 
 
+def scene_fingerprint(scene) -> dict:
+    """What makes a scene the same scene for a search: its validated keys, and the contents of the files it names.
+
+    Defaults count as given (``model = "coulomb"`` written out is the same scene), and a mesh file or gait
+    table replaced under the same name is another scene (``contents``: each file's SHA-256).
+
+    Parameters
+    ----------
+    scene : Scene
+
+    Returns
+    -------
+    fingerprint : dict
+        JSON-ready.
+    """
+    config = json.loads(json.dumps(scene.config))
+    contents = {}
+    for section, key in (("mesh", "file"), ("muscles", "table")):
+        path = (config.get(section) or {}).get(key)
+        if path:
+            with open(path, "rb") as f:
+                contents[f"{section}.{key}"] = hashlib.sha256(f.read()).hexdigest()
+    return {**config, "contents": contents}
+
+
 def _load_checkpoint(path: str, settings: dict, data: dict | None = None) -> dict:
-    """A checkpoint's state, after checking it was made with these settings (and the scene ``data``).
+    """A checkpoint's state, after checking it was made with these settings (and the scene ``data``, its
+    :func:`scene_fingerprint`).
 
     The scene's name alone may change; another scene key changed is named with both values.
     """
@@ -412,12 +439,13 @@ def run_search(
     _check_seed(seed)
     _check_samples(samples, jitter)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
+    fingerprint = scene_fingerprint(scene)
     if resume and overwrite:
         raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
     out_dir = os.fspath(out_dir)
     paths = {name: os.path.join(out_dir, file) for name, file in zip(_PATH_NAMES, SEARCH_FILES)}
     settings = {
-        "scene": hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16],
+        "scene": hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16],
         "seed": seed,
         "popsize": popsize,
         "samples": samples,
@@ -427,7 +455,7 @@ def run_search(
         **trial_settings,
     }
     earlier = check_output_folder(out_dir, "search")  # a file, a run or a study there: refused
-    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations, data) if resume else None
+    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations, fingerprint) if resume else None
     if not resume and earlier and not overwrite:
         again = "continue it with --resume (resume=True) or " if os.path.isfile(paths["checkpoint"]) else ""
         raise FileExistsError(
@@ -448,12 +476,13 @@ def run_search(
             if state is None:
                 gait = scene.config["muscles"]["gait"]
                 start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-                state = _new_state(settings, start, data)
+                state = _new_state(settings, start, fingerprint)
                 state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
                 os.makedirs(out_dir, exist_ok=True)
                 replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
             elif state["history"]:
                 _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
+            state["asked"] = generations  # (transfer tells a finished search from a stopped one)
             bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
             last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
             while state["generation"] < last:

@@ -197,8 +197,9 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     Returns
     -------
     result : dict
-        ``rows`` (:func:`replay`'s), ``csv`` (the path written) and ``not_replayed``: the full-space replays
-        left out, each a sentence saying why (the mesh is over ``full_space_limit``).
+        ``rows`` (:func:`replay`'s), ``csv`` (the path written), ``not_replayed``: the full-space replays
+        left out, each a sentence saying why (the mesh is over ``full_space_limit``), and ``unfinished``: a
+        sentence when the search stopped before its generations were done (its best so far replayed), else None.
     """
     from .optimize import read_checkpoint
     from .scene import Scene, read_scene_file
@@ -208,7 +209,14 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     for path in (scene_path, checkpoint):
         if not os.path.isfile(path):
             raise FileNotFoundError(f"{out_dir} holds no finished search: {path} is missing")
-    settings = read_checkpoint(checkpoint)["settings"]
+    state = read_checkpoint(checkpoint)
+    settings = state["settings"]
+    unfinished = None
+    if state.get("asked", state["generation"]) > state["generation"]:
+        unfinished = (
+            f"the search stopped after {state['generation']} of its {state['asked']} generations: this is its best "
+            "so far (continue it with optimize --resume)"
+        )
     missing = [key for key in ("steps", "direction", "objective", "tip_limit", "tip_weight") if key not in settings]
     if missing:
         raise ValueError(f"{checkpoint} lacks the search's {', '.join(missing)}: it was written by an older version")
@@ -236,4 +244,4 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    return {"rows": rows, "csv": path, "not_replayed": skipped}
+    return {"rows": rows, "csv": path, "not_replayed": skipped, "unfinished": unfinished}

@@ -429,6 +429,19 @@ def test_gait_transfer_replays_up_the_ladder(tmp_path, capsys):
     )
 
 
+def test_transfer_says_when_the_search_stopped_before_its_generations(tmp_path, capsys):
+    """An audit: a search stopped after 3 of 14 generations was replayed without a word."""
+    from skfem_modal.transfer import transfer_search
+
+    run_search(CREATURE, tmp_path, generations=2, popsize=3, seed=2, objective="aligned", stop_after=1)
+    result = transfer_search(tmp_path, full_space_limit=0)
+    assert result["unfinished"].startswith("the search stopped after 1 of its 2 generations: this is its best so far")
+    assert main(["transfer", str(tmp_path), "--full-space-limit", "1", "-q"]) == 0
+    assert "skfem-modal transfer: warning: the search stopped after 1 of its 2 generations" in capsys.readouterr().err
+    run_search(CREATURE, tmp_path, generations=2, popsize=3, seed=2, objective="aligned", resume=True)
+    assert transfer_search(tmp_path, full_space_limit=0)["unfinished"] is None
+
+
 def test_a_scene_without_a_ground_is_no_search_for_travel(tmp_path):
     # floating, a gait moves the centre of mass by round-off: the search ranked it, transfer divided it
     from skfem_modal.transfer import replay
@@ -439,3 +452,25 @@ def test_a_scene_without_a_ground_is_no_search_for_travel(tmp_path):
     assert not (tmp_path / "search").exists()
     with pytest.raises(ValueError, match="the searched scene has no ground and no pins"):
         replay(floating, {"amplitude": [0.1] * 4, "period": [1.0] * 4, "phase": [0.0] * 4}, steps=5, direction=[1, 0])
+
+
+def test_a_resumed_search_is_the_same_scene_by_meaning_and_by_its_files(tmp_path):
+    """An audit: a mesh file replaced under its name was resumed (two bodies in one search), and a default
+    written out (ground.model) was refused as a change. The fingerprint is the validated scene and the
+    contents of the files it names."""
+    import meshio
+
+    from skfem_modal import caterpillar
+    from skfem_modal.optimize import scene_fingerprint
+    from skfem_modal.scene import Scene
+
+    body = tmp_path / "body.vtu"
+    meshio.write(body, meshio.Mesh(caterpillar(nx=24, ny=12).p.T, [("triangle", caterpillar(nx=24, ny=12).t.T)]))
+    data = {**copy.deepcopy(TINY), "mesh": {"file": str(body)}}
+    before = scene_fingerprint(Scene.from_dict(data))
+    written_out = copy.deepcopy(data)
+    written_out["subspace"] = {**written_out["subspace"], "seed": 0}  # the default, written out
+    assert scene_fingerprint(Scene.from_dict(written_out)) == before
+    meshio.write(body, meshio.Mesh(caterpillar(nx=20, ny=10).p.T, [("triangle", caterpillar(nx=20, ny=10).t.T)]))
+    after = scene_fingerprint(Scene.from_dict(data))
+    assert after["contents"]["mesh.file"] != before["contents"]["mesh.file"] and after["mesh"] == before["mesh"]

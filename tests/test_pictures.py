@@ -190,4 +190,3 @@ def test_amplitudes_tell_many_muscles_apart_and_keep_the_legend_off_the_curves(m
     import matplotlib.pyplot as plt
 
     plt.close(fig)
-
