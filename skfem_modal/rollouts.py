@@ -63,6 +63,11 @@ from .threads import limited_blas_threads
 
 __all__ = ["OBJECTIVES", "MAX_ROLLOUT_STEPS", "Trial", "Rollouts", "rollout", "rollout_steps", "body_rotation_rows"]
 
+#: Times a search scatters its trial again after dask lost it with its workers, at most.
+_RESCATTERS = 3
+#: How long a search waits for a worker to scatter its trial to again.
+_WORKERS_BACK_SECONDS = 10.0
+
 #: The objectives a :class:`Trial` scores with.
 OBJECTIVES = ("travel", "aligned")
 
@@ -345,7 +350,7 @@ class Rollouts:
 
     def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
         clock = time.perf_counter()
-        self._close, self._scattered = None, None
+        self._close, self._scattered, self._payload, self._lost_payloads = None, None, None, 0
         self.blas_threads = blas_threads
         client = dask_client(executor)
         self.recipe = None
@@ -358,8 +363,8 @@ class Rollouts:
                 executor, self._close = make_executor(workers, scheduler)
                 client = dask_client(executor)
             self.executor, self.handle = executor, uuid.uuid4().hex
-            payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
-            self._scattered = client.scatter(payload, broadcast=True, hash=False)
+            self._payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
+            self._scattered = client.scatter(self._payload, broadcast=True, hash=False)
         else:
             self.handle = uuid.uuid4().hex
             payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
@@ -394,10 +399,32 @@ class Rollouts:
         try:
             return list(self.executor.map(rollout, tasks))
         except Exception as error:
+            if self._scatter_again(error):
+                return self.map(gaits)  # (a rollout is deterministic: the same results as without the loss)
             said = lost_workers(error, self.executor)
             if said is None:
                 raise
             raise WorkersLost(said) from error
+
+    def _scatter_again(self, error) -> bool:
+        """The scattered trial lost with the workers that held it while others live: scatter it again.
+
+        dask loses scattered data whose holders all died (a killed worker whose copy was the only one
+        confirmed, or every worker restarted by its nanny), and cancels the tasks that need it; the
+        search stopped there (1 of 4 tries of an audit's, one of two workers killed).
+        """
+        client = dask_client(self.executor)
+        if client is None or self._scattered is None or self._lost_payloads >= _RESCATTERS:
+            return False
+        if lost_workers(error, self.executor) is None or client.status != "running":
+            return False
+        try:  # (workers restarted by their nannies come back in seconds)
+            client.wait_for_workers(1, timeout=_WORKERS_BACK_SECONDS)
+        except Exception:  # a TimeoutError, as dask words it: none came back
+            return False
+        self._lost_payloads += 1
+        self._scattered = client.scatter(self._payload, broadcast=True, hash=False)
+        return True
 
     def close(self, cancel: bool = False) -> None:
         """Stop what was started here (``cancel``: drop the tasks not yet running)."""
