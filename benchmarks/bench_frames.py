@@ -17,11 +17,14 @@ import platform
 import tempfile
 import time
 
-import meshio
-import numpy as np
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import skfem_modal as sm
-from skfem_modal.export import FrameWriter, pad3, vtk_cells
+import meshio  # noqa: E402
+import numpy as np  # noqa: E402
+
+import skfem_modal as sm  # noqa: E402
+from skfem_modal.export import FrameWriter, pad3, vtk_cells  # noqa: E402
 
 SEAL = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "meshes", "seal.mesh")
 
