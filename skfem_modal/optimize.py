@@ -36,6 +36,7 @@ dask, whatever the BLAS threads of the calling process.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -468,7 +469,7 @@ def run_search(
     trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock
     recipe = {"data": data, "base_dir": None, **trial_settings}
-    bar, replacing = None, []
+    bar, replacing, made = None, [], False
     try:
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
@@ -478,6 +479,7 @@ def run_search(
                 start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
                 state = _new_state(settings, start, fingerprint)
                 state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
+                made = not os.path.exists(out_dir)
                 os.makedirs(out_dir, exist_ok=True)
                 replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
             elif state["history"]:
@@ -497,6 +499,9 @@ def run_search(
         if bar:
             bar.close()
         done, kept = _stopped(paths, data, objective, replacing)
+        if made and not done:  # the folder this search made, left empty (it stayed behind: an audit)
+            with contextlib.suppress(OSError):
+                os.rmdir(out_dir)
         raise SearchInterrupted(done, generations, out_dir, kept) from None
     except WorkersLost as lost:
         if bar:
