@@ -64,8 +64,8 @@ class Compiled3Backend:
         muscles = model.A is not None
         r = model.space.r
         # with the corotated damping an iterate is [z, 1], and G's column of the 1 holds the offset
-        self.model = model if model.corotated is not None else None
-        one = int(self.model is not None)
+        self.start_terms = model.start_terms if model.corotated is not None else None
+        one = int(self.start_terms is not None)
         G = np.vstack([model.G] + ([model.A[0]] if muscles else []))
         W = np.hstack([model.W] + ([model.WA[0]] if muscles else []))
         self.G, self.W = np.zeros((G.shape[0], r + one)), np.zeros((r + one, W.shape[1]))
@@ -95,8 +95,8 @@ class Compiled3Backend:
         r = self.r
         self.input[:r], self.input[r : 2 * r] = z, z_dot
         self.c[:r] = self.C @ self.input
-        if self.model is not None:
-            offset, shift = self.model.start_terms(z)
+        if self.start_terms is not None:
+            offset, shift = self.start_terms(z)
             self.passive_offset[:] = offset
             self.c[:r] += shift
         self.Z[0] = z

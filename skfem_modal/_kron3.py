@@ -188,12 +188,12 @@ class KroneckerBackend:
     name = "numpy (Kronecker form)"
     exact = False
 
-    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0, corotated=None):
+    def __init__(self, Y, V, YA, VA, Pz, Pv, c_ext, scale, n_active, max_iter, U=None, up=0, start_terms=None):
         n, _, K = Y.shape
-        # with the corotated damping (``corotated``: the model, for its start terms), Z has three more
+        # with the corotated damping (``start_terms``: the model's, each step), Z has three more
         # rows, [I3, 0], and the passive clusters' row blocks three more columns for the offset they add
-        self.model = corotated
-        extra = 3 if corotated is not None else 0
+        self.start_terms = start_terms
+        extra = 3 if start_terms is not None else 0
         # U (p, K): the contact's watched heights are U Z[:, up]; they ride
         # along in the global product as p more rows of Z, first, so that
         # they and z's rows take C and the activation in one write each
@@ -342,9 +342,9 @@ class KroneckerBackend:
             U = separable_watch(model.contact.watch, up)
             if U is None:
                 return None
-        corotated = model if model.corotated is not None else None
+        start_terms = model.start_terms if model.corotated is not None else None
         C_ext = np.ascontiguousarray(C[:, 2 * r])
-        return cls(Y, V, YA, VA, Pz_s, Pv_s, C_ext, scale, n_active, max_iter, U, up, corotated)
+        return cls(Y, V, YA, VA, Pz_s, Pv_s, C_ext, scale, n_active, max_iter, U, up, start_terms)
 
     def start(self, z, z_dot, a) -> None:
         if self.activation is not None:
@@ -352,8 +352,8 @@ class KroneckerBackend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.C_slot)  # a strided slot: matmul
-        if self.model is not None:
-            offset, shift = self.model.start_terms(z)
+        if self.start_terms is not None:
+            offset, shift = self.start_terms(z)
             self.C_slot += self.shift_operator @ shift.reshape(self.K, 3)
             # the offset's F[d, e] to the block's (e, d), scaled as the rows
             np.divide(offset.reshape(-1, 3, 3).transpose(0, 2, 1), self.passive_scale, out=self.offset_blocks)

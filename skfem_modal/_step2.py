@@ -60,8 +60,9 @@ class Step2Backend:
         # so that one product gives the contact's whole state
         watch = getattr(model.contact, "watch", None)
         self.fused = watch is not None
-        self.model = model if model.corotated is not None else None
-        has_one = self.fused or self.model is not None
+        # the corotated damping's start terms (offset and shift), each step; None without it
+        self.start_terms = model.start_terms if model.corotated is not None else None
+        has_one = self.fused or self.start_terms is not None
         p = 0 if watch is None else watch.shape[0]
         size = r + has_one + p
 
@@ -69,7 +70,6 @@ class Step2Backend:
             ones = [np.zeros((1, X.shape[1]))] if has_one else []
             return np.vstack([X] + ones + ([watch @ X] if self.fused else []))
 
-        self.extend = extend
         self.G = np.zeros((G_all.shape[0] // 2, r + has_one))  # the pairs of [z, 1]: the 1's column the offset's
         self.G[:, :r] = features(G_all)
         two_n = self.G.shape[0]
@@ -85,6 +85,7 @@ class Step2Backend:
             WA = np.stack([extend(Wk) for Wk in from_rotations(model.WA)])
             self.activation = ActivationRows([(features(model.A), self.G[rows:, :r]), (WA, self.W_c[:, rows:two_n])])
         self.C_operator = np.ascontiguousarray(extend(model.C))
+        self.shift_operator = extend(np.eye(r)) if self.start_terms is not None else None  # z's shift, all rows
         self.C_input = np.ones(2 * r + 1)
         if has_one:
             self.C_operator[r, 2 * r] = 1.0  # the state's 1, from C_input's
@@ -113,10 +114,10 @@ class Step2Backend:
         np.copyto(self.C_z, z)
         np.copyto(self.C_z_dot, z_dot)
         np.matmul(self.C_operator, self.C_input, self.c)  # a strided column: matmul
-        if self.model is not None:
-            offset, shift = self.model.start_terms(z)
+        if self.start_terms is not None:
+            offset, shift = self.start_terms(z)
             self.passive_offset[:] = features(offset[:, None])[:, 0]
-            self.c += self.extend(shift[:, None])[:, 0]
+            self.c += self.shift_operator @ shift
         np.copyto(self.z_rows[0], z)
         self.k = 0
 

@@ -256,7 +256,7 @@ class _BodyFrame:
         rows = np.asarray(space.force(weights.reshape(n * d, -1))).T
         self.dim = d
         self.cov_rows, self.moment_rows = rows[: d * d], rows[d * d :].reshape(m, d * d, -1)
-        self.com_rows = np.asarray(space.force(np.kron(m_v[:, None], np.eye(d)))).T / m_v.sum()  # (d, r)
+        self.com_rows = space.com_rows(mass)  # (d, r)
         self.mode_sums = np.einsum("i,idk->kd", m_v, D)  # s_k
         self.rest_terms = np.einsum("i,idk,id->k", m_v, D, X - C)  # t_k
         self.scale = scale

@@ -164,7 +164,7 @@ def written_whole(path):
 
 #: VTK's cell type numbers of the cells written here
 _VTK_CELL_TYPES = {"triangle": 5, "tetra": 10, "triangle6": 22, "tetra10": 24}
-_VTK_DATA_TYPES = {"f8": "Float64", "f4": "Float32", "i8": "Int64", "i4": "Int32", "u1": "UInt8", "i1": "Int8"}
+_VTK_KINDS = {"f": "Float", "i": "Int", "u": "UInt"}
 _BLOCK = 32768  # bytes of a compressed block, as VTK and meshio write them
 _BYTE_ORDER = "LittleEndian" if sys.byteorder == "little" else "BigEndian"
 
@@ -172,8 +172,15 @@ _BYTE_ORDER = "LittleEndian" if sys.byteorder == "little" else "BigEndian"
 def _data_array(name: str, values, level: int) -> str:
     """One binary ``<DataArray>``: a header of block sizes, then the zlib-compressed blocks, each base64."""
     values = np.asarray(values)
+    if values.dtype == bool:
+        values = values.astype(np.uint8)
+    if values.dtype.kind not in _VTK_KINDS or values.dtype.itemsize > 8 or values.ndim not in (1, 2):
+        raise ValueError(
+            f"data {name!r}: expected numbers (floats or integers) of shape (n,) or (n, c) for a .vtu file, "
+            f"got {values.dtype} of shape {values.shape}"
+        )
     values = np.ascontiguousarray(values.astype(values.dtype.newbyteorder("="), copy=False))
-    kind = _VTK_DATA_TYPES[values.dtype.str[1:]]
+    kind = f"{_VTK_KINDS[values.dtype.kind]}{8 * values.dtype.itemsize}"
     raw = values.tobytes()
     blocks = [zlib.compress(raw[i : i + _BLOCK], level) for i in range(0, len(raw), _BLOCK)]
     last = len(raw) - (len(blocks) - 1) * _BLOCK if blocks else 0
@@ -199,6 +206,8 @@ class VtuPiece:
     """
 
     def __init__(self, cell_type: str, cells, cell_data=None):
+        if cell_type not in _VTK_CELL_TYPES:
+            raise ValueError(f"cell type {cell_type!r}: expected one of {', '.join(_VTK_CELL_TYPES)}")
         cells = np.asarray(cells, dtype=np.int64)
         nT, per = cells.shape
         self.n_cells = nT
@@ -376,13 +385,13 @@ class FrameWriter:
         self.directory = os.fspath(directory)
         self.name = name
         self.frame_dir = os.path.join(self.directory, name)
-        os.makedirs(self.frame_dir, exist_ok=True)
         self.rest = np.ascontiguousarray(mesh.p.T)
         nT = mesh.t.shape[1]
         for key, value in (cell_data or {}).items():
             if np.shape(value)[:1] != (nT,):
                 raise ValueError(f"cell data {key!r} needs one value per element ({nT}), got {np.shape(value)}")
-        self.piece = VtuPiece(*vtk_cells(mesh), cell_data)
+        self.piece = VtuPiece(*vtk_cells(mesh), cell_data)  # (bad data refused before any folder is made)
+        os.makedirs(self.frame_dir, exist_ok=True)
         self.count = 0
         self.times: list[float] = []
         self.pvd_path = os.path.join(self.directory, f"{name}.pvd")

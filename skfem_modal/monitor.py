@@ -177,6 +177,7 @@ class MotionMonitor:
         self._elements = sim.mesh.t
         self._rest_sign = np.sign(_signed_measures(sim.mesh.p, sim.mesh.t))
         self.inverted = 0  # the most elements inside out in a state checked (:meth:`check_elements`)
+        self._inverted_step = 0  # the step of that state
         contact = sim.model.contact
         self._contact = None  # with a ground: its model, allowance, candidates and boundary vertices
         self._deepest_allowed = math.inf

@@ -121,7 +121,7 @@ def read_run(run_dir) -> dict:
     frames = [
         (float(t), os.path.join(run_dir, f)) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)
     ]
-    written = summary.get("frames", {}).get("count") if isinstance(summary, dict) else None
+    written = (summary.get("frames") or {}).get("count") if isinstance(summary, dict) else None
     if isinstance(written, int) and len(frames) != written:
         raise ValueError(
             f"{os.path.join(run_dir, 'frames.pvd')} lists {len(frames)} frames, where summary.json says the run "

@@ -418,12 +418,12 @@ class Rollouts:
             return False
         if lost_workers(error, self.executor) is None or client.status != "running":
             return False
+        self._lost_payloads += 1
         try:  # (workers restarted by their nannies come back in seconds)
             client.wait_for_workers(1, timeout=_WORKERS_BACK_SECONDS)
-        except Exception:  # a TimeoutError, as dask words it: none came back
+            self._scattered = client.scatter(self._payload, broadcast=True, hash=False)
+        except Exception:  # none came back (a TimeoutError), or the one counted died too ('No valid workers')
             return False
-        self._lost_payloads += 1
-        self._scattered = client.scatter(self._payload, broadcast=True, hash=False)
         return True
 
     def close(self, cancel: bool = False) -> None:

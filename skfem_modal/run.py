@@ -210,7 +210,6 @@ def run_scene(
     if sim is None:
         sim = scene.build(progress=_stage_printer(progress))
     summary = _summary_start(scene, sim, precompute=time.perf_counter() - started)
-    files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every)
     gravity = scene.config["gravity"]
     log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0, "relative": 0.0}
     log["last"] = None  # (step, z) of the last state recorded
@@ -218,8 +217,7 @@ def run_scene(
     material = scene.material()
     weight = material_length_scales(np.mean(material["mu"]), np.mean(material["rho"]), g).get("weight")
     log["monitor"] = MotionMonitor(sim, g, weight_scale=weight)
-    if files is not None:
-        files.monitor = log["monitor"]
+    files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every, log["monitor"])
     bar = Progress(scene.n_steps, "steps", enabled=progress)
     status, error, failure = "completed", None, None
     with HeldSignals() as held:
@@ -413,7 +411,7 @@ def _measured(sim, log: dict) -> dict:
 class _RunFiles:
     """The files a run streams to as it goes: frames, ``com.csv``, ``amplitudes.csv``; ``summary.json`` at close."""
 
-    def __init__(self, out_dir: str, sim, every: int):
+    def __init__(self, out_dir: str, sim, every: int, monitor):
         os.makedirs(out_dir, exist_ok=True)
         self.out_dir, self.sim, self.every = out_dir, sim, every
         cell_data = {"cluster": sim.labels, "muscle_cluster": sim.active_labels}
@@ -424,7 +422,7 @@ class _RunFiles:
         self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
         self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
         self.worst_pin = 0.0
-        self.monitor = None  # a MotionMonitor, to count the elements inside out in each frame
+        self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
         self._framed = None  # the step of the last frame written
 
@@ -447,8 +445,7 @@ class _RunFiles:
         """The frame of the state after ``step`` steps (full positions only for frames written)."""
         sim = self.sim
         x = sim.positions(z)
-        if self.monitor is not None:
-            self.monitor.check_elements(step, x)
+        self.monitor.check_elements(step, x)
         if sim.pinned.size:
             drift = np.linalg.norm(x[sim.pinned] - sim.mesh.p.T[sim.pinned], axis=1)
             self.worst_pin = max(self.worst_pin, float(drift.max()))

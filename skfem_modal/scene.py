@@ -501,7 +501,7 @@ def read_scene_file(path) -> dict:
     except UnicodeDecodeError as err:
         raise SceneError(
             f"{path}: not UTF-8 text (byte {err.start} is {data[err.start : err.start + 1]!r}): a scene file is "
-            f"TOML in UTF-8; save it so{hint}"
+            f"TOML in UTF-8; save it as UTF-8{hint}"
         ) from None
     try:
         return tomllib.loads(text)
@@ -678,15 +678,14 @@ def _read_table(path: str, count: int, errors: list[str]):
         return None
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            return _parse_table(f, path, count, errors)
+            return _parse_table(f, path, count, errors, where)
     except UnicodeDecodeError as err:
         errors.append(f"{where}: {path!r} is not UTF-8 text (byte {err.start}): save the table as UTF-8 CSV")
         return None
 
 
-def _parse_table(f, path: str, count: int, errors: list[str]):
-    """:func:`_read_table`'s reading of the open file ``f``."""
-    where = "muscles.table"
+def _parse_table(f, path: str, count: int, errors: list[str], where: str):
+    """:func:`_read_table`'s reading of the open file ``f`` (``where``: the key that names it, for the errors)."""
     rows = []
     reader = csv.reader(f)
     header = next(reader, None)

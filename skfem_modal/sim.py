@@ -657,7 +657,7 @@ class ModalMuscle:
             effects.append(stage("contact", contact))
         self._model = stage("system", lambda: Model(space, effects, h))
         stage("backends", self._rebuild)
-        self._com = _com_rows(space, mass)
+        self._com = space.com_rows(mass)
 
     def __setattr__(self, name, value):
         # every setting is a property (live, or read-only and raising): a misspelt one would otherwise
@@ -1160,16 +1160,6 @@ def _passive_diagonal(space, weights) -> float:
     row_norms = np.asarray(J.multiply(J).sum(axis=1)).ravel()
     dd = space.dim * space.dim
     return float(np.repeat(weights, dd) @ row_norms) / space.N
-
-
-def _com_rows(space, mass) -> np.ndarray:
-    """The centre of mass as a linear map of the unknowns, shape (dim, r)."""
-    dim = space.dim
-    selector = np.zeros((space.N, dim))
-    for axis in range(dim):
-        selector[axis::dim, axis] = mass[axis::dim]
-    rows = np.asarray(space.force(selector)).T
-    return rows / mass[::dim].sum()
 
 
 class StepRecord:

@@ -60,6 +60,13 @@ class _MeshData:
         """Interleaved DOF indices of vertices."""
         return vector_dofs(vertices, self.dim)
 
+    def com_rows(self, mass) -> np.ndarray:
+        """The centre of mass as a linear map of the unknowns, shape (dim, r), for the lumped ``mass`` (N,)."""
+        selector = np.zeros((self.N, self.dim))
+        for axis in range(self.dim):
+            selector[axis :: self.dim, axis] = mass[axis :: self.dim]
+        return np.asarray(self.force(selector)).T / mass[:: self.dim].sum()
+
     def full_positions(self, x) -> np.ndarray:
         return np.asarray(x, float).reshape(-1, self.dim)
 

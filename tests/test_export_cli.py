@@ -216,3 +216,28 @@ def test_run_refuses_picture_options_without_render(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--format, --size set the pictures, which run draws only with --render" in err
     assert not out.exists()  # before any work
+
+
+def test_frames_and_vtu_files_refuse_data_they_cannot_write_before_writing(tmp_path):
+    """Our own VTU writer (not meshio's): data of another kind is named, before any file or folder."""
+    import os
+
+    from skfem_modal import beam2d
+    from skfem_modal.export import FrameWriter, write_vtu
+
+    mesh = beam2d(nx=2, ny=1)
+    nT = mesh.t.shape[1]
+    with pytest.raises(ValueError, match=r"data 'label': expected numbers .* got <U1 of shape \(\d+,\)"):
+        FrameWriter(tmp_path / "run", mesh, cell_data={"label": np.array(["a"] * nT)})
+    with pytest.raises(ValueError, match=r"cell data 'short' needs one value per element \(\d+\)"):
+        FrameWriter(tmp_path / "run", mesh, cell_data={"short": np.zeros(nT - 1)})
+    assert not os.path.exists(tmp_path / "run")
+    with pytest.raises(ValueError, match="cell type 'quad': expected one of triangle, tetra, triangle6, tetra10"):
+        write_vtu(tmp_path / "q.vtu", mesh.p.T, "quad", np.zeros((1, 4), int))
+    path = tmp_path / "ok.vtu"
+    flags, labels = {"flag": mesh.p[0] > 0.5}, {"k": np.arange(nT)}
+    write_vtu(path, mesh.p.T, "triangle", mesh.t.T, point_data=flags, cell_data=labels)
+    back = meshio.read(path)  # a boolean as 0 and 1, the integers as they were
+    np.testing.assert_array_equal(back.point_data["flag"], (mesh.p[0] > 0.5).astype(np.uint8))
+    np.testing.assert_array_equal(back.cell_data["k"][0], np.arange(nT))
+    assert sorted(os.listdir(tmp_path)) == ["ok.vtu"]

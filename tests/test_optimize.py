@@ -471,9 +471,14 @@ def test_a_resumed_search_is_the_same_scene_by_meaning_and_by_its_files(tmp_path
     written_out = copy.deepcopy(data)
     written_out["subspace"] = {**written_out["subspace"], "seed": 0}  # the default, written out
     assert scene_fingerprint(Scene.from_dict(written_out)) == before
+    out = tmp_path / "search"
+    run_search(data, out, generations=1, popsize=2, seed=3, steps=20, workers=1)
+    run_search(written_out, out, generations=1, popsize=2, seed=3, steps=20, workers=1, resume=True)  # the same
     meshio.write(body, meshio.Mesh(caterpillar(nx=20, ny=10).p.T, [("triangle", caterpillar(nx=20, ny=10).t.T)]))
     after = scene_fingerprint(Scene.from_dict(data))
     assert after["contents"]["mesh.file"] != before["contents"]["mesh.file"] and after["mesh"] == before["mesh"]
+    with pytest.raises(ValueError, match=r"scene key contents\.mesh\.file: '[0-9a-f]{64}' then, '[0-9a-f]{64}' now"):
+        run_search(data, out, generations=2, popsize=2, seed=3, steps=20, workers=1, resume=True)
 
 
 @pytest.mark.slow
