@@ -118,22 +118,28 @@ def checked_allowance(value, name: str = "allowance") -> float:
 
 
 def _gram_inverse(G) -> np.ndarray | None:
-    """``G^-1`` (m, m) for ``G = L L^T`` well conditioned (a Cholesky factor's reciprocal condition above 1e-12).
+    """``G^-1`` (m, m) for ``G = L L^T`` well conditioned for certain: condition (1-norm) below 1e12.
 
     A well-posed set of contact points costs a factor and its inverse (m x m: the right-hand
     sides are the m rows, not the n columns; 15 x 96 took 13 us in LAPACK's solve, its inverse
     2). None otherwise: rows that depend on each other, or nearly (``G``'s condition is ``L``'s
     squared), or whose products leave float64's range (a time step of 1000 made ``G`` 1e-319, and
     its inverse NaN); the caller then solves with ``L`` itself, by least squares.
+
+    The condition is bounded by the diagonals: an SPD matrix's entries are at most its largest
+    diagonal entry (``|a_ij| <= sqrt(a_ii a_jj)``), so ``cond_1(G) <= m^2 max G_ii max (G^-1)_ii``
+    (the contact sets of the tutorial's crawl and the dropped seal: condition 41 to 189, the
+    bound at most 1.2e4). A non-finite inverse has a non-finite diagonal and fails the bound too.
     """
+    m = G.shape[0]
     factor, info = lapack.dpotrf(G)
-    if info == 0 and lapack.dpocon(factor, np.abs(G).sum(axis=0).max())[0] > 1e-12:
-        upper = lapack.dpotri(factor)[0]  # the inverse's upper triangle, zeros below (scipy cleans them)
-        inverse = upper + upper.T
-        inverse.flat[:: G.shape[0] + 1] *= 0.5  # (np.triu's masks cost 13 us each)
-        if np.isfinite(inverse).all():
-            return inverse
-    return None
+    if info != 0:
+        return None
+    upper = lapack.dpotri(factor)[0]  # the inverse's upper triangle, zeros below (scipy cleans them)
+    inverse = upper + upper.T
+    inverse.flat[:: m + 1] *= 0.5  # (np.triu's masks cost 13 us each)
+    bound = m * m * float(G.diagonal().max()) * float(inverse.diagonal().max())
+    return inverse if bound < 1e12 else None
 
 
 class _Ground(Effect):
@@ -194,6 +200,35 @@ class _Ground(Effect):
         """The end of a step's iterations, ``z`` (r,) the result: nothing to do (see the Coulomb model)."""
 
 
+class _LayoutCache(OrderedDict):
+    """The reference contact's corrections for one layout (None: a plain z), by active set, the latest used last."""
+
+    def __init__(self, layout):
+        super().__init__()
+        self.layout = layout
+        # where z and the heights sit in the state, in the order of the contact's pushes
+        self.columns = None if layout is None else np.concatenate([layout.z_index, layout.watched_index])
+
+    def made(self, contact, mask):
+        """The correction of the active set ``mask`` (not yet cached), as :meth:`ReferenceContact._apply` takes it."""
+        layout = self.layout
+        if layout is None:
+            return contact._projection(mask)
+        rows = contact._point_rows[mask].ravel()
+        read, write_t = np.zeros((rows.size, layout.size)), np.zeros((rows.size, layout.size))
+        read[:, layout.z_index] = contact._position_rows(rows)
+        inverse = None if contact.push_out or rows.size >= contact.r else _gram_inverse(contact._gram_rows(rows))
+        if inverse is not None:
+            # the set's Gram inverse times the rows' pushes (-H^-1 Je^T and its heights), made once a point
+            write_t[:, self.columns] = inverse @ contact._push_t.take(rows, 0)
+            if contact.stickiness != 1.0:
+                write_t *= contact._row_factor[rows, None]
+        else:  # the general path: push_out, more rows than coordinates, or ill-conditioned
+            _, rows, _, dz, dheights = contact._projection(mask)
+            write_t[:, layout.z_index], write_t[:, layout.watched_index] = -dz.T, -dheights.T
+        return [rows.size // contact.dim, rows, read, write_t, None]
+
+
 class ReferenceContact(_Ground):
     """Ground contact at a set of vertices, projecting each global solution.
 
@@ -235,6 +270,7 @@ class ReferenceContact(_Ground):
         self.n_points = vertices.size
         self.active_count = 0
         self._mask = np.empty(vertices.size, bool)  # the active points, made in place
+        self._point_rows = np.arange(vertices.size * self.dim).reshape(-1, self.dim)  # each point's position rows
 
     def bind(self, system, h, gravity=None) -> None:
         """Take the factored system of time step ``h`` (a new one clears the cached corrections; gravity: unused)."""
@@ -245,9 +281,14 @@ class ReferenceContact(_Ground):
         # subspace's): E E^T, whose rows and columns of a set are its L L^T; H^-1 E^T, the change of z
         # a unit correction of each row makes; and that change's heights
         self._gram = self.E @ self.E.T  # (p dim, p dim)
-        self._pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
-        self._pull_up = np.asarray(self.Je_up @ self._pull)  # (p, p dim)
+        pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
+        # a row per point row, negated (what the corrections gather): -H^-1 E^T, then its heights
+        self._push_t = -np.hstack([pull.T, np.asarray(self.Je_up @ pull).T])  # (p dim, r + p)
+        self.r = self.E.shape[1]
         self.solve, self.h = system.solve, float(h)
+        # per position row, what its correction is scaled by: the normal velocity is removed, the tangential scaled
+        self._row_factor = np.full(self._point_rows.size, self.stickiness)
+        self._row_factor[self.up :: self.dim] = 1.0
         # per layout (None: a plain z), the corrections of the active sets met, the latest used last
         self._caches: dict = {}
 
@@ -312,40 +353,34 @@ class ReferenceContact(_Ground):
         return self.active_count > 0
 
     def _correction(self, mask: np.ndarray, layout):
-        """An active set's correction, cached per layout and set: the points, and what :meth:`_apply` takes.
+        """An active set's correction, cached per layout and set: the points' count, and what :meth:`_apply` takes.
 
-        Plain: ``(active, rows, Je_rows, dz, dheights)`` (:meth:`_projection`). With a layout whose state
-        holds a 1, ``[active, rows, read, write, targets]``: ``read @ state`` is the rows' positions less their
-        targets (``targets``, the targets' array its column of the 1 was last written from).
+        Plain: ``(count, rows, Je_rows, dz, dheights)`` (:meth:`_projection`). With a layout whose state
+        holds a 1, ``[count, rows, read, write_t, targets]``: ``read @ state`` is the rows' positions less
+        their targets (``targets``, the targets' array its column of the 1 was last written from), and
+        ``(read @ state) @ write_t`` the state's correction.
         """
         cache = self._caches.get(layout)
         if cache is None:
             if len(self._caches) >= _LAYOUTS:  # a rebuilt backend's layout replaces its old one's: the oldest go
                 del self._caches[next(iter(self._caches))]
-            cache = self._caches[layout] = OrderedDict()
+            cache = self._caches[layout] = _LayoutCache(layout)
         key = mask.tobytes()
         entry = cache.get(key)
         if entry is not None:
             cache.move_to_end(key)
             return entry
-        active, rows, Je_rows, dz, dheights = entry = self._projection(mask)
-        if layout is not None:
-            # in the state's own coordinates: the heights are entries of the state, corrected with it
-            read, write = np.zeros((rows.size, layout.size)), np.zeros((layout.size, rows.size))
-            read[:, layout.z_index] = Je_rows
-            write[layout.z_index], write[layout.watched_index] = -dz, -dheights
-            entry = [active, rows, read, write, None]
+        entry = cache.made(self, mask)
         cache[key] = entry
         if len(cache) > _CACHE_SIZE:
             cache.popitem(last=False)
         return entry
 
     def _projection(self, mask: np.ndarray):
-        """The active points, their position rows, and the corrections of ``z`` and the heights per unit of them."""
+        """The active points' count, their position rows, and the corrections of ``z`` and its heights per unit."""
         dim = self.dim
-        active = np.flatnonzero(mask)
-        rows = (active[:, None] * dim + np.arange(dim)).ravel()
-        L, dheights = self.E[rows], None
+        rows = self._point_rows[mask].ravel()
+        dheights = None
         if self.push_out:
             # position rule: the least change of z in the energy norm of the
             # global step (contact forces at the points), z += H^-1 Je^T lam
@@ -355,37 +390,44 @@ class ReferenceContact(_Ground):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < L.shape[1] and (X := _gram_inverse(self._gram.take(rows, 0).take(rows, 1))) is not None:
+        elif rows.size < self.r and (X := _gram_inverse(self._gram_rows(rows))) is not None:
             # reference: the least change of force that meets every constraint exactly,
             # H^-1 L^T (L L^T)^-1 (and its heights) from the rows made once
-            dz, dheights = self._pull[:, rows] @ X, self._pull_up[:, rows] @ X
+            pushed = -(X @ self._push_t.take(rows, 0)).T
+            dz, dheights = pushed[: self.r], pushed[self.r :]
         else:
             # reference, more constraints than coordinates: least squares
-            dz = self.solve(np.linalg.lstsq(L, np.eye(rows.size), rcond=None)[0])
+            dz = self.solve(np.linalg.lstsq(self.E[rows], np.eye(rows.size), rcond=None)[0])
         if dheights is None:
             dheights = np.asarray(self.Je_up @ dz)
-        factor = np.full(rows.size, self.stickiness)
-        factor[self.up :: dim] = 1.0  # normal velocity removed, tangential scaled
+        factor = self._row_factor[rows]
         dz = np.ascontiguousarray(dz * factor)
+        return rows.size // dim, rows, self._position_rows(rows), dz, np.ascontiguousarray(dheights * factor)
+
+    def _position_rows(self, rows) -> np.ndarray:
+        """``Je``'s rows ``rows``, dense (p_rows, r)."""
         Je_rows = self.Je[rows]
-        Je_rows = Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
-        return active, rows, Je_rows, dz, np.ascontiguousarray(dheights * factor)
+        return Je_rows.toarray() if sps.issparse(Je_rows) else np.ascontiguousarray(Je_rows)
+
+    def _gram_rows(self, rows) -> np.ndarray:
+        """``L L^T`` of the position rows ``rows``, from the Gram matrix of all of them made once."""
+        return self._gram.take(rows, 0).take(rows, 1)
 
     def _apply(self, z, heights, mask, layout) -> None:
         """Correct ``z`` (or a layout's state) and its contact heights in place for an active set."""
         entry = self._correction(mask, layout)
-        self.active_count = entry[0].size
+        self.active_count = entry[0]
         if layout is None:
             _, rows, Je_rows, dz, dheights = entry
             delta = self.p_target[rows] - dot(Je_rows, z)
             z += dot(dz, delta)
             heights += dot(dheights, delta)
             return
-        _, rows, read, write, targets = entry
+        _, rows, read, write_t, targets = entry
         if targets is not self.p_target:  # a new step's targets, read through the state's 1
             read[:, layout.one_index] = -self.p_target[rows]
             entry[4] = self.p_target
-        z += dot(write, dot(read, z))
+        z += dot(dot(read, z), write_t)
 
     def _project_positions(self, z, heights, layout) -> bool:
         """Position rule: no contact point ends below its target height."""

@@ -608,9 +608,12 @@ def test_a_contact_sets_gram_inverse_and_when_it_declines():
     np.testing.assert_allclose(_gram_inverse(G), np.linalg.inv(G), rtol=1e-12)
     assert _gram_inverse(L[[0, 1, 1]] @ L[[0, 1, 1]].T) is None  # a repeated row: no exact solution
     near = L.copy()
-    near[1] = near[0] + 1e-5 * L[1]  # reciprocal condition 4.5e-12: inverted, to what float64 holds of G
+    # condition 2.5e10, its bound m^2 max G_ii max (G^-1)_ii 2e11: inverted, to what float64 holds of G
+    near[1] = near[0] + 3e-5 * L[1]
     assert np.abs((near @ near.T) @ _gram_inverse(near @ near.T) - np.eye(5)).max() < 1e-5
-    near[1] = near[0] + 1e-6 * L[1]  # 4.5e-14: declined (its inverse holds 1e-3 of the identity)
+    near[1] = near[0] + 1e-5 * L[1]  # condition 2.2e11, bound 1.8e12: declined (least squares is as good)
+    assert _gram_inverse(near @ near.T) is None
+    near[1] = near[0] + 1e-6 * L[1]  # condition 2.2e13: declined (its inverse holds 1e-3 of the identity)
     assert _gram_inverse(near @ near.T) is None
     # rows of 1e-160 (a time step of 1000): G is 1e-319, subnormal, and its inverse was NaN and inf
     assert _gram_inverse((1e-160 * L) @ (1e-160 * L).T) is None
