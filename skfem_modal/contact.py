@@ -219,7 +219,7 @@ class _LayoutCache(OrderedDict):
         read[:, layout.z_index] = contact._position_rows(rows)
         inverse = None if contact.push_out or rows.size >= contact.r else _gram_inverse(contact._gram_rows(rows))
         if inverse is not None:
-            # the set's Gram inverse times the rows' pushes (-H^-1 Je^T and its heights), made once a point
+            # the set's Gram inverse times its rows' pushes (-H^-1 E^T and their heights, made once a point)
             write_t[:, self.columns] = inverse @ contact._push_t.take(rows, 0)
             if contact.stickiness != 1.0:
                 write_t *= contact._row_factor[rows, None]
@@ -278,11 +278,10 @@ class ReferenceContact(_Ground):
         self.HinvJeT = system.solve(JeT)  # (r, p dim): H^-1 Je^T
         self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
         # per point row, made once (a new active set then costs products of the points' size, not the
-        # subspace's): E E^T, whose rows and columns of a set are its L L^T; H^-1 E^T, the change of z
-        # a unit correction of each row makes; and that change's heights
+        # subspace's): E E^T, whose rows and columns of a set are its L L^T; and, negated, H^-1 E^T (the
+        # change of z a unit correction of the row makes) followed by that change's heights
         self._gram = self.E @ self.E.T  # (p dim, p dim)
-        pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim)
-        # a row per point row, negated (what the corrections gather): -H^-1 E^T, then its heights
+        pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim): H^-1 E^T
         self._push_t = -np.hstack([pull.T, np.asarray(self.Je_up @ pull).T])  # (p dim, r + p)
         self.r = self.E.shape[1]
         self.solve, self.h = system.solve, float(h)
