@@ -217,15 +217,7 @@ class _LayoutCache(OrderedDict):
         rows = contact._point_rows[mask].ravel()
         read, write_t = np.zeros((rows.size, layout.size)), np.zeros((rows.size, layout.size))
         read[:, layout.z_index] = contact._position_rows(rows)
-        inverse = None if contact.push_out or rows.size >= contact.r else _gram_inverse(contact._gram_rows(rows))
-        if inverse is not None:
-            # the set's Gram inverse times its rows' pushes (-H^-1 E^T and their heights, made once a point)
-            write_t[:, self.columns] = inverse @ contact._push_t.take(rows, 0)
-            if contact.stickiness != 1.0:
-                write_t *= contact._row_factor[rows, None]
-        else:  # the general path: push_out, more rows than coordinates, or ill-conditioned
-            _, rows, _, dz, dheights = contact._projection(mask)
-            write_t[:, layout.z_index], write_t[:, layout.watched_index] = -dz.T, -dheights.T
+        write_t[:, self.columns] = contact._pushes(rows)
         return [rows.size // contact.dim, rows, read, write_t, None]
 
 
@@ -283,9 +275,8 @@ class ReferenceContact(_Ground):
         self._gram = self.E @ self.E.T  # (p dim, p dim)
         pull = system.solve(np.ascontiguousarray(self.HinvJeT))  # (r, p dim): H^-1 E^T
         self._push_t = -np.hstack([pull.T, np.asarray(self.Je_up @ pull).T])  # (p dim, r + p)
-        self.r = self.E.shape[1]
         self.solve, self.h = system.solve, float(h)
-        # per position row, what its correction is scaled by: the normal velocity is removed, the tangential scaled
+        # per position row, what its correction is scaled by: the normal velocity removed, the tangential scaled
         self._row_factor = np.full(self._point_rows.size, self.stickiness)
         self._row_factor[self.up :: self.dim] = 1.0
         # per layout (None: a plain z), the corrections of the active sets met, the latest used last
@@ -377,9 +368,19 @@ class ReferenceContact(_Ground):
 
     def _projection(self, mask: np.ndarray):
         """The active points' count, their position rows, and the corrections of ``z`` and its heights per unit."""
-        dim = self.dim
         rows = self._point_rows[mask].ravel()
-        dheights = None
+        pushes = self._pushes(rows)
+        r = self.E.shape[1]
+        dz, dheights = np.ascontiguousarray(-pushes[:, :r].T), np.ascontiguousarray(-pushes[:, r:].T)
+        return rows.size // self.dim, rows, self._position_rows(rows), dz, dheights
+
+    def _pushes(self, rows) -> np.ndarray:
+        """The changes of z, then of the heights, per unit of each row's position above its target, (k, r + p).
+
+        The tangential rows' scaled by the stickiness. One place for the rules: the position rule
+        (``push_out``), the reference's exact least change, and its least squares when that is not well posed.
+        """
+        r = self.E.shape[1]
         if self.push_out:
             # position rule: the least change of z in the energy norm of the
             # global step (contact forces at the points), z += H^-1 Je^T lam
@@ -389,19 +390,16 @@ class ReferenceContact(_Ground):
             S = np.asarray(self.Je[rows] @ self.HinvJeT[:, rows])
             eps = 1e-9 * np.trace(S) / rows.size
             dz = self.HinvJeT[:, rows] @ np.linalg.solve(S + eps * np.eye(rows.size), np.eye(rows.size))
-        elif rows.size < self.r and (X := _gram_inverse(self._gram_rows(rows))) is not None:
+        elif rows.size < r and (X := _gram_inverse(self._gram_rows(rows))) is not None:
             # reference: the least change of force that meets every constraint exactly,
             # H^-1 L^T (L L^T)^-1 (and its heights) from the rows made once
-            pushed = -(X @ self._push_t.take(rows, 0)).T
-            dz, dheights = pushed[: self.r], pushed[self.r :]
+            pushes = X @ self._push_t.take(rows, 0)
+            return pushes if self.stickiness == 1.0 else pushes * self._row_factor[rows, None]
         else:
             # reference, more constraints than coordinates: least squares
             dz = self.solve(np.linalg.lstsq(self.E[rows], np.eye(rows.size), rcond=None)[0])
-        if dheights is None:
-            dheights = np.asarray(self.Je_up @ dz)
-        factor = self._row_factor[rows]
-        dz = np.ascontiguousarray(dz * factor)
-        return rows.size // dim, rows, self._position_rows(rows), dz, np.ascontiguousarray(dheights * factor)
+        pushes = -np.vstack([dz, np.asarray(self.Je_up @ dz)]).T
+        return pushes * self._row_factor[rows, None]
 
     def _position_rows(self, rows) -> np.ndarray:
         """``Je``'s rows ``rows``, dense (p_rows, r)."""
