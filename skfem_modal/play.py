@@ -292,20 +292,47 @@ class Player:
 
 
 # -------------------------------------------------------------- environment
-def _x_display_error(display: str) -> str | None:
-    """Why the X display cannot be opened, or None when it can (asked of libX11 itself)."""
+def _xlib():
+    """libX11 through ctypes (open and close a display), or None when it is not installed."""
     name = ctypes.util.find_library("X11")
     if name is None:
-        return "libX11 is not installed (Debian: apt-get install libx11-6)"
+        return None
     x11 = ctypes.CDLL(name)
     x11.XOpenDisplay.restype = ctypes.c_void_p
     x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
     x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    return x11
+
+
+def _x_display_error(display: str) -> str | None:
+    """Why the X display cannot be opened, or None when it can (asked of libX11 itself)."""
+    x11 = _xlib()
+    if x11 is None:
+        return "libX11 is not installed (Debian: apt-get install libx11-6)"
     handle = x11.XOpenDisplay(display.encode())
     if not handle:
         return f"cannot open the X display DISPLAY={display!r} (is an X server running there?)"
     x11.XCloseDisplay(handle)
     return None
+
+
+@contextlib.contextmanager
+def _display_held():
+    """Hold a connection to ``DISPLAY`` open for the block (nothing without X).
+
+    An X server resets when its last client leaves (Xvfb and xvfb-run's do,
+    unless started with ``-noreset``), and drops a client that connects while
+    it resets: VTK's window then crashes the process ("bad X server
+    connection"). With this connection open, the check before the window and
+    VTK's own connections never leave the server without clients.
+    """
+    x11 = _xlib() if sys.platform.startswith("linux") else None
+    handle = x11.XOpenDisplay(os.environ.get("DISPLAY", "").encode()) if x11 is not None else None
+    try:
+        yield
+    finally:
+        if handle:
+            x11.XCloseDisplay(handle)
 
 
 def play_problem(off_screen: bool = False) -> str | None:
@@ -366,9 +393,11 @@ def _end_with_parent() -> None:
 def virtual_display(size=(1280, 800)):
     """Run an Xvfb virtual display for the ``with`` block, with ``DISPLAY`` pointing at it.
 
-    Xvfb picks a free display number itself (``-displayfd``); the server is
-    stopped and ``DISPLAY`` restored afterwards (on Linux the server also
-    ends with this process if it is killed first).
+    Xvfb picks a free display number itself (``-displayfd``) and does not
+    reset when its last client leaves (``-noreset``: a client connecting
+    during a reset is dropped); the server is stopped and ``DISPLAY``
+    restored afterwards (on Linux the server also ends with this process if
+    it is killed first).
 
     Yields
     ------
@@ -386,7 +415,7 @@ def virtual_display(size=(1280, 800)):
     read, write = os.pipe()
     log = tempfile.TemporaryFile()  # the server's own messages, for a report of why it failed
     server = subprocess.Popen(
-        ["Xvfb", "-displayfd", str(write), "-screen", "0", f"{size[0]}x{size[1]}x24", "-nolisten", "tcp"],
+        ["Xvfb", "-displayfd", str(write), "-screen", "0", f"{size[0]}x{size[1]}x24", "-nolisten", "tcp", "-noreset"],
         pass_fds=(write,),
         stdout=subprocess.DEVNULL,
         stderr=log,
@@ -498,13 +527,14 @@ def play(
     player = Player(sim, gait, gait_on=gait_on)
     from .play_view import PlayView
 
-    view = PlayView(player, off_screen=off_screen, window_size=(width, height), follow=follow, title=name)
-    try:
-        stats = view.run(frames)
-        if screenshot is not None:
-            view.save_screenshot(screenshot)
-    finally:
-        view.close()
+    with contextlib.nullcontext() if off_screen else _display_held():
+        view = PlayView(player, off_screen=off_screen, window_size=(width, height), follow=follow, title=name)
+        try:
+            stats = view.run(frames)
+            if screenshot is not None:
+                view.save_screenshot(screenshot)
+        finally:
+            view.close()
     say(
         f"{stats['frames']} frames in {stats['seconds']:.2f} s: mean {stats['fps']:.1f} frames per second; "
         f"median ms: step {stats['step_ms']:.3f}, draw {stats['draw_ms']:.3f}, render {stats['render_ms']:.2f}; "

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -412,6 +413,90 @@ def test_a_virtual_display_whose_server_ends_in_use_says_so(display):
                     break
                 time.sleep(0.01)
     assert os.environ["DISPLAY"] == display  # the module's display is back
+
+
+class _RootNote:
+    """A string property on an X display's root window, through its own connection each time.
+
+    An X server that resets (its last client left) forgets it: what shows whether one did.
+    """
+
+    def __init__(self, display: str):
+        import ctypes
+
+        from skfem_modal.play import _xlib
+
+        self.ctypes, self.x11, self.display = ctypes, _xlib(), display.encode()
+        self.x11.XDefaultRootWindow.restype = ctypes.c_ulong
+        self.x11.XDefaultRootWindow.argtypes = [ctypes.c_void_p]
+        self.x11.XInternAtom.restype = ctypes.c_ulong
+        self.x11.XInternAtom.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]
+
+    def _connect(self):
+        for _ in range(100):  # a server resetting drops a client connecting meanwhile: try again
+            handle = self.x11.XOpenDisplay(self.display)
+            if handle:
+                return handle, self.x11.XDefaultRootWindow(handle), self.x11.XInternAtom(handle, b"SKFEM_NOTE", 0)
+            time.sleep(0.02)
+        raise AssertionError(f"cannot open {self.display}")
+
+    def write(self, text: str) -> None:
+        ct, x11 = self.ctypes, self.x11
+        handle, root, atom = self._connect()
+        data = text.encode()
+        x11.XChangeProperty.argtypes = [ct.c_void_p, ct.c_ulong, ct.c_ulong, ct.c_ulong, ct.c_int, ct.c_int]
+        x11.XChangeProperty.argtypes += [ct.c_char_p, ct.c_int]
+        x11.XChangeProperty(handle, root, atom, 31, 8, 0, data, len(data))  # XA_STRING, 8 bits, replace
+        x11.XSync.argtypes = [ct.c_void_p, ct.c_int]
+        x11.XSync(handle, 0)
+        x11.XCloseDisplay(handle)
+
+    def read(self) -> str | None:
+        ct, x11 = self.ctypes, self.x11
+        handle, root, atom = self._connect()
+        kind, bits, items, after, value = ct.c_ulong(), ct.c_int(), ct.c_ulong(), ct.c_ulong(), ct.c_void_p()
+        x11.XGetWindowProperty.argtypes = [ct.c_void_p, ct.c_ulong, ct.c_ulong, ct.c_long, ct.c_long, ct.c_int]
+        x11.XGetWindowProperty.argtypes += [ct.c_ulong] + [ct.c_void_p] * 5
+        x11.XGetWindowProperty(
+            handle, root, atom, 0, 1024, 0, 0, *(ct.byref(v) for v in (kind, bits, items, after, value))
+        )
+        text = ct.string_at(value.value, items.value).decode() if value.value else None
+        if value.value:
+            x11.XFree.argtypes = [ct.c_void_p]
+            x11.XFree(value)
+        x11.XCloseDisplay(handle)
+        return text
+
+
+def test_the_virtual_display_does_not_reset_when_its_last_client_leaves(display):
+    """A reset drops a client connecting meanwhile (VTK's window then crashes): our Xvfb never resets."""
+    note = _RootNote(display)
+    note.write("before")  # its connection was the last client: a resetting server forgets the note
+    assert note.read() == "before"
+
+
+def test_the_window_holds_the_display_so_a_resetting_server_cannot_reset(monkeypatch):
+    """xvfb-run's Xvfb resets when its last client leaves: play holds a connection while its window lives."""
+    from skfem_modal.play import _display_held
+
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed")
+    read, write = os.pipe()
+    server = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-nolisten", "tcp"], pass_fds=(write,), stderr=-3)
+    os.close(write)
+    try:
+        with os.fdopen(read) as pipe:
+            name = f":{pipe.readline().strip()}"
+        monkeypatch.setenv("DISPLAY", name)
+        note = _RootNote(name)
+        with _display_held():
+            note.write("held")
+            assert note.read() == "held"
+        note.write("let go")
+        assert note.read() is None  # the server reset: the test can tell
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
 
 
 def test_a_display_with_an_off_screen_window_class_is_refused(display, monkeypatch):
