@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import copy
 import os
-import platform
 import sys
 import time
 import tomllib
@@ -30,6 +29,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal import _accel  # noqa: E402
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
@@ -90,12 +90,7 @@ def main():
         sys.exit("bench_backends needs numba (pip install -e '.[fast]')")
     import numba
 
-    print(
-        f"# {platform.node() or 'machine'} {platform.machine()}, {os.cpu_count()} cores, python "
-        f"{platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}; {args.steps} steps, "
-        f"median after the first {SKIPPED}"
-    )
+    print(machine_line(f"numba {numba.__version__}", f"{args.steps} steps, median after the first {SKIPPED}"))
     print(f"{'scene':22s} {'r':>4s} {'numba ms':>9s} {'numpy ms':>9s} {'numpy/numba':>12s}  auto")
     cases = [("caterpillar (2D)", caterpillar())]
     for size in args.sizes:

@@ -23,12 +23,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
-import time
 
 import numpy as np
+from machine import machine_line
 
 CASES = {
     "small": {"mesh": {"shape": "caterpillar", "params": {"nx": 18, "ny": 14}}},  # 218 vertices
@@ -76,9 +75,9 @@ def main():
     except ImportError:
         sys.exit("needs threadpoolctl for the 'threadpoolctl' way: pip install threadpoolctl")
     print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d')}; first scene.build() of a fresh process, {args.runs} runs each, "
-        "BLAS/OpenMP thread variables unset"
+        machine_line(
+            "first scene.build() of a fresh process", f"{args.runs} runs each", "BLAS/OpenMP thread variables unset"
+        )
     )
     for load in ("idle", "beside a busy process"):
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load != "idle" else None

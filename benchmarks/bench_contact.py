@@ -64,7 +64,6 @@ from __future__ import annotations
 import argparse
 import copy
 import os
-import platform
 import sys
 import time
 import tomllib
@@ -73,6 +72,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal._contact_sets import SetOperator  # noqa: E402
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
@@ -356,9 +356,7 @@ def main():
     parser.add_argument("--only", nargs="*", help="scenes to run (caterpillar, creature, seal)")
     args = parser.parse_args()
     print(
-        f"# {platform.node()} {platform.machine()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"numpy {np.__version__}, {time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
-        f"backend numpy; {args.settle} settling + {args.steps} timed steps, best of {args.repeat} runs"
+        machine_line("backend numpy", f"{args.settle} settling + {args.steps} timed steps, best of {args.repeat} runs")
     )
     print(
         f"{'scene':12s} {'motion':6s} {'contact':12s} {'median ms':>9s} {'p90 ms':>8s} {'x float':>8s} "

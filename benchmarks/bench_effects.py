@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import copy
 import os
-import platform
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
 
@@ -65,10 +65,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
     args = parser.parse_args()
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"numpy {np.__version__}, {time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}"
-    )
+    print(machine_line())
     print(f"{'configuration':40s} {'effects held':58s} {'median us':>9s} {'p90 us':>8s} {'iter':>5s}")
     for name, extra in CONFIGS:
         scene = Scene.from_dict({**BASE, **extra, "time": {"step": 0.01, "steps": args.steps}})

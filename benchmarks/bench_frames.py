@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import tempfile
 import time
 
@@ -22,6 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import meshio  # noqa: E402
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 import skfem_modal as sm  # noqa: E402
 from skfem_modal.export import FrameWriter, pad3, vtk_cells  # noqa: E402
@@ -69,10 +69,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=10)
     args = parser.parse_args()
-    print(
-        f"# {platform.node()}, python {platform.python_version()}, numpy {np.__version__}, "
-        f"meshio {meshio.__version__}, {time.strftime('%Y-%m-%d')}"
-    )
+    print(machine_line(f"meshio {meshio.__version__}"))
     print(f"{'mesh':12s} {'writer':8s} {'ms/frame':>9s} {'MB/frame':>9s}")
     rng = np.random.default_rng(0)
     for name, mesh in (("seal", sm.load_mesh(SEAL)), ("caterpillar", sm.caterpillar())):

@@ -23,15 +23,14 @@ from __future__ import annotations
 import argparse
 import copy
 import os
-import platform
 import sys
-import time
 import tomllib
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal import _accel  # noqa: E402
 from skfem_modal.scene import Scene  # noqa: E402
@@ -100,11 +99,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=100)
     args = parser.parse_args()
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, numpy {np.__version__}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
-        f"numba {'yes' if _accel.AVAILABLE else 'no'}, {args.steps} steps, {args.rounds} rounds"
-    )
+    print(machine_line(f"numba {'yes' if _accel.AVAILABLE else 'no'}", f"{args.steps} steps, {args.rounds} rounds"))
     print(f"{'scene':24s} {'setting':42s} {'iterations':>10s} {'ms/step':>9s} {'ratio':>7s} {'off converged':>14s}")
     for name, scene, sim, settings in scenes():
         gait = lambda t, sim=sim, scene=scene: scene.activation(t, sim.ceilings)  # noqa: E731

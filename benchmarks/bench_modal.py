@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import time
 
@@ -27,6 +26,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -65,10 +65,7 @@ def main():
         have_simkit = not args.no_simkit
     except ImportError:
         have_simkit = False
-    print(
-        f"# {platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"python {platform.python_version()}, numpy {np.__version__}, {time.strftime('%Y-%m-%d')}"
-    )
+    print(machine_line())
     cases = [
         ("caterpillar 25975 vertices, 7 modes", caterpillar(nx=280, ny=136), 7, 3),
         ("box 4961 vertices / 24000 tets, 10 modes", box3d(40, 10, 10, (4.0, 1.0, 1.0)), 10, 6),

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 import tomllib
 
@@ -25,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal.optimize import GaitSpace  # noqa: E402
 from skfem_modal.rollouts import Rollouts, Trial  # noqa: E402
@@ -52,9 +52,11 @@ def main():
     gaits = [space.gait(rng.random(3 * space.m)) for _ in range(args.rollouts)]
     sim = trial.sim
     print(
-        f"# {platform.node()}, {os.cpu_count()} cores, {time.strftime('%Y-%m-%d')}; {args.rollouts} rollouts of "
-        f"{args.steps} steps, {os.path.basename(args.scene)} ({sim.mesh.t.shape[1]} elements, "
-        f"{sim.B.shape[1]} coordinates, backend {sim.backend_used}); precompute {precompute:.2f} s, once"
+        machine_line(
+            f"{args.rollouts} rollouts of {args.steps} steps, {os.path.basename(args.scene)} "
+            f"({sim.mesh.t.shape[1]} elements, {sim.B.shape[1]} coordinates, backend {sim.backend_used})",
+            f"precompute {precompute:.2f} s, once",
+        )
     )
     print(
         f"{'workers':>28s} {'start-up s':>10s} {'rollouts/s with start-up':>24s} "

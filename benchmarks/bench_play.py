@@ -21,16 +21,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal.play import virtual_display  # noqa: E402
 
@@ -143,11 +142,7 @@ def main():
                 for variant in VARIANTS:
                     stats = run(VARIANT, ["-" if path is None else path, str(args.frames), variant], False)
                     variants[scene, variant].append(stats)
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
-        f"Xvfb {display}, {args.frames} frames a run, window 960 x 600"
-    )
+    print(machine_line(f"Xvfb {display}", f"{args.frames} frames a run, window 960 x 600"))
     print("| scene | rendering | mean frames/s, each run | median run | step ms | steps/frame | draw ms | render ms |")
     print("|---|---|---|---|---|---|---|---|")
     for (scene, mode), stats in runs.items():

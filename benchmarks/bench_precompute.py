@@ -24,10 +24,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
-import time
+
+from machine import machine_line
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -145,10 +145,7 @@ def main():
     args = parser.parse_args()
     missing = None if not args.no_reference else "--no-reference"
     missing = missing or reference_impl.available(args.tutorial)
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', '1')}"
-    )
+    print(machine_line())
     if missing:
         print(f"# reference not run: {missing}")
     for name in args.sizes:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -26,6 +25,8 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from machine import machine_line  # noqa: E402
 
 from skfem_modal.plot import gl_available  # noqa: E402
 
@@ -53,7 +54,7 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=5, help="a frame every K steps of the crawl's 450")
     parser.add_argument("--backends", nargs="+", default=["matplotlib", "pyvista"])
     args = parser.parse_args()
-    print(f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, {time.strftime('%F')}")
+    print(machine_line())
     backends = [b for b in args.backends if b != "pyvista" or gl_available()]
     with tempfile.TemporaryDirectory() as scratch:
         run_dir = os.path.join(scratch, "crawl")

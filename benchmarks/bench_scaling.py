@@ -10,12 +10,12 @@ is ``ModalMuscle.from_mesh`` in one thread.
 from __future__ import annotations
 
 import os
-import platform
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 import skfem_modal as sm  # noqa: E402
 from skfem_modal import _accel  # noqa: E402
@@ -60,10 +60,7 @@ def row(label, **kw):
 
 
 def main():
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}"
-    )
+    print(machine_line())
     print(
         "| sweep | vertices | subspace | clusters | contact points | precompute s | step ms (numpy) |"
         + (" step ms (numba) |" if _accel.AVAILABLE else "")

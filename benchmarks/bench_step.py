@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import time
 
@@ -46,6 +45,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import reference_impl  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 import skfem_modal as sm  # noqa: E402
 from skfem_modal import _accel  # noqa: E402
@@ -246,11 +246,7 @@ def main():
     args = parser.parse_args()
     missing = reference_impl.available(args.tutorial)
     Ref = None if missing else reference_impl.load_modal_muscle(args.tutorial)
-    print(
-        f"# {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}, numpy {np.__version__}, "
-        f"{time.strftime('%Y-%m-%d')}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, "
-        f"numba {'yes' if _accel.AVAILABLE else 'no'}"
-    )
+    print(machine_line(f"numba {'yes' if _accel.AVAILABLE else 'no'}"))
     if missing:
         print(f"# reference not run: {missing}")
     impls = ["numpy"] + (["numba"] if _accel.AVAILABLE else [])

@@ -16,17 +16,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import timeit
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_step  # noqa: E402
+from machine import machine_line  # noqa: E402
 
 from skfem_modal.muscles import sine_gait  # noqa: E402
 
@@ -75,7 +74,7 @@ def main():
     parser.add_argument("--only", nargs="*", help="scene names (float, crawl, 3d, seal, seal-drop)")
     parser.add_argument("--backend", default="numpy", help="numpy (default), numba or plain")
     args = parser.parse_args()
-    print(f"# {platform.node()}, python {platform.python_version()}, numpy {np.__version__}, OMP_NUM_THREADS=1")
+    print(machine_line())
     for scene in bench_step.scenes(args.only):
         profile(scene, args.backend)
 
