@@ -425,11 +425,22 @@ class _RootNote:
 
         from skfem_modal.play import _xlib
 
-        self.ctypes, self.x11, self.display = ctypes, _xlib(), display.encode()
-        self.x11.XDefaultRootWindow.restype = ctypes.c_ulong
-        self.x11.XDefaultRootWindow.argtypes = [ctypes.c_void_p]
-        self.x11.XInternAtom.restype = ctypes.c_ulong
-        self.x11.XInternAtom.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]
+        self.ctypes, x11, self.display = ctypes, _xlib(), display.encode()
+        handle = pointer = ctypes.c_void_p
+        window = atom = ctypes.c_ulong  # X's XID and Atom
+        long = ctypes.c_long
+        x11.XDefaultRootWindow.restype = window
+        x11.XDefaultRootWindow.argtypes = [handle]
+        x11.XInternAtom.restype = atom
+        x11.XInternAtom.argtypes = [handle, ctypes.c_char_p, ctypes.c_int]
+        # (display, window, property, type, format, mode, data, count)
+        x11.XChangeProperty.argtypes = [handle, window, atom, atom, ctypes.c_int, ctypes.c_int, ctypes.c_char_p]
+        x11.XChangeProperty.argtypes += [ctypes.c_int]
+        # (display, window, property, offset, length, delete, type, then five results by pointer)
+        x11.XGetWindowProperty.argtypes = [handle, window, atom, long, long, ctypes.c_int, atom] + [pointer] * 5
+        x11.XSync.argtypes = [handle, ctypes.c_int]
+        x11.XFree.argtypes = [pointer]
+        self.x11 = x11
 
     def _connect(self):
         for _ in range(100):  # a server resetting drops a client connecting meanwhile: try again
@@ -440,13 +451,10 @@ class _RootNote:
         raise AssertionError(f"cannot open {self.display}")
 
     def write(self, text: str) -> None:
-        ct, x11 = self.ctypes, self.x11
+        x11 = self.x11
         handle, root, atom = self._connect()
         data = text.encode()
-        x11.XChangeProperty.argtypes = [ct.c_void_p, ct.c_ulong, ct.c_ulong, ct.c_ulong, ct.c_int, ct.c_int]
-        x11.XChangeProperty.argtypes += [ct.c_char_p, ct.c_int]
         x11.XChangeProperty(handle, root, atom, 31, 8, 0, data, len(data))  # XA_STRING, 8 bits, replace
-        x11.XSync.argtypes = [ct.c_void_p, ct.c_int]
         x11.XSync(handle, 0)
         x11.XCloseDisplay(handle)
 
@@ -454,14 +462,11 @@ class _RootNote:
         ct, x11 = self.ctypes, self.x11
         handle, root, atom = self._connect()
         kind, bits, items, after, value = ct.c_ulong(), ct.c_int(), ct.c_ulong(), ct.c_ulong(), ct.c_void_p()
-        x11.XGetWindowProperty.argtypes = [ct.c_void_p, ct.c_ulong, ct.c_ulong, ct.c_long, ct.c_long, ct.c_int]
-        x11.XGetWindowProperty.argtypes += [ct.c_ulong] + [ct.c_void_p] * 5
         x11.XGetWindowProperty(
             handle, root, atom, 0, 1024, 0, 0, *(ct.byref(v) for v in (kind, bits, items, after, value))
         )
         text = ct.string_at(value.value, items.value).decode() if value.value else None
         if value.value:
-            x11.XFree.argtypes = [ct.c_void_p]
             x11.XFree(value)
         x11.XCloseDisplay(handle)
         return text
