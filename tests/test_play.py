@@ -8,6 +8,7 @@ in CI (``CI`` set), where a missing Xvfb fails them.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -421,11 +422,9 @@ class _RootNote:
     """
 
     def __init__(self, display: str):
-        import ctypes
-
         from skfem_modal.play import _xlib
 
-        self.ctypes, x11, self.display = ctypes, _xlib(), display.encode()
+        x11, self.display = _xlib(), display.encode()
         handle = pointer = ctypes.c_void_p
         window = atom = ctypes.c_ulong  # X's XID and Atom
         long = ctypes.c_long
@@ -459,7 +458,7 @@ class _RootNote:
         x11.XCloseDisplay(handle)
 
     def read(self) -> str | None:
-        ct, x11 = self.ctypes, self.x11
+        ct, x11 = ctypes, self.x11
         handle, root, atom = self._connect()
         kind, bits, items, after, value = ct.c_ulong(), ct.c_int(), ct.c_ulong(), ct.c_ulong(), ct.c_void_p()
         x11.XGetWindowProperty(
