@@ -18,10 +18,19 @@ and the force on ``z`` is ``A(a)^T vec(R)``. This module builds the ``A_m``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sps
 
-__all__ = ["cluster_sum_operator", "muscle_target_operator", "muscle_target_constants", "sine_gait"]
+__all__ = [
+    "checked_ramp",
+    "cluster_sum_operator",
+    "gait_ramp",
+    "muscle_target_operator",
+    "muscle_target_constants",
+    "sine_gait",
+]
 
 
 def cluster_sum_operator(labels, weights, dim: int, n_clusters: int | None = None) -> sps.csr_matrix:
@@ -116,8 +125,11 @@ def muscle_target_constants(JD, weights, dim: int):
     return c0, c1, Q
 
 
-def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
-    """Sinusoidal muscle activations ``a_m(t) = A_m sin(2 pi (t / T_m + phi_m))``.
+def sine_gait(t, amplitudes, periods, phases, ramp=0.0) -> np.ndarray:
+    """Sinusoidal muscle activations ``a_m(t) = r(t) A_m sin(2 pi (t / T_m + phi_m))``.
+
+    ``r(t)`` (:func:`gait_ramp`) grows from 0 at ``t = 0`` to 1 at ``t = ramp``
+    and stays 1; ``ramp = 0`` (the default) leaves it 1 throughout.
 
     Parameters
     ----------
@@ -127,6 +139,8 @@ def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
         Amplitude (in the muscle's units: multiply ceiling fractions by the
         ceilings first), period (same time unit as ``t``, > 0) and phase (in
         periods).
+    ramp : float
+        Time over which the amplitudes grow from zero (>= 0, same unit as ``t``).
 
     Returns
     -------
@@ -136,6 +150,8 @@ def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
     --------
     >>> sine_gait(0.25, [2.0], [1.0], [0.0]).tolist()
     [2.0]
+    >>> sine_gait(0.25, [2.0], [1.0], [0.0], ramp=0.5).tolist()  # half way up the ramp
+    [1.0]
     """
     try:
         values = [np.asarray(v, dtype=np.float64) for v in (amplitudes, periods, phases)]
@@ -151,7 +167,8 @@ def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
         )
     if not np.all(periods > 0.0):  # NaN too
         raise ValueError(f"periods must be positive, got {periods.tolist()}")
-    a = _sine(t, amplitudes, periods, phases)
+    ramp = checked_ramp(ramp)
+    a = _sine(t, amplitudes, periods, phases, ramp)
     if not np.all(np.isfinite(a)):
         raise ValueError(
             f"the gait must be finite: amplitudes {amplitudes.tolist()}, phases {phases.tolist()}, t {t!r}"
@@ -159,6 +176,40 @@ def sine_gait(t, amplitudes, periods, phases) -> np.ndarray:
     return a
 
 
-def _sine(t, amplitudes, periods, phases):
+def checked_ramp(value, name: str = "ramp") -> float:
+    """A gait's ramp (:func:`gait_ramp`) as a float, checked to be a time >= 0.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``, if it is not a finite number >= 0.
+    """
+    try:
+        ramp = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a time >= 0, got {value!r}") from None
+    if not 0.0 <= ramp < math.inf:  # NaN too
+        raise ValueError(f"{name} must be a time >= 0, got {value!r}")
+    return ramp
+
+
+def gait_ramp(t: float, ramp: float) -> float:
+    """How much of a gait's amplitude is on at time ``t``: from 0 at ``t = 0`` to 1 at ``ramp``.
+
+    The smoothstep ``3 u^2 - 2 u^3`` of ``u = t / ramp``: its slope is zero at both ends, so the
+    muscles start, and reach full stroke, without a jerk. 1 from ``ramp`` on, and throughout when
+    ``ramp`` is 0.
+
+    >>> gait_ramp(0.0, 1.0), gait_ramp(0.5, 1.0), gait_ramp(2.0, 1.0), gait_ramp(0.0, 0.0)
+    (0.0, 0.5, 1.0, 1.0)
+    """
+    if t >= ramp:
+        return 1.0
+    u = max(t, 0.0) / ramp
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _sine(t, amplitudes, periods, phases, ramp=0.0):
     # sine_gait's arithmetic without its checks, for a scene that checked its gait once
-    return amplitudes * np.sin(2.0 * np.pi * (t / periods + phases))
+    a = amplitudes * np.sin(2.0 * np.pi * (t / periods + phases))
+    return a if t >= ramp else a * gait_ramp(t, ramp)

@@ -782,7 +782,10 @@ def _write_outputs(paths: dict, data: dict, state: dict) -> None:
         f"{data.get('name', 'scene')} (best gait of {state['generation']} generations: "
         f"{where}, travel {overall['best_travel']:.4g})"
     )
-    best.setdefault("muscles", {})["gait"] = overall["gait"]
+    given = (data.get("muscles") or {}).get("gait") or {}
+    # the scene's ramp is the searched gaits' too (the trial's): the best one replays with it
+    ramp = {"ramp": given["ramp"]} if "ramp" in given else {}
+    best.setdefault("muscles", {})["gait"] = {**overall["gait"], **ramp}
     best["muscles"].pop("table", None)
     best.setdefault("time", {}).pop("duration", None)
     best["time"]["steps"] = state["settings"]["steps"]

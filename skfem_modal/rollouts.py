@@ -55,7 +55,7 @@ import numpy as np
 from .interrupts import exit_with_parent
 from .mesh import body_size
 from .monitor import MotionMonitor
-from .muscles import sine_gait
+from .muscles import checked_ramp, sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
 from .study import WorkersLost, dask_client, lost_workers, make_executor
@@ -140,6 +140,9 @@ class Trial:
         Tilt (radians) beyond which the tipping penalty starts.
     tip_weight : float
         Body sizes lost per half turn of tilt beyond the limit.
+    ramp : float
+        Time over which a gait's amplitudes grow from zero (:func:`~skfem_modal.muscles.sine_gait`),
+        for gaits that do not give their own (:meth:`from_scene`: the scene's ``muscles.gait.ramp``).
 
     Examples
     --------
@@ -151,7 +154,9 @@ class Trial:
     (True, 1.0)
     """
 
-    def __init__(self, sim, steps: int, direction, objective: str = "travel", tip_limit=np.pi / 3, tip_weight=10.0):
+    def __init__(
+        self, sim, steps: int, direction, objective: str = "travel", tip_limit=np.pi / 3, tip_weight=10.0, ramp=0.0
+    ):
         if objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
         rollout_steps(steps)
@@ -163,6 +168,7 @@ class Trial:
         self.direction = direction / np.linalg.norm(direction)
         self.objective = objective
         self.tip_limit, self.tip_weight = float(tip_limit), float(tip_weight)
+        self.ramp = checked_ramp(ramp, "the trial's ramp")
         self.size = body_size(sim.mesh)
         self.rotation_rows = body_rotation_rows(sim)
         # a gait that blows the body up (finite) would score by how far it flung it
@@ -171,10 +177,16 @@ class Trial:
 
     @classmethod
     def from_scene(cls, data: dict, base_dir=None, *, backend: str = "auto", **settings) -> Trial:
-        """Build a scene's simulator and the trial on it (``settings``: as for the constructor)."""
+        """Build a scene's simulator and the trial on it (``settings``: as for the constructor).
+
+        The trial's ``ramp`` is the scene's (``muscles.gait.ramp``, 0 without a gait), unless given.
+        """
         from .scene import Scene
 
-        trial = cls(Scene.from_dict(data, base_dir=base_dir).build(backend=backend), **settings)
+        scene = Scene.from_dict(data, base_dir=base_dir)
+        gait = scene.config["muscles"]["gait"]
+        settings.setdefault("ramp", 0.0 if gait is None else gait["ramp"])
+        trial = cls(scene.build(backend=backend), **settings)
         _COUNTS["built"] += 1
         return trial
 
@@ -195,7 +207,8 @@ class Trial:
         ----------
         gait : dict
             ``amplitude`` (fractions of the ceilings), ``period``, ``phase``:
-            one value per muscle each.
+            one value per muscle each; ``ramp`` (optional, a time): the
+            trial's when not given.
 
         Returns
         -------
@@ -212,6 +225,7 @@ class Trial:
         sim = self.sim
         amplitudes = np.asarray(gait["amplitude"], float) * sim.ceilings
         periods, phases = gait["period"], gait["phase"]
+        ramp = checked_ramp(gait["ramp"], "the gait's ramp") if "ramp" in gait else self.ramp
         z = sim.rest_state()[0]
         frames = np.empty((self.steps + 1, self.rotation_rows.shape[0]))
         frames[0] = self.rotation_rows @ z
@@ -223,7 +237,7 @@ class Trial:
         with self._lock:  # a dask worker may run several tasks at once on its one copy
             sim.reset()  # each rollout as a new simulator's: the same on any worker, and in a replay
             try:
-                for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases)):
+                for record in simulate(sim, self.steps, lambda t: sine_gait(t, amplitudes, periods, phases, ramp)):
                     frames[record.step] = self.rotation_rows @ record.z
                     states[record.step] = record.z
                     iterations += record.iterations

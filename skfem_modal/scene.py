@@ -35,6 +35,7 @@ from .mesh import (
     shape_parameters,
     vertices_where,
 )
+from .muscles import _sine
 from .solver import MAX_ITERATIONS, TOL
 from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
 
@@ -273,6 +274,17 @@ SCHEMA: dict[str, Any] = {
             ),
             "period": Key("floats", None, "Per muscle: period.", "time", _positive_list, required=True),
             "phase": Key("floats", None, "Per muscle: phase, as a fraction of the period (default 0).", "periods"),
+            "ramp": Key(
+                "float",
+                0.0,
+                "Time over which the amplitudes grow from zero at the start (a smoothstep: its rate is zero "
+                "at both ends), so that muscles starting mid-stroke do not kick a body at rest: the examples' "
+                "creature made stiff (mu = 1e7) rose 5.8 times its height in its first second at h = 0.01 "
+                "without one, 0.18 times with ramp = 1. "
+                "0: full amplitude from the start (the tutorial's gait).",
+                "time",
+                _non_negative,
+            ),
         },
     },
     "time": {
@@ -1070,12 +1082,14 @@ class Scene:
         muscles = self.config["muscles"]
         gait = muscles["gait"]
         if self._table is None and gait is not None and muscles["count"]:
-            from .muscles import _sine
-
             phase = np.zeros(muscles["count"]) if gait["phase"] is None else gait["phase"]
             amplitudes = np.asarray(gait["amplitude"], dtype=np.float64) * ceilings
             return _sine(
-                t, amplitudes, np.asarray(gait["period"], dtype=np.float64), np.asarray(phase, dtype=np.float64)
+                t,
+                amplitudes,
+                np.asarray(gait["period"], dtype=np.float64),
+                np.asarray(phase, dtype=np.float64),
+                gait["ramp"],
             )
         return self.activation_fractions(t) * ceilings
 
@@ -1089,10 +1103,8 @@ class Scene:
         gait = muscles["gait"]
         if gait is None or m == 0:
             return np.zeros(m)
-        amp = np.asarray(gait["amplitude"])
-        period = np.asarray(gait["period"])
-        phase = np.zeros(m) if gait["phase"] is None else np.asarray(gait["phase"])
-        return amp * np.sin(2.0 * np.pi * (t / period + phase))
+        phase = np.zeros(m) if gait["phase"] is None else gait["phase"]
+        return _sine(t, np.asarray(gait["amplitude"]), np.asarray(gait["period"]), np.asarray(phase), gait["ramp"])
 
     def to_dict(self) -> dict:
         """The validated configuration, JSON-ready (for summary.json)."""

@@ -136,6 +136,22 @@ def test_sine_gait_names_what_it_cannot_take(gait, message):
         sm.sine_gait(0.3, *gait)
 
 
+@pytest.mark.parametrize("ramp", [-0.1, float("nan"), float("inf"), "soon"])
+def test_sine_gait_names_a_ramp_it_cannot_take(ramp):
+    with pytest.raises(ValueError, match=r"ramp must be a time >= 0, got"):
+        sm.sine_gait(0.3, [1.0], [1.0], [0.0], ramp=ramp)
+
+
+def test_a_ramped_gait_starts_at_rest_and_is_the_plain_gait_from_the_ramp_on():
+    gait = ([0.7, -0.4], [1.0, 0.6], [0.25, 0.5])
+    assert sm.sine_gait(0.0, *gait, ramp=0.5).tolist() == [0.0, 0.0]  # a phase of 1/4 starts at full stroke
+    for t in (0.5, 0.77, 3.1):
+        np.testing.assert_array_equal(sm.sine_gait(t, *gait, ramp=0.5), sm.sine_gait(t, *gait))
+    # the smoothstep: half way up at half the ramp, 0.104 of the way at a fifth
+    np.testing.assert_allclose(sm.sine_gait(0.25, *gait, ramp=0.5), 0.5 * sm.sine_gait(0.25, *gait), rtol=1e-15)
+    np.testing.assert_allclose(sm.sine_gait(0.1, *gait, ramp=0.5), 0.104 * sm.sine_gait(0.1, *gait), rtol=1e-14)
+
+
 def test_actuation_limits_name_transposed_and_non_finite_modes():
     mesh = sm.caterpillar(nx=12, ny=6)
     _, modes = sm.linear_modal_analysis(mesh, 5)

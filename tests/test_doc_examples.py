@@ -76,3 +76,14 @@ def test_outputs_python_example(tmp_path, monkeypatch):
     np.testing.assert_array_equal(grid.point_data["displacement"], last.point_data["displacement"])
     times, com = run["com"]
     assert times[-1] == 4.5 and com.shape == (451, 2)
+
+
+def test_readme_scene_file_is_a_valid_scene_of_what_it_says():
+    import tomllib
+
+    from skfem_modal.scene import Scene
+
+    (text,) = re.findall(r"```toml\n(# my_scene.toml.*?)```", open(os.path.join(ROOT, "README.md")).read(), re.S)
+    scene = Scene.from_dict(tomllib.loads(text))
+    assert scene.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
+    assert scene.config["muscles"]["gait"]["ramp"] == 0.5 and not any(scene.activation_fractions(0.0))

@@ -79,6 +79,23 @@ def test_search_writes_a_playable_best_gait(local, tmp_path):
     assert os.path.isfile(local["plot"])
 
 
+def test_a_scenes_ramp_is_searched_with_and_kept_in_the_best_gait(tmp_path):
+    ramped = copy.deepcopy(TINY)
+    ramped["muscles"]["gait"]["ramp"] = 0.3
+    result = run_search(ramped, tmp_path, generations=1, popsize=3, seed=3, steps=60)
+    best = result["best"]
+    data = tomllib.loads(open(result["best_scene"]).read())
+    assert data["muscles"]["gait"]["ramp"] == 0.3
+    summary = run_scene(Scene.from_dict(data), None)
+    assert summary["com"]["travel"][0] == pytest.approx(best["travel"], rel=1e-9, abs=1e-12)
+    # the ramp acted: the same gait from full stroke at once goes elsewhere
+    trial = Trial.from_scene(TINY, steps=60, direction=[1.0, 0.0])
+    assert trial.ramp == 0.0
+    assert abs(trial.run(best["gait"])["travel"] - best["travel"]) > 1e-3 * abs(best["travel"])
+    # a gait's own ramp goes before its trial's
+    assert trial.run({**best["gait"], "ramp": 0.3})["travel"] == pytest.approx(best["travel"], rel=1e-12)
+
+
 def test_precompute_built_once_and_sent_to_each_worker(local):
     for h in local["history"]:
         assert h["built"] == 0  # no worker built a simulator: the search's own was sent

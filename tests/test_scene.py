@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from skfem_modal.contact import CoulombContact, ReferenceContact
+from skfem_modal.muscles import sine_gait
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, SCHEMA, Scene, SceneError, schema_markdown
 
@@ -77,6 +78,7 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(time__iterations=10**6), r"time.iterations: expected an integer from 1 to 100000, got 1000000"),
         (dict(ground__contacts=0), r"ground.contacts: expected an integer >= 1 or \"all\", got 0"),
         (dict(muscles__gait__amplitude=None), r"muscles.gait.amplitude: required"),
+        (dict(muscles__gait__ramp=-0.5), r"muscles.gait.ramp: expected a number >= 0, got -0.5"),
         (dict(time__duration=2.0), r"time: give duration or steps, not both"),
         (
             dict(ground__offset=None, ground__height=0.0),
@@ -88,6 +90,23 @@ def test_default_scene_is_the_tutorial_crawl():
 def test_scene_errors_name_key_value_and_expectation(changes, message):
     with pytest.raises(SceneError, match=message):
         Scene.from_dict(scene_with(**changes))
+
+
+def test_a_ramped_gait_is_the_scenes_gait_from_the_ramp_on():
+    plain, ramped = Scene.default(), Scene.from_dict(scene_with(muscles__gait__ramp=0.4))
+    ceilings = np.array([2.0, 3.0, 5.0, 7.0])
+    assert not np.any(ramped.activation(0.0, ceilings)) and not np.any(ramped.activation_fractions(0.0))
+    np.testing.assert_allclose(ramped.activation(0.2, ceilings), 0.5 * plain.activation(0.2, ceilings), rtol=1e-15)
+    for t in (0.4, 0.63, 2.0):  # bit for bit: a ramp that is over changes nothing
+        np.testing.assert_array_equal(ramped.activation(t, ceilings), plain.activation(t, ceilings))
+        np.testing.assert_array_equal(ramped.activation_fractions(t), plain.activation_fractions(t))
+    # and a script's sine_gait with the same ramp steps bit for bit the same as the scene
+    gait = ramped.config["muscles"]["gait"]
+    for t in (0.1, 0.3, 0.5):
+        amplitudes = np.asarray(gait["amplitude"]) * ceilings
+        np.testing.assert_array_equal(
+            ramped.activation(t, ceilings), sine_gait(t, amplitudes, gait["period"], gait["phase"], gait["ramp"])
+        )
 
 
 def test_all_errors_are_reported_at_once():

@@ -1,5 +1,6 @@
 """Hard cases stay numerically stable (the cases are in hard_cases.py)."""
 
+import pathlib
 import warnings
 
 import hard_cases as H
@@ -14,6 +15,7 @@ from skfem_modal.contact import ALLOWANCE
 PENETRATION_TOL = 1e-6
 COM_DRIFT_TOL = 1e-8
 ENERGY_GROWTH_TOL = 1e-9
+EXAMPLES = pathlib.Path(__file__).resolve().parents[1] / "examples"
 
 FAST = [name for name in H.CASES if name != "10,000 steps"]
 
@@ -132,3 +134,29 @@ def test_the_step_warning_comes_from_the_time_step_setter_and_a_soft_body_is_war
     # the ground inside out, silently, before)
     with pytest.warns(sm.ScaleWarning, match=r"980x the material's length scale .* collapse under its own weight"):
         sm.ModalMuscle.from_mesh(mesh, mu=10.0, gravity=[0.0, -9.8], ground=-0.1, **kw)
+
+
+def _highest_rise(ramp):
+    """The examples' creature made stiff (mu = 1e7) at h = 0.01: its centre's highest rise in 1 s, in heights."""
+    from skfem_modal.scene import Scene, read_scene_file
+
+    data = read_scene_file(EXAMPLES / "creature_crawl.toml")
+    data["material"]["mu"] = 1e7
+    data["subspace"] = {"weights": 4, "clusters": 6}
+    data["muscles"]["gait"]["ramp"] = ramp
+    with pytest.warns(sm.ScaleWarning, match="an elastic wave crosses 0.5 of it in one time step"):
+        scene = Scene.from_dict(data, base_dir=EXAMPLES)
+        sim = scene.build()
+    z, z_dot, _ = sim.rest_state()
+    start, rise = sim.com(z)[2], 0.0
+    for i in range(100):
+        z, z_dot = sim.step(z, z_dot, scene.activation(i * sim.h, sim.ceilings), velocity=True)
+        rise = max(rise, sim.com(z)[2] - start)
+    return rise / np.ptp(scene.mesh.p[2])
+
+
+def test_a_stiff_body_is_thrown_by_a_gait_starting_mid_stroke_and_not_by_a_ramped_one():
+    # muscles at a quarter period start at full stroke: a stiff body takes the new shape within a
+    # step, its legs kick the ground at that speed (4.96 heights); ramped in over 1 s: 0.10
+    assert _highest_rise(0.0) > 3.0
+    assert _highest_rise(1.0) < 0.2
