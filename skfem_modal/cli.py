@@ -279,6 +279,8 @@ def cmd_info(args) -> int:
             f"time: {scene.n_steps} steps of {scene.h:g} ({scene.n_steps * scene.h:g} in all), "
             f"at most {c['time']['iterations']} iterations per step"
         )
+        if c["muscles"]["count"]:
+            print(f"muscles: {_drive(c['muscles'])}")
         if c["ground"] is not None:
             g = c["ground"]
             which = _contact_points(scene)
@@ -304,6 +306,21 @@ def cmd_info(args) -> int:
     )
     print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
     return EXIT_OK
+
+
+def _drive(muscles: dict) -> str:
+    """What drives a scene's muscles, in words: its gait (and ramp), its table, or nothing."""
+    gait = muscles["gait"]
+    if muscles["table"] is not None:
+        return f"the table {muscles['table']}"
+    if gait is None:
+        return "at rest (no gait, no table)"
+    phase = gait["phase"] or [0.0] * len(gait["amplitude"])
+    ramp = f", ramped in over {gait['ramp']:g}" if gait["ramp"] else ", at full amplitude from the start"
+    return (
+        f"sine gait, amplitudes {[float(a) for a in gait['amplitude']]} of the ceilings, periods "
+        f"{[float(t) for t in gait['period']]}, phases {[float(p) for p in phase]}{ramp}"
+    )
 
 
 def _contact_points(scene) -> str:

@@ -78,7 +78,7 @@ def test_outputs_python_example(tmp_path, monkeypatch):
     assert times[-1] == 4.5 and com.shape == (451, 2)
 
 
-def test_readme_scene_file_is_a_valid_scene_of_what_it_says():
+def test_readme_scene_file_is_a_valid_scene_of_what_it_says(tmp_path, capsys):
     import tomllib
 
     from skfem_modal.scene import Scene
@@ -87,3 +87,6 @@ def test_readme_scene_file_is_a_valid_scene_of_what_it_says():
     scene = Scene.from_dict(tomllib.loads(text))
     assert scene.effects == ("elasticity", "inertia", "muscles", "gravity", "contact")
     assert scene.config["muscles"]["gait"]["ramp"] == 0.5 and not any(scene.activation_fractions(0.0))
+    (tmp_path / "my_scene.toml").write_text(text)
+    assert main(["info", str(tmp_path / "my_scene.toml")]) == 0
+    assert "phases [0.0, 0.25, 0.5, 0.75], ramped in over 0.5\n" in capsys.readouterr().out

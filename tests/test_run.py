@@ -163,8 +163,27 @@ def test_cli_info(capsys):
     text = capsys.readouterr().out
     assert "effects: elasticity, inertia, muscles, gravity, contact" in text
     assert "3438 DOFs, subspace 48, 20 clusters, 4 muscles" in text
+    assert (
+        "muscles: sine gait, amplitudes [0.45, 0.35, 0.25, 0.15] of the ceilings, periods [1.2, 0.8, 1.0, 0.6], "
+        "phases [0.0, 0.25, 0.5, 0.1], at full amplitude from the start\n"
+    ) in text
     assert main(["info", "creature"]) == 0
     assert "tetrahedron" in capsys.readouterr().out
+
+
+def test_cli_info_says_what_drives_the_muscles(tmp_path, capsys):
+    (tmp_path / "acts.csv").write_text("time,a\n0,0\n1,1\n")
+    scene = 'mesh = { shape = "beam2d" }\nmuscles = { count = 1, %s }\n'
+    for drive, said in [
+        ('table = "acts.csv"', "muscles: the table "),
+        ("gait = { amplitude = [0.3], period = [0.5], ramp = 2.0 }", "phases [0.0], ramped in over 2\n"),
+    ]:
+        (tmp_path / "s.toml").write_text(scene % drive)
+        assert main(["info", str(tmp_path / "s.toml")]) == 0
+        assert said in capsys.readouterr().out
+    (tmp_path / "s.toml").write_text('mesh = { shape = "beam2d" }\nmuscles = { count = 1 }\n')
+    assert main(["info", str(tmp_path / "s.toml")]) == 0
+    assert "muscles: at rest (no gait, no table)\n" in capsys.readouterr().out
 
 
 def test_cli_render_with_matplotlib(default_run, capsys):
