@@ -204,10 +204,8 @@ def cmd_run(args) -> int:
         deepest = ground["worst_penetration"]
         allowed = "" if ground.get("allowance") is None else f", allowance {100 * ground['allowance']:.2g} %"
         say(f"deepest any vertex went below the ground ({ground['model']} contact{allowed}): {deepest:.3g} ({of})")
-    if args.render:
-        return _render(args.out, args, say)
     say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")
-    return EXIT_OK
+    return _render(args.out, args, say) if args.render else EXIT_OK
 
 
 class _RenderUnavailable(Exception):
@@ -286,7 +284,7 @@ def cmd_info(args) -> int:
             which = _contact_points(scene)
             rule = (
                 f"friction {0.5 if g['friction'] is None else g['friction']:g}, "
-                f"allowance {ALLOWANCE if g['allowance'] is None else g['allowance']:g} of the size"
+                f"allowance {100 * (ALLOWANCE if g['allowance'] is None else g['allowance']):.2g} % of the size"
                 if g["model"] == "coulomb"
                 else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
                 f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"

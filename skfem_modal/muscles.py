@@ -184,32 +184,30 @@ def checked_ramp(value, name: str = "ramp") -> float:
     ValueError
         Naming ``name``, if it is not a finite number >= 0.
     """
-    try:
-        ramp = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a time >= 0, got {value!r}") from None
-    if not 0.0 <= ramp < math.inf:  # NaN too
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not (number and 0.0 <= float(value) < math.inf):  # NaN too
         raise ValueError(f"{name} must be a time >= 0, got {value!r}")
-    return ramp
+    return float(value)
 
 
-def gait_ramp(t: float, ramp: float) -> float:
-    """How much of a gait's amplitude is on at time ``t``: from 0 at ``t = 0`` to 1 at ``ramp``.
+def gait_ramp(t, ramp: float):
+    """How much of a gait's amplitude is on at time ``t`` (float or array): from 0 at ``t = 0`` to 1 at ``ramp``.
 
     The smoothstep ``3 u^2 - 2 u^3`` of ``u = t / ramp``: its slope is zero at both ends, so the
     muscles start, and reach full stroke, without a jerk. 1 from ``ramp`` on, and throughout when
-    ``ramp`` is 0.
+    ``ramp`` is 0; 0 before ``t = 0``.
 
     >>> gait_ramp(0.0, 1.0), gait_ramp(0.5, 1.0), gait_ramp(2.0, 1.0), gait_ramp(0.0, 0.0)
     (0.0, 0.5, 1.0, 1.0)
     """
-    if t >= ramp:
-        return 1.0
-    u = max(t, 0.0) / ramp
-    return u * u * (3.0 - 2.0 * u)
+    if not ramp:
+        return 1.0 if np.ndim(t) == 0 else np.ones(np.shape(t))
+    u = np.clip(np.asarray(t, dtype=np.float64) / ramp, 0.0, 1.0)  # (NaN stays NaN: sine_gait says so)
+    share = u * u * (3.0 - 2.0 * u)
+    return float(share) if share.ndim == 0 else share
 
 
 def _sine(t, amplitudes, periods, phases, ramp=0.0):
     # sine_gait's arithmetic without its checks, for a scene that checked its gait once
     a = amplitudes * np.sin(2.0 * np.pi * (t / periods + phases))
-    return a if t >= ramp else a * gait_ramp(t, ramp)
+    return a * gait_ramp(t, ramp) if ramp else a  # (times exactly 1 from the ramp on: the same bits)

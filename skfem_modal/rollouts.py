@@ -184,9 +184,7 @@ class Trial:
         from .scene import Scene
 
         scene = Scene.from_dict(data, base_dir=base_dir)
-        gait = scene.config["muscles"]["gait"]
-        settings.setdefault("ramp", 0.0 if gait is None else gait["ramp"])
-        trial = cls(scene.build(backend=backend), **settings)
+        trial = cls(scene.build(backend=backend), **{"ramp": scene.ramp, **settings})
         _COUNTS["built"] += 1
         return trial
 

@@ -1071,6 +1071,12 @@ class Scene:
             **settings,
         )
 
+    @property
+    def ramp(self) -> float:
+        """Time over which the gait's amplitudes grow from zero (``muscles.gait.ramp``; 0 without a gait)."""
+        gait = self.config["muscles"]["gait"]
+        return 0.0 if gait is None else float(gait["ramp"])
+
     def activation(self, t: float, ceilings) -> np.ndarray:
         """Muscle activations at time ``t`` in mode-amplitude units, shape (count,).
 

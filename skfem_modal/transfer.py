@@ -141,7 +141,7 @@ def replay(
         clock = time.perf_counter()
         built = Scene.from_dict(variant, base_dir=base_dir)
         sim = built.build() if space == "reduced" else built.build_reference(rtol=full_space_rtol, max_iter=2000)
-        score = Trial(sim, **settings).run(gait)
+        score = Trial(sim, ramp=built.ramp, **settings).run(gait)  # the scene's ramp, unless the gait has its own
         rows.append(
             {
                 "setting": label,

@@ -136,7 +136,7 @@ def test_sine_gait_names_what_it_cannot_take(gait, message):
         sm.sine_gait(0.3, *gait)
 
 
-@pytest.mark.parametrize("ramp", [-0.1, float("nan"), float("inf"), "soon"])
+@pytest.mark.parametrize("ramp", [-0.1, float("nan"), float("inf"), "soon", "1", True])
 def test_sine_gait_names_a_ramp_it_cannot_take(ramp):
     with pytest.raises(ValueError, match=r"ramp must be a time >= 0, got"):
         sm.sine_gait(0.3, [1.0], [1.0], [0.0], ramp=ramp)
@@ -150,6 +150,16 @@ def test_a_ramped_gait_starts_at_rest_and_is_the_plain_gait_from_the_ramp_on():
     # the smoothstep: half way up at half the ramp, 0.104 of the way at a fifth
     np.testing.assert_allclose(sm.sine_gait(0.25, *gait, ramp=0.5), 0.5 * sm.sine_gait(0.25, *gait), rtol=1e-15)
     np.testing.assert_allclose(sm.sine_gait(0.1, *gait, ramp=0.5), 0.104 * sm.sine_gait(0.1, *gait), rtol=1e-14)
+    # times before 0 (at rest under a ramp) and arrays of times, as without one
+    assert sm.sine_gait(-0.2, *gait, ramp=0.5).tolist() == [0.0, 0.0]
+    np.testing.assert_allclose(
+        sm.sine_gait(-0.2, *gait), [0.7 * np.sin(2 * np.pi * 0.05), -0.4 * np.sin(np.pi * 2 / 3)]
+    )
+    times = np.array([[0.25], [0.5]])
+    np.testing.assert_array_equal(sm.sine_gait(times, *gait, ramp=0.5)[1], sm.sine_gait(0.5, *gait))
+    np.testing.assert_allclose(sm.sine_gait(times, *gait, ramp=0.5)[0], 0.5 * sm.sine_gait(0.25, *gait), rtol=1e-15)
+    with pytest.raises(ValueError, match="the gait must be finite"):  # not a division by zero
+        sm.sine_gait(float("nan"), *gait, ramp=0.5)
 
 
 def test_actuation_limits_name_transposed_and_non_finite_modes():

@@ -37,6 +37,9 @@ def test_readme_python_example(tmp_path, monkeypatch, capsys):
     sim, z = namespace["sim"], namespace["z"]
     travel = sim.com(z) - sim.com(sim.rest_state()[0])
     assert abs(travel[0] - (-4.438)) < 0.01
+    quoted = re.search(r"# \[([-0-9. ]+)\], the centre of mass: moved by \[([-0-9., ]+)\]", code)
+    np.testing.assert_allclose(sim.com(z), [float(v) for v in quoted.group(1).split()], atol=1e-5)
+    np.testing.assert_allclose(travel, [float(v) for v in quoted.group(2).split(",")], atol=1e-4)
     assert namespace["x"].shape == (1719, 2)
     assert (tmp_path / "modes.vtu").is_file()
     # a warm-started floating step stopped by rtol: its relative residual is within rtol

@@ -123,11 +123,13 @@ def test_an_earlier_run_is_refused_or_replaced_never_mixed(tmp_path, capsys, sma
         run_scene(Scene.from_toml(small_scene), out)
 
 
-def test_the_cleaner_knows_every_file_a_run_and_render_write(tmp_path, small_scene):
+def test_the_cleaner_knows_every_file_a_run_and_render_write(tmp_path, small_scene, capsys):
     from skfem_modal.outputs import earlier_run
 
     out = tmp_path / "out"
-    assert main(["run", str(small_scene), "--out", str(out), "-q", "--render", "--backend", "matplotlib"]) == 0
+    assert main(["run", str(small_scene), "--out", str(out), "--render", "--backend", "matplotlib"]) == 0
+    said = capsys.readouterr().out.splitlines()  # what was written, then what was drawn (the first left out)
+    assert said[-2].startswith(f"wrote {out}/frames.pvd (") and said[-1].startswith("rendered with matplotlib: ")
     assert main(["render", str(out), "-q", "--backend", "matplotlib", "--max-frames", "2", "--size", "320x180"]) == 0
     written = sorted(str(p) for p in out.rglob("*") if p.is_file())
     assert len(written) == 21 + 4 + 5 and earlier_run(out) == written

@@ -96,6 +96,20 @@ def test_a_scenes_ramp_is_searched_with_and_kept_in_the_best_gait(tmp_path):
     assert trial.run({**best["gait"], "ramp": 0.3})["travel"] == pytest.approx(best["travel"], rel=1e-12)
 
 
+def test_a_replay_rolls_a_gait_out_with_its_scenes_ramp():
+    """An audit: replay() rolled a searched gait (no ramp of its own) out at full stroke from the start."""
+    from skfem_modal.transfer import replay
+
+    ramped = copy.deepcopy(TINY)
+    ramped["muscles"]["gait"]["ramp"] = 0.3
+    gait = {key: TINY["muscles"]["gait"][key] for key in ("amplitude", "period", "phase")}
+    rows = replay(ramped, gait, steps=30, direction=[1.0, 0.0], full_space_limit=0)
+    searched = Trial.from_scene(ramped, steps=30, direction=[1.0, 0.0]).run(gait)["travel"]
+    assert rows[0]["setting"] == "as searched" and rows[0]["travel"] == pytest.approx(searched, rel=1e-12)
+    plain = Trial.from_scene(TINY, steps=30, direction=[1.0, 0.0]).run(gait)["travel"]
+    assert abs(plain - searched) > 1e-3 * abs(searched)
+
+
 def test_precompute_built_once_and_sent_to_each_worker(local):
     for h in local["history"]:
         assert h["built"] == 0  # no worker built a simulator: the search's own was sent
