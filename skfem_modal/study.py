@@ -552,10 +552,13 @@ def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
                     f"{r[key]} {label} instead of {base[key]}: {_percent(r['trajectory_error'])} % at "
                     f"{r['step_ms']:.3g} ms per step."
                 )
+    fastest = None
     for limit in thresholds:
         within = [r for r in same if r["trajectory_error"] <= limit]
-        if within:
-            r = min(within, key=lambda r: r["step_ms"])
+        if within and min(within, key=lambda r: r["step_ms"]) is fastest:
+            lines.append(f"Within {100 * limit:g} % trajectory error: the same setting (none faster stays within it).")
+        elif within:
+            r = fastest = min(within, key=lambda r: r["step_ms"])
             times = f" ({r['step_ms'] / base['step_ms']:.2g} times the base's)" if base else ""
             lines.append(
                 f"Within {100 * limit:g} % trajectory error, the fastest setting measured is {_describe(r)}: "
@@ -826,7 +829,9 @@ def run_study(
         # may have shared the machine, or run on other machines)
         for row, ms in zip(rows, time_steps(tasks, rounds=cfg["timing_rounds"])):
             row["step_ms"] = ms
-        say("step times: " + ", ".join(f"{r['label']} {r['step_ms']:.3f} ms" for r in rows))
+        say("step times, each setting in turn in this process:")
+        for row in rows:
+            say(f"{row['label']:28s} {row['step_ms']:8.3f} ms")
         modal_rows = modal_convergence(tuple(cfg["modal"]))
         stopped = False
     except Exception as error:

@@ -204,6 +204,10 @@ def test_the_recommendations_print_errors_as_they_compare_with_the_thresholds():
     assert lines[1].endswith("7.1 % at 0.08 ms per step (1 times the base's).")  # not the 10.4 % row
     assert lines[2].endswith("5 iterations: 10.4 % at 0.0713 ms per step (0.89 times the base's).")
     assert lines[3].endswith("1 iterations: 120.0 % at 0.05 ms per step (0.62 times the base's).")
+    # a looser threshold the same setting answers is said in a word (two identical lines read as a slip)
+    lines = study.recommend([base, faster], thresholds=(0.10, 0.20, 0.50))
+    assert lines[2].endswith("5 iterations: 10.4 % at 0.0713 ms per step (0.89 times the base's).")
+    assert lines[3] == "Within 50 % trajectory error: the same setting (none faster stays within it)."
 
 
 # run in a process of its own, as a command's: the suite's earlier pools and signal handling stay out of it
