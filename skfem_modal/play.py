@@ -25,6 +25,7 @@ from collections import deque
 
 import numpy as np
 
+from .muscles import checked_ramp, gait_ramp
 from .outputs import check_output_file
 
 __all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display", "window_size_problem"]
@@ -89,6 +90,11 @@ class Player:
         Without one, the gait cannot be switched on.
     gait_on : bool
         Start with the gait driving the muscles (ignored without a gait).
+    ramp : float
+        Time over which the gait, switched on (:meth:`toggle_gait`), takes over from
+        the activations in effect then, by the smoothstep of
+        :func:`~skfem_modal.muscles.gait_ramp` (0: at once). A scene's gait brings
+        its own ramp from rest at the start; :func:`play` passes a scene's ramp here too.
     clock : callable
         Wall-clock seconds (``time.perf_counter``); tests pass a fake one.
     max_lag : float
@@ -134,6 +140,7 @@ class Player:
         gait=None,
         *,
         gait_on: bool = True,
+        ramp: float = 0.0,
         clock=time.perf_counter,
         max_lag: float = 0.25,
         step_budget: float = 0.05,
@@ -149,6 +156,8 @@ class Player:
         self.step_budget = float(step_budget)
         self.ranges = slider_ranges(sim.ceilings)
         self.gait_on = bool(gait_on) and gait is not None
+        self.ramp = checked_ramp(ramp)
+        self._takeover = None  # (time, activations) where the gait was switched on, while it ramps in
         self.paused = False
         self._intervals = deque(maxlen=_RECENT)
         self._step_times = deque(maxlen=_RECENT)
@@ -172,6 +181,7 @@ class Player:
         self.behind = False
         self._owed = 0.0
         self._last = None
+        self._takeover = None
 
     def set_slider(self, k: int, value: float) -> None:
         """Set muscle ``k``'s slider (clipped to its range); the sliders take over from the gait."""
@@ -182,13 +192,15 @@ class Player:
         if not np.isfinite(value):
             raise ValueError(f"slider {k} value must be finite, got {value}")
         self.sliders[k] = np.clip(value, -self.ranges[k], self.ranges[k])
-        self.gait_on = False
+        self.gait_on, self._takeover = False, None
 
     def toggle_gait(self) -> bool:
         """Switch the gait on or off (stays off without a gait); returns the new state."""
         if self.gait is None:
             self.message = "no gait to switch on"
             return False
+        # from the activations in effect, over the ramp: a body at rest is not kicked by a gait mid-stroke
+        self._takeover = None if self.gait_on or not self.ramp else (self.t, self.activation())
         self.gait_on = not self.gait_on
         return self.gait_on
 
@@ -199,10 +211,20 @@ class Player:
         return self.paused
 
     def activation(self) -> np.ndarray:
-        """The activations in effect now, shape (m,): the gait's at ``t`` or the sliders'."""
-        if self.gait_on:
-            return np.asarray(self.gait(self.t), dtype=float)
-        return self.sliders.copy()
+        """The activations in effect now, shape (m,): the gait's at ``t``, or the sliders'.
+
+        A gait just switched on is blended in from what was in effect then, over ``ramp``.
+        """
+        if not self.gait_on:
+            return self.sliders.copy()
+        a = np.asarray(self.gait(self.t), dtype=float)
+        if self._takeover is not None:
+            since, start = self._takeover
+            share = gait_ramp(self.t - since, self.ramp)
+            if share < 1.0:
+                return start + share * (a - start)
+            self._takeover = None
+        return a
 
     # --------------------------------------------------------------- stats
     @property
@@ -521,10 +543,10 @@ def play(
     problem = play_problem(off_screen)
     if problem is not None:
         raise PlayError(problem)
-    sim, gait, name = _simulator(target, gait)
+    sim, gait, name, ramp = _simulator(target, gait)
     # the first step may compile (numba): before the window opens, not in its first frame
     sim.step(*sim.rest_state())
-    player = Player(sim, gait, gait_on=gait_on)
+    player = Player(sim, gait, gait_on=gait_on, ramp=ramp)
     from .play_view import PlayView
 
     with contextlib.nullcontext() if off_screen else _display_held():
@@ -558,14 +580,17 @@ def _load(target):
 
 
 def _simulator(target, gait):
-    """``(sim, gait, name)`` from a scene, a scene file or a simulator; a scene's gait unless one is given."""
+    """``(sim, gait, name, ramp)`` from a scene, a scene file or a simulator; a scene's gait unless one is given.
+
+    ``ramp``: the scene's gait's (0 for a simulator), for the gait switched on later (:class:`Player`).
+    """
     from .scene import Scene
 
     target = _load(target)
     if not isinstance(target, Scene):
-        return target, gait, "simulator"
+        return target, gait, "simulator", 0.0
     sim = target.build()
     if gait is None and sim.n_muscles:
         ceilings = sim.ceilings
         gait = lambda t: target.activation(t, ceilings)
-    return sim, gait, target.config["name"]
+    return sim, gait, target.config["name"], target.ramp

@@ -30,9 +30,9 @@ def main(target: str) -> dict:
     from skfem_modal.play import Player, _simulator
     from skfem_modal.play_view import PlayView
 
-    sim, gait, _ = _simulator(None if target == "default" else target, None)
+    sim, gait, _, ramp = _simulator(None if target == "default" else target, None)
     clock = FakeClock()
-    player = Player(sim, gait, clock=clock)
+    player = Player(sim, gait, ramp=ramp, clock=clock)
     view = PlayView(player, window_size=(960, 600))
     plotter = view.plotter
     plotter.show(interactive_update=True, auto_close=False)

@@ -212,6 +212,37 @@ def test_sliders_clip_to_their_ceiling_and_take_over_from_the_gait(crawl):
     np.testing.assert_array_equal(player.activation(), scene.activation(0.0, sim.ceilings))
 
 
+def test_a_gait_switched_on_takes_over_over_the_scenes_ramp(crawl):
+    """From the sliders' activations to the gait's by the smoothstep over the ramp: no kick mid-stroke."""
+    scene, sim = crawl
+    clock = FakeClock()
+    player = Player(sim, scene_gait(scene, sim), gait_on=False, ramp=0.4, clock=clock)
+    player.set_slider(1, 0.5 * sim.ceilings[1])
+    sliders = player.activation()
+    player.frame()
+
+    def until(t):  # frames of two steps each (h = 0.01)
+        while player.t < t - 1e-9:
+            clock.now += 2 * sim.h
+            player.frame()
+        assert player.t == pytest.approx(t)
+
+    until(0.5)
+    switched = player.t
+    assert player.toggle_gait()
+    np.testing.assert_array_equal(player.activation(), sliders)  # continuous where it was switched on
+    for share, after in ((0.5, 0.2), (1.0, 0.4), (1.0, 0.7)):
+        until(switched + after)
+        gait = scene.activation(player.t, sim.ceilings)
+        np.testing.assert_allclose(player.activation(), sliders + share * (gait - sliders), rtol=1e-12, atol=1e-15)
+    # off, and on again: it takes over from the sliders anew; without a ramp, at once
+    assert not player.toggle_gait() and player.toggle_gait()
+    np.testing.assert_array_equal(player.activation(), sliders)
+    np.testing.assert_array_equal(
+        Player(sim, scene_gait(scene, sim), clock=FakeClock()).activation(), scene.activation(0.0, sim.ceilings)
+    )
+
+
 def test_reset_puts_the_body_at_rest(creature):
     scene, sim = creature
     clock = FakeClock()
@@ -685,7 +716,7 @@ class Clock:
         return self.now
 
 clock = Clock()
-sim, gait, _ = _simulator(None, None)
+sim, gait, _, _ = _simulator(None, None)
 player = Player(sim, gait, clock=clock)
 view = PlayView(player, window_size=(960, 600))
 view.plotter.show(interactive_update=True, auto_close=False)
