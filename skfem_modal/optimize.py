@@ -557,7 +557,8 @@ def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: i
     if state["generation"] > generations:
         raise ValueError(
             f"the search in {out_dir} already has {state['generation']} generations, more than the {generations} "
-            f"asked (--generations, generations): ask for more than {state['generation']} to extend it"
+            f"asked (--generations; generations= in Python): ask for more than {state['generation']} to extend it, "
+            f"or for {state['generation']} to resume it as it is"
         )
     np.random.set_state(state["numpy_random"])
     return state

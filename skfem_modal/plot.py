@@ -117,7 +117,8 @@ def read_run(run_dir) -> dict:
     _, com = table("com.csv")
     header, amp = table("amplitudes.csv")
     m = (len(header) - 1) // 2
-    pvd = open(os.path.join(run_dir, "frames.pvd")).read()
+    with open(os.path.join(run_dir, "frames.pvd")) as f:
+        pvd = f.read()
     frames = [
         (float(t), os.path.join(run_dir, f)) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', pvd)
     ]
@@ -229,8 +230,8 @@ def plot_com(run, path) -> str:
     t, com = run["com"]
     dim = com.shape[1]
     summary = run["summary"]
-    up = summary["scene"]["ground"]["up"] if summary["scene"].get("ground") else None
-    up = dim - 1 if up is None else up
+    # the axis the ground's height is along, as the run had it (a scene's ground.up is null when gravity says it)
+    up = (summary.get("settings") or {}).get("up")
     fig, axes = plt.subplots(dim, 1, figsize=(7, 1.8 * dim + 0.6), sharex=True)
     for k, ax in enumerate(np.atleast_1d(axes)):
         ax.plot(t, com[:, k], color=f"C{k}")

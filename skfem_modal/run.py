@@ -433,9 +433,9 @@ class _RunFiles:
             self._frame(step, z, a)
         t = step * sim.h
         self.com.writerow([repr(t)] + [repr(float(c)) for c in com])
-        if sim.n_muscles:
-            realised = sim.muscle_amplitudes(z)
-            self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
+        # (a row a step without muscles too: the table's times are the run's, as render reads them)
+        realised = sim.muscle_amplitudes(z) if sim.n_muscles else ()
+        self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
         if step % self.every == 0:
             for f in self._files:  # the tables on disk reach at least the last frame
                 f.flush()

@@ -296,3 +296,31 @@ def test_text_grows_with_the_picture(run_copy, backend):
     assert widths[(1280, 720)] >= 50  # "t = 0.200"
     assert abs(widths[(2560, 1440)] / widths[(1280, 720)] - 2.0) < 0.15
     assert abs(widths[(3840, 1440)] - widths[(2560, 1440)]) <= 2
+
+
+def test_the_centre_of_mass_plot_draws_the_ground_on_its_own_axis(tmp_path, monkeypatch):
+    """An audit: a 3D body with y up (gravity says it) had its ground line drawn on the z panel.
+
+    And a run without muscles reads back: its amplitudes.csv held a header and no rows, which render refused.
+    """
+    import matplotlib.figure
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        'mesh = { shape = "creature", params = { cell = 0.2 } }\nsubspace = { weights = 3, clusters = 4 }\n'
+        "muscles = { count = 0 }\ntime = { step = 0.01, steps = 4 }\n"
+        "gravity = { acceleration = [0.0, -9.8, 0.0] }\nground = { offset = 0.0 }\n"
+    )
+    assert main(["run", str(scene), "--out", str(tmp_path / "run"), "-q"]) == 0
+    panels = []
+
+    def saved(fig, *args, **kwargs):  # what each panel holds: its lines' labels and heights
+        panels.extend({line.get_label(): line.get_ydata()[0] for line in ax.get_lines()} for ax in fig.axes)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", saved)
+    run = plot.read_run(tmp_path / "run")
+    np.testing.assert_allclose(run["amplitudes"][0], [0.0, 0.01, 0.02, 0.03, 0.04], rtol=1e-15)
+    assert run["amplitudes"][1].shape == run["amplitudes"][2].shape == (5, 0)
+    plot.plot_com(run, tmp_path / "com.png")
+    assert [("ground" in lines) for lines in panels] == [False, True, False]
+    assert panels[1]["ground"] == run["summary"]["ground"]["height"]
