@@ -8,7 +8,7 @@ clusters, a reduced simulator (:class:`ModalMuscle`, stepped by
 ParaView (:mod:`~skfem_modal.export`).
 """
 
-import importlib
+import importlib as _importlib
 
 #: Where each public name lives: imported on first use, so the command line starts (and a Ctrl-C
 #: during its start is handled) before numpy, scipy and scikit-fem are loaded.
@@ -119,10 +119,11 @@ def __getattr__(name: str):
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'skfem_modal' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    value = getattr(_importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value  # found once
     return value
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+    # the public names and the module's own dunders, not its helpers (_importlib, _EXPORTS)
+    return sorted({name for name in globals() if name.startswith("__") or not name.startswith("_")} | set(_EXPORTS))

@@ -97,6 +97,13 @@ _PER_VERTEX = ("touching", "sliding", "direction")
 _REFINE = 16
 
 
+#: Why a state is checked against a ground (or up axis) assigned during a run, said when it is refused.
+GROUND_DURING_A_RUN = (
+    "assigning {setting} during a run moved the ground plane, and the state stepped from is this deep under the "
+    "new one: assign it at most the allowance above that state's lowest vertex"
+)
+
+
 def checked_allowance(value, name: str = "allowance") -> float:
     """The Coulomb contact's allowance as a float, checked to be in (0, :data:`MOST_ALLOWANCE`].
 
@@ -148,7 +155,7 @@ class _Ground(Effect):
     name = "contact"
     # whether the rule reads the iterate a global solution came from (then a warm start would change it)
     reads_iterates = False
-    # the setting whose assignment made this contact in place of another model's (see follow)
+    # why a run's last state is checked as a new start: the assignment that made this contact (see follow)
     replaced_for = None
     _end = None  # where the last step ended (the Coulomb model keeps it)
 
@@ -194,7 +201,12 @@ class _Ground(Effect):
         if type(earlier) is type(self) and (earlier.up, earlier.ground) == (self.up, self.ground):
             self._end = earlier._end
         elif type(earlier) is not type(self):
-            self.replaced_for = setting
+            self.replaced_for = (
+                f"assigning {setting} made a contact of another model, which goes on from no earlier step: a run "
+                "under the other model left the body this deep"
+            )
+        elif earlier._end is not None:
+            self.replaced_for = GROUND_DURING_A_RUN.format(setting=setting)
 
     def finish_step(self, z) -> None:
         """The end of a step's iterations, ``z`` (r,) the result: nothing to do (see the Coulomb model)."""
@@ -673,12 +685,7 @@ class CoulombContact(_Ground):
                 f"of the body's size) below the ground at {self.ground:.6g}, more than the contact's allowance "
                 f"({100 * self.relative_allowance:.3g} %); it would fling the body out. Start from a state above "
                 "the ground (sim.rest_state() is), or go on from where the last step ended"
-                + (
-                    f" (assigning {self.replaced_for} made a contact of another model, which goes on from no earlier "
-                    "step: a run under the other model left the body this deep)"
-                    if self.replaced_for
-                    else ""
-                )
+                + (f" ({self.replaced_for})" if self.replaced_for else "")
             )
 
     def _near(self, z) -> np.ndarray:

@@ -14,6 +14,8 @@ import time
 
 import numpy as np
 
+from .camera import Camera
+
 __all__ = ["PlayView", "KEYS"]
 
 #: Keys of the live window and what they do.
@@ -183,10 +185,10 @@ class PlayView:
             )
             camera.clipping_range = (0.1 * self.extent, 10.0 * self.extent)
         else:
-            a, b = (k for k in range(3) if k != self.up)
-            direction = 0.55 * np.eye(3)[a] - 1.0 * np.eye(3)[b] + 0.6 * e_up
-            camera.position = centre + direction
-            camera.up = e_up
+            # from where render's pictures look (a y-up body was seen from behind, walking leftwards)
+            view = Camera.looking_at(e_up, 3)
+            camera.position = centre + view.towards
+            camera.up = view.screen_up
             bounds = np.column_stack([lo - pad, hi + pad]).ravel()
             self.plotter.renderer.ResetCamera(*bounds)
             camera.Zoom(1.1)

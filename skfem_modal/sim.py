@@ -60,7 +60,14 @@ from .checks import (
     _positive_scalar,
     _pulled_to_ground,
 )
-from .contact import ALLOWANCE, DEFAULT_CONTACTS, CoulombContact, ReferenceContact, checked_allowance
+from .contact import (
+    ALLOWANCE,
+    DEFAULT_CONTACTS,
+    GROUND_DURING_A_RUN,
+    CoulombContact,
+    ReferenceContact,
+    checked_allowance,
+)
 from .effects import Damping, Elasticity, Gravity, Inertia, Muscles, Pins
 from .fem import _lumped_p1, _positive
 from .ingredients import ingredients, timed
@@ -545,6 +552,7 @@ class ModalMuscle:
         Lumped mass per DOF.
     """
 
+    _stepped = False  # a run is under way (a step since the build or the last reset)
     mesh = _fixed("mesh", "The rest mesh.")
     B = _fixed("B", "The subspace basis, shape (n * dim, r) (None on every DOF).")
     D = _fixed("D", "The muscle modes, shape (n * dim, m).")
@@ -703,6 +711,7 @@ class ModalMuscle:
         as a new simulator does.
         """
         self._solver.predicted = self._solver.max_iter
+        self._stepped = False
         if self._model.contact is not None:
             self._model.contact.forget()
         self._rebuild()
@@ -884,12 +893,19 @@ class ModalMuscle:
             return
         value = float(_array(value, (), "ground"))
         _pulled_to_ground(self.gravity, value, self._up)  # (a floating body's gravity may pull any way)
-        _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
+        # during a run under the Coulomb contact, the state the next step starts from is checked by that step
+        # (its start); the rest shape says nothing of a body that has moved (one risen 5 sizes was refused a
+        # ground just below it). Before a run, and under the reference contact (its feet sink anyway): at rest
+        running = self._stepped and self._contact["model"] == "coulomb"
+        if not running:
+            _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
         contact = self._model.contact
         if contact is None:
             default = _model_contact_vertices(self._mesh, self._contact["model"], self._default_contacts)
             self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
-        _put_contact(self, self._contact_vertices if contact is None else contact.vertices, value)
+        _put_contact(self, self._contact_vertices if contact is None else contact.vertices, value, "ground")
+        if running and contact is None:  # (one replaced says so itself: follow)
+            self._model.contact.replaced_for = GROUND_DURING_A_RUN.format(setting="ground")
         if contact is None:
             _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
 
@@ -1080,6 +1096,7 @@ class ModalMuscle:
                             f"the state is non-finite as given: {name} holds NaN or infinity"
                         ) from None
                 raise
+        self._stepped = True
         if velocity:
             return z_next, (z_next - z) / self._model.h
         return z_next

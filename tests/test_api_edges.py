@@ -215,3 +215,10 @@ def test_the_full_space_simulator_is_made_from_a_mesh_as_the_reduced_one():
     z, z_dot, _ = sim.rest_state()
     a = 0.5 * sim.ceilings
     np.testing.assert_array_equal(sim.step(z, z_dot, a), built.step(z, z_dot, a))
+
+
+def test_the_package_lists_its_public_names_only():
+    names = dir(sm)
+    assert {"ModalMuscle", "simulate", "sine_gait", "Scene", "__version__"} <= set(names)
+    assert not [name for name in names if name.startswith("_") and not name.startswith("__")]
+    assert "importlib" not in names  # an import of the lazy loader was listed as the package's

@@ -764,6 +764,40 @@ def test_the_screenshot_shows_the_last_frames_own_status(display, tmp_path):
     assert status_rows.any(axis=2).mean() > 0.001  # the saved status line is not the stale one
 
 
+CAMERA_OF_A_Y_UP_BODY = """
+import json, sys
+import numpy as np
+from skfem_modal.play import Player, _simulator
+from skfem_modal.play_view import PlayView
+
+sim, gait, _, _ = _simulator(sys.argv[1], None)
+view = PlayView(Player(sim, gait), window_size=(960, 600))
+camera = view.plotter.camera
+print(json.dumps({"towards": (np.subtract(camera.position, camera.focal_point)).tolist(), "up": list(camera.up)}))
+"""
+
+
+def test_the_window_looks_at_a_y_up_body_from_the_front_as_render_does(display, tmp_path):
+    """An audit: the seal and the elephant (y up) were seen from behind, walking leftwards, in the window."""
+    from skfem_modal.camera import Camera
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        '[mesh]\nshape = "creature"\nparams = { cell = 0.2 }\n[subspace]\nweights = 3\nclusters = 4\n'
+        "[muscles]\ncount = 1\n[gravity]\nacceleration = [0.0, -9.8, 0.0]\n[ground]\noffset = 0.0\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", CAMERA_OF_A_Y_UP_BODY, str(scene)], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    seen = json.loads(result.stdout.strip().splitlines()[-1])
+    pictures = Camera.looking_at(np.array([0.0, 1.0, 0.0]), 3)  # render's, for y up
+    towards = np.array(seen["towards"]) / np.linalg.norm(seen["towards"])
+    np.testing.assert_allclose(towards, pictures.towards, atol=1e-12)
+    np.testing.assert_allclose(seen["up"], pictures.screen_up, atol=1e-12)
+    assert pictures.towards[2] > 0.5 and pictures.right[0] > 0.5  # from +z, x running right
+
+
 @pytest.mark.parametrize("size", ["16x16", "199x600", "200x149", "8193x600"])
 def test_the_command_refuses_the_window_sizes_play_refuses(size, capsys):
     """--size took 16 to 8192 a side (the pictures' range), then play refused below 200 x 150 (an audit)."""

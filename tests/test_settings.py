@@ -296,7 +296,40 @@ def test_a_contact_goes_on_from_the_last_step_only_on_the_same_ground_plane():
     for contact in (same, other_up, lower):
         contact.follow(earlier, "allowance")
     assert same._end is earlier._end and other_up._end is None and lower._end is None
-    assert same.replaced_for is None and other_up.replaced_for is None
+    assert same.replaced_for is None
+    for contact in (other_up, lower):  # the next step's check of the last state says why it is checked
+        assert contact.replaced_for.startswith("assigning allowance during a run moved the ground plane")
+
+
+def test_a_ground_assigned_mid_run_is_checked_against_where_the_body_is():
+    """An audit: a body risen 5 sizes was refused a ground just below it (checked against its rest shape)."""
+    import skfem
+
+    import skfem_modal as sm
+
+    sim = sm.ModalMuscle.from_mesh(
+        skfem.MeshTri.init_symmetric().refined(3), n_muscles=2, n_weights=4, n_clusters=4, gravity=[0, 9.8]
+    )
+    with pytest.raises(ValueError, match=r"the body starts inside the ground: its lowest vertex \(y = 0\)"):
+        sim.gravity, sim.ground = [0.0, -9.8], 0.1  # before a run: at rest
+    sim.gravity = [0.0, 9.8]
+    z, z_dot, _ = sim.rest_state()
+    for _ in range(100):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+    lowest = float(sim.positions(z)[:, 1].min())
+    assert lowest > 4.0  # risen, under gravity pointing up
+    sim.gravity, z_dot = [0.0, -9.8], np.zeros_like(z_dot)  # stopped there, to fall back
+    sim.ground = lowest - 0.1  # just below where the body is: accepted
+    for _ in range(60):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+    landed = float(sim.positions(z)[:, 1].min())
+    assert sim.penetration(z, relative=True) <= 2e-4 and landed == pytest.approx(lowest - 0.1, abs=2e-4)
+    sim.ground = landed + 0.05  # above it: the step from there refuses, saying why
+    with pytest.raises(ValueError, match=r"0.05 \(5 % of the body's size\) below .*\(assigning ground during a run"):
+        sim.step(z, z_dot)
+    sim.reset()  # a new run starts at rest: checked there at once
+    with pytest.raises(ValueError, match="the body starts inside the ground"):
+        sim.ground = 0.1
 
 
 def test_settings_assigned_again_and_again_do_not_pile_up_contact_corrections():
