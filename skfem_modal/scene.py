@@ -1230,6 +1230,11 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         errors.append("material: give mu (and lam) or young and poisson, not both")
     muscles = config["muscles"]
     m = muscles["count"]
+    if mat["gamma"] == 0.0 and m:  # (muscles that pull with no force: a setting that would do nothing)
+        errors.append(
+            f"material.gamma: 0 leaves the {m} muscles without any force; give gamma > 0 (default: mu), or "
+            "muscles.count = 0 for a passive body"
+        )
     if m is not None and muscles["signs"] is not None and len(muscles["signs"]) != m:
         errors.append(f"muscles.signs: expected {m} values (muscles.count), got {len(muscles['signs'])}")
     gait = muscles["gait"]

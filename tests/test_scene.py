@@ -79,6 +79,8 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(ground__contacts=0), r"ground.contacts: expected an integer >= 1 or \"all\", got 0"),
         (dict(muscles__gait__amplitude=None), r"muscles.gait.amplitude: required"),
         (dict(muscles__gait__ramp=-0.5), r"muscles.gait.ramp: expected a number >= 0, got -0.5"),
+        # ran without a word, the muscles commanded and nothing moving
+        (dict(material__gamma=0.0), r"material.gamma: 0 leaves the 4 muscles without any force; give gamma > 0"),
         (dict(time__duration=2.0), r"time: give duration or steps, not both"),
         (
             dict(ground__offset=None, ground__height=0.0),

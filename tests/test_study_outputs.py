@@ -166,6 +166,19 @@ def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, caps
     assert not any(n.startswith("study") for n in os.listdir(run_dir)) and not (out / "summary.json").exists()
 
 
+def test_a_study_says_when_its_length_is_not_the_scenes(tmp_path, tiny, capsys):
+    """An audit: a scene's [time] steps = 60 was studied over the preset's 100 steps without a word."""
+    from skfem_modal.optimize import scene_to_toml
+
+    for name, time, said in [("seven", {"time": {"step": 0.02, "steps": 7}}, True), ("free", {}, False)]:
+        scene = tmp_path / f"{name}.toml"
+        scene.write_text(scene_to_toml({**{k: v for k, v in FLOATING.items() if k != "time"}, **time}))
+        assert main(["study", str(scene), "--quick", "--out", str(tmp_path / name)]) == 0
+        out = capsys.readouterr().out
+        assert ("each run is the quick study's 10 steps, not the scene's 7: a study compares settings" in out) == said
+        assert json.loads((tmp_path / name / "study.json").read_text())["meta"]["steps"] == 10
+
+
 def test_the_study_command_says_warnings_once_in_its_own_words(tmp_path, tiny, capfd):
     # a step large for the body: the ScaleWarning comes from the workers' builds too, which say nothing raw
     scene = tmp_path / "scene.toml"
