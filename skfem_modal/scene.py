@@ -1240,7 +1240,9 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
     gait = muscles["gait"]
     if gait is not None and muscles["table"] is not None:
         errors.append("muscles: give a gait or a table, not both")
-    if gait is not None and m is not None:
+    if gait is not None and m == 0:
+        errors.append("muscles.gait: a gait for no muscles (muscles.count = 0): remove [muscles.gait], or give a count")
+    elif gait is not None and m is not None:
         for key in ("amplitude", "period", "phase"):
             if gait[key] is not None and len(gait[key]) != m:
                 errors.append(f"muscles.gait.{key}: expected {m} values (muscles.count), got {len(gait[key])}")

@@ -81,6 +81,8 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(muscles__gait__ramp=-0.5), r"muscles.gait.ramp: expected a number >= 0, got -0.5"),
         # ran without a word, the muscles commanded and nothing moving
         (dict(material__gamma=0.0), r"material.gamma: 0 leaves the 4 muscles without any force; give gamma > 0"),
+        # said three times as "expected 0 values"
+        (dict(muscles__count=0, muscles__signs=None), r"1 problem\(s\).*\n  muscles.gait: a gait for no muscles \("),
         (dict(time__duration=2.0), r"time: give duration or steps, not both"),
         (
             dict(ground__offset=None, ground__height=0.0),
