@@ -399,8 +399,12 @@ class MotionMonitor:
                 f"from step {step} (t = {step * self.h:g}) more than {100 * INVERTED_LIMIT:g} % of the elements "
                 f"were inside out, up to {self.inverted} of the {n} ({100 * self.inverted / n:.2g} %, at "
                 f"t = {self._inverted_step * self.h:g}) in the states checked (the frames written and the last): "
-                "the body folded through itself, so vertices inside it may be below the ground while its boundary "
-                "is not"
+                "the body folded through itself"
+                + (
+                    ", so vertices inside it may be below the ground while its boundary is not"
+                    if self._contact is not None
+                    else ""  # (said of a floating body, the ground was one it does not have)
+                )
             )
         if "hover" in self.first_problem_step:
             step = self.first_problem_step["hover"]

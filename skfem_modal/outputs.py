@@ -136,7 +136,7 @@ def check_output_file(path, option: str, suffix: str, example: str) -> None:
         raise ValueError(f"{option} {path}: {folder} is not a folder this user can write in") from None
 
 
-def _check_writable(directory: str) -> None:
+def _check_writable(directory: str, what: str = "the output folder") -> None:
     """Raise PermissionError, naming the output folder, if a folder cannot be made where it is (or in it).
 
     Tried, not read off the permissions (root passes those, and /proc refuses all the
@@ -150,7 +150,7 @@ def _check_writable(directory: str) -> None:
         os.rmdir(tempfile.mkdtemp(prefix=".skfem_modal-", dir=existing))
     except OSError as err:
         raise PermissionError(
-            f"the output folder {directory!r} cannot be written: {existing!r} refuses a new folder "
+            f"{what} {directory!r} cannot be written: {existing!r} refuses a new folder "
             f"({err.strerror}); choose another output folder"
         ) from None
 
@@ -206,6 +206,9 @@ def check_output_folder(directory, kind: str) -> list[str]:
             f"the output folder {directory!r} {what} a file, not a folder: choose another output folder"
         )
     _check_writable(directory)
+    frames = os.path.join(directory, FRAMES_DIR)
+    if kind == "run" and os.path.isdir(frames):  # before anything is removed or run: a frames/ made read-only
+        _check_writable(frames, "the output folder's frames")
     for other, earlier in _KINDS.items():
         others = earlier(directory) if other != kind else []
         if others:

@@ -773,6 +773,13 @@ def render_run(
         backend = "pyvista" if gl_available() else "matplotlib"
     summary = run["summary"]
     listed = run["frames"]
+    # every frame listed is there (a sampled animation read only those it draws: one deleted went unseen)
+    missing = [path for _, path in listed if not os.path.isfile(path)]
+    if missing:
+        raise FileNotFoundError(
+            f"frame file {missing[0]!r} (listed in frames.pvd) is missing"
+            + (f", and {len(missing) - 1} more" if len(missing) > 1 else "")
+        )
     last = len(listed) - 1
     animated = set(np.linspace(0, last, min(max_frames, len(listed))).round().astype(int).tolist())
     # the stills are always the run's first and last frames, whatever the animation holds

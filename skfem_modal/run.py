@@ -396,7 +396,9 @@ def _measured(sim, log: dict) -> dict:
             "histogram": {str(k): int(v) for k, v in zip(*np.unique(it, return_counts=True))},
             "residual": _residual_stats(log["residuals"]),
         },
-        "com": {
+        "com": None  # (a run that failed writing its rest state: the error says why, not an IndexError)
+        if not len(coms)
+        else {
             "start": coms[0],
             "end": coms[-1],
             "travel": coms[-1] - coms[0],

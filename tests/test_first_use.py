@@ -123,6 +123,30 @@ def test_an_earlier_run_is_refused_or_replaced_never_mixed(tmp_path, capsys, sma
         run_scene(Scene.from_toml(small_scene), out)
 
 
+def test_a_frames_folder_that_cannot_be_written_is_refused_before_anything_is_removed(
+    tmp_path, capsys, small_scene, monkeypatch
+):
+    """An audit (as a user, frames/ made read-only): the run crashed with a traceback, and --overwrite had
+    already removed the earlier run's tables, losing it."""
+    import tempfile
+
+    out = tmp_path / "out"
+    assert main(["run", str(small_scene), "--out", str(out), "-q"]) == 0
+    before = sorted(os.listdir(out)), sorted(os.listdir(out / "frames"))
+    made = tempfile.mkdtemp
+
+    def refused_in_frames(*args, dir=None, **kwargs):  # as a folder this user cannot write (root writes any)
+        if os.path.basename(dir) == "frames":
+            raise PermissionError(13, "Permission denied")
+        return made(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refused_in_frames)
+    assert main(["run", str(small_scene), "--out", str(out), "-q", "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"skfem-modal run: error: the output folder's frames {str(out / 'frames')!r} cannot be")
+    assert "Traceback" not in err and (sorted(os.listdir(out)), sorted(os.listdir(out / "frames"))) == before
+
+
 def test_the_cleaner_knows_every_file_a_run_and_render_write(tmp_path, small_scene, capsys):
     from skfem_modal.outputs import earlier_run
 

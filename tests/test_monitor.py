@@ -156,6 +156,7 @@ def test_a_body_too_soft_for_its_weight_is_blamed_on_the_material_not_the_time_s
     assert "it would collapse under its own weight" in scale  # the scene's ScaleWarning, before the run
     assert spread.endswith("the body grew to 4.31 times its rest size")  # (not 'no force deforms it so far')
     assert "of the elements were inside out, up to" in inverted
+    assert inverted.endswith("so vertices inside it may be below the ground while its boundary is not")
     assert "smaller time.step" not in blame and blame.startswith(
         "skfem-modal run: warning: the material is too soft to carry the body's own weight (the body is 1.96e+07 "
         "times mu / (rho |g|) = 1.02e-07"
@@ -341,3 +342,17 @@ def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_grou
     assert stiff["physical"] and stiff["inverted_elements"] == 0
     with pytest.warns(MotionWarning, match="of the elements were inside out"):
         assert run_scene(Scene.from_dict(_soft_box(3e3, 60)), None)["motion"]["inverted_elements"] > 300
+
+
+def test_a_floating_body_turned_inside_out_is_not_told_of_a_ground():
+    """An audit: the warning of a floating body folded through itself spoke of vertices below the ground."""
+    scene = _soft_box(3e3, 30)
+    del scene["ground"]
+    scene["gravity"] = None
+    scene = {key: value for key, value in scene.items() if value is not None}
+    scene["muscles"] = {"count": 2, "gait": {"amplitude": [60.0, -60.0], "period": [0.3, 0.2]}}
+    with pytest.warns(MotionWarning) as caught:
+        summary = run_scene(Scene.from_dict(scene), None)
+    inverted = [w for w in summary["motion"]["warnings"] if "were inside out" in w]
+    assert inverted and inverted[0].endswith("the body folded through itself")
+    assert not any("ground" in str(w.message) for w in caught)

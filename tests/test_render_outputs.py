@@ -170,6 +170,20 @@ def test_a_missing_or_broken_frame_is_named_in_one_line(run_copy, capsys, damage
     assert sorted(os.listdir(run_copy)) == before  # nothing drawn
 
 
+def test_a_missing_frame_the_animation_leaves_out_is_named_too(run_copy, capsys):
+    """An audit: with --max-frames below the frames listed, a deleted frame it did not draw went unseen."""
+    for k in (1, 3):
+        (run_copy / "frames" / f"frame_0000{k}.vtu").unlink()
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--backend", "matplotlib", "--max-frames", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"skfem-modal render: error: frame file {str(run_copy / 'frames' / 'frame_00001.vtu')!r} (listed in "
+        "frames.pvd) is missing, and 1 more\n"
+    )
+    assert sorted(os.listdir(run_copy)) == before
+
+
 def test_frames_go_to_the_animation_one_at_a_time(run_copy, monkeypatch):
     """Each frame is written as soon as it is drawn and nothing keeps it: memory is one frame's, not all of them."""
     drawn, alive_when_written = [], []
