@@ -809,6 +809,14 @@ def _read_meshio(path: str, role: str = "mesh"):
         what = f"not a file meshio reads as {tried.group(1)}" if tried else "not a file meshio reads"
         reason = f"{complaints.strip()} ({what})" if complaints.strip() else what
         raise MeshError(f"cannot read {role} {path!r}: {reason}") from None
+    except meshio.ReadError as err:
+        if "deduce file format" in str(err):  # an extension no reader claims: say which ones do
+            known = ", ".join(sorted(meshio.extension_to_filetypes))
+            raise MeshError(
+                f"cannot read {role} {path!r}: no mesh format has the extension "
+                f"{os.path.splitext(path)[1] or '(none)'!r}; meshio reads {known}"
+            ) from None
+        raise MeshError(f"cannot read {role} {path!r}: ReadError: {err}") from None
     except Exception as err:  # meshio raises many kinds for broken files
         raise MeshError(f"cannot read {role} {path!r}: {type(err).__name__}: {err}") from None
 

@@ -48,12 +48,15 @@ def garbage_files(tmp_path):
     garbage.write_text("garbage\n")
     empty = tmp_path / "nocells.vtu"
     meshio.write(empty, meshio.Mesh(np.random.default_rng(1).random((5, 3)), []))
-    return garbage, empty
+    unknown = tmp_path / "points.xyz"  # meshio's raw "Could not deduce file format" before
+    unknown.write_text("0 0 0\n")
+    return garbage, empty, unknown
 
 
 @pytest.mark.parametrize("command", ["modes", "info"])
 def test_unreadable_mesh_files_exit_2_with_one_line(tmp_path, capsys, command):
-    for path, reason in zip(garbage_files(tmp_path), ["as ansys, gmsh", "Inconsistent data!"]):
+    reasons = ["as ansys, gmsh", "Inconsistent data!", "no mesh format has the extension '.xyz'; meshio reads .avs"]
+    for path, reason in zip(garbage_files(tmp_path), reasons):
         assert main([command, str(path), *(["--out", str(tmp_path / "m.vtu")] if command == "modes" else [])]) == 2
         out, err = capsys.readouterr()
         assert out == "" and err.count("\n") == 1, err
@@ -62,7 +65,7 @@ def test_unreadable_mesh_files_exit_2_with_one_line(tmp_path, capsys, command):
 
 
 def test_scene_with_an_unreadable_mesh_file_exits_2(tmp_path, capsys):
-    garbage, _ = garbage_files(tmp_path)
+    garbage, _, _ = garbage_files(tmp_path)
     scene = tmp_path / "s.toml"
     scene.write_text(f'[mesh]\nfile = "{garbage.name}"\n')
     assert main(["run", str(scene), "--out", str(tmp_path / "out"), "-q"]) == 2
