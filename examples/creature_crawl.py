@@ -28,7 +28,7 @@ sim = ModalMuscle.from_mesh(
     h=0.01,
     gravity=[0.0, 0.0, -9.8],
     ground=ground,
-    friction=0.5,  # Coulomb: every vertex stays above the ground, feet stick or slip
+    friction=0.5,  # Coulomb: no vertex over 0.02 % of the size below the ground; feet stick or slip
 )
 print("effects:", ", ".join(sim.effects), f"| subspace {sim.B.shape[1]}, {sim.n_clusters} clusters")
 

@@ -187,7 +187,7 @@ def cmd_run(args) -> int:
     for text in summary["motion"]["warnings"]:
         print(f"skfem-modal run: warning: {text}", file=sys.stderr)
     step = summary["timings"]["step_ms"]
-    travel = np.round(summary["com"]["travel"], 4).tolist()
+    travel = (np.round(summary["com"]["travel"], 4) + 0.0).tolist()  # (+ 0.0: no "-0.0" for a body that stayed)
     say(
         f"precompute {summary['timings']['precompute_total_s']:.3f} s; step median {step['median']:.3f} ms, "
         f"p90 {step['p90']:.3f} ms ({summary['backend']}); iterations per step {summary['iterations']['mean']:.2f}"
