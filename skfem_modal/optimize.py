@@ -127,8 +127,8 @@ class GaitSpace:
     """
 
     def __init__(self, n_muscles: int, amplitude_max: float = 1.0, period_min: float = 0.3, period_max: float = 2.0):
-        if n_muscles < 1:
-            raise ValueError("a gait search needs at least one muscle")
+        if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 1:
+            raise ValueError(f"a gait search needs a whole number of muscles, at least one, got {n_muscles!r}")
         for name, value in (("amplitude_max", amplitude_max), ("period_min", period_min), ("period_max", period_max)):
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
@@ -438,6 +438,10 @@ def run_search(
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
     _check_evolution(generations, popsize, sigma0)
     _check_seed(seed)
+    if stop_after is not None and (
+        isinstance(stop_after, bool) or not isinstance(stop_after, (int, np.integer)) or stop_after < 1
+    ):
+        raise ValueError(f"stop_after must be a positive whole number of generations, got {stop_after!r}")
     _check_samples(samples, jitter)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     fingerprint = scene_fingerprint(scene)

@@ -221,6 +221,11 @@ class Trial:
             travelled: a gait that flings a body apart must not win.
         """
         sim = self.sim
+        for key in ("amplitude", "period", "phase"):  # (a single amplitude was stretched to every muscle)
+            if np.ndim(gait[key]) != 1 or len(gait[key]) != sim.n_muscles:
+                raise ValueError(
+                    f"the gait's {key} must have one value per muscle ({sim.n_muscles}), got {gait[key]!r}"
+                )
         amplitudes = np.asarray(gait["amplitude"], float) * sim.ceilings
         periods, phases = gait["period"], gait["phase"]
         ramp = checked_ramp(gait["ramp"], "the gait's ramp") if "ramp" in gait else self.ramp

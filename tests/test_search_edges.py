@@ -674,3 +674,29 @@ def test_a_worker_unpickles_a_sent_trial_once_and_keeps_its_last_three(monkeypat
     assert list(rollouts._TRIALS) == ["key-bb", "key-ccc", "key-dddd"]  # the oldest went
     with pytest.raises(RuntimeError, match="holds no trial of that key and was sent no scene"):
         rollouts.rollout({"trial": "key-a", "gait": {}, "payload": None, "recipe": None})
+
+
+def test_a_gait_of_the_wrong_length_a_non_whole_space_and_stop_after_are_refused(tmp_path):
+    """An audit: one amplitude for four muscles was stretched to all four; GaitSpace(2.0) failed later on a
+    slice; stop_after=0 died in max() of an empty sequence."""
+    import copy
+
+    from skfem_modal.optimize import GaitSpace, run_search
+    from skfem_modal.rollouts import Trial
+    from skfem_modal.scene import DEFAULT_SCENE
+
+    tiny = copy.deepcopy(DEFAULT_SCENE)
+    tiny["mesh"] = {"shape": "caterpillar", "params": {"nx": 12, "ny": 6}}
+    tiny["subspace"] = {"weights": 3, "clusters": 4}
+    trial = Trial.from_scene(tiny, steps=5, direction=[1.0, 0.0])
+    gait = {"amplitude": [0.45], "period": [1.0] * 4, "phase": [0.0] * 4}
+    with pytest.raises(ValueError, match=r"the gait's amplitude must have one value per muscle \(4\), got \[0.45\]"):
+        trial.run(gait)
+    with pytest.raises(ValueError, match="a whole number of muscles, at least one, got 2.0"):
+        GaitSpace(2.0)
+    for stop_after in (0, -1, 1.5):
+        with pytest.raises(
+            ValueError, match=f"stop_after must be a positive whole number of generations, got {stop_after}"
+        ):
+            run_search(tiny, tmp_path / "s", generations=2, popsize=3, steps=5, stop_after=stop_after)
+    assert not (tmp_path / "s").exists()
