@@ -438,10 +438,7 @@ def run_search(
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
     _check_evolution(generations, popsize, sigma0)
     _check_seed(seed)
-    if stop_after is not None and (
-        isinstance(stop_after, bool) or not isinstance(stop_after, (int, np.integer)) or stop_after < 1
-    ):
-        raise ValueError(f"stop_after must be a positive whole number of generations, got {stop_after!r}")
+    _check_stop_after(stop_after)
     _check_samples(samples, jitter)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     fingerprint = scene_fingerprint(scene)
@@ -551,6 +548,14 @@ def _check_seed(seed) -> None:
     """A seed CMA-ES takes deterministically: an integer from 0 to :data:`SEED_MAX`."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= SEED_MAX:
         raise ValueError(f"seed must be an integer from 0 to {SEED_MAX}, got {seed!r}")
+
+
+def _check_stop_after(stop_after) -> None:
+    """``stop_after``: None, or a positive whole number of generations (0 died in ``max`` of nothing)."""
+    if stop_after is None:
+        return
+    if isinstance(stop_after, bool) or not isinstance(stop_after, (int, np.integer)) or stop_after < 1:
+        raise ValueError(f"stop_after must be a positive whole number of generations, got {stop_after!r}")
 
 
 def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: int, data: dict) -> dict:
