@@ -36,7 +36,6 @@ dask, whatever the BLAS threads of the calling process.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import hashlib
 import json
@@ -47,12 +46,14 @@ import warnings
 
 import numpy as np
 
+from .checks import _nonnegative, _positive_scalar
 from .export import written_whole
 from .monitor import CeilingWarning
-from .outputs import SEARCH_FILES, TRANSFER_FILE, check_output_folder, listed
-from .rollouts import OBJECTIVES, Rollouts, Trial, rollout_steps
+from .outputs import SEARCH_FILES, TRANSFER_FILE, check_output_folder, listed, made_folder, remove_if_empty
+from .rollouts import OBJECTIVES, Rollouts, Trial, rollout_steps, unit_direction
 from .run import Progress
-from .study import WorkersLost
+from .study import WorkersLost, checked_executor
+from .threads import checked_thread_count
 
 __all__ = [
     "GaitSpace",
@@ -151,8 +152,11 @@ class GaitSpace:
 
     def gait(self, u) -> dict:
         """Gait parameters of a point of the unit cube (3 m values)."""
-        u = np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0)
         m = self.m
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (3 * m,):
+            raise ValueError(f"a point of this gait space has 3 x {m} values (amplitudes, periods, phases): {u.size}")
+        u = np.clip(u, 0.0, 1.0)
         return {
             "amplitude": (u[:m] * self.amplitude_max).tolist(),
             "period": (self.period_min + u[m : 2 * m] * (self.period_max - self.period_min)).tolist(),
@@ -160,10 +164,19 @@ class GaitSpace:
         }
 
     def point(self, gait: dict) -> np.ndarray:
-        """The unit-cube point of a gait (clipped into the box)."""
-        amp = np.asarray(gait["amplitude"], float) / self.amplitude_max
-        per = (np.asarray(gait["period"], float) - self.period_min) / (self.period_max - self.period_min)
-        phase = np.asarray(gait.get("phase") or np.zeros(self.m), float) % 1.0
+        """The unit-cube point of a gait (clipped into the box; no ``phase``: zeros)."""
+        for key in ("amplitude", "period"):
+            if key not in gait:
+                raise ValueError(f"the gait has no {key!r} (a gait has amplitude, period and phase)")
+        values = {key: np.asarray(gait[key], float) for key in ("amplitude", "period")}
+        phase = gait.get("phase")  # (None in a scene's gait that gives none)
+        values["phase"] = np.zeros(self.m) if phase is None else np.asarray(phase, float)
+        for key, value in values.items():
+            if value.shape != (self.m,):
+                raise ValueError(f"the gait's {key} must have one value per muscle ({self.m}), got {value.tolist()}")
+        amp = values["amplitude"] / self.amplitude_max
+        per = (values["period"] - self.period_min) / (self.period_max - self.period_min)
+        phase = values["phase"] % 1.0
         return np.clip(np.concatenate([amp, per, phase]), 0.0, 1.0)
 
 
@@ -229,13 +242,6 @@ def _write_atomic(path: str, writer, mode: str = "wb") -> None:
     """Write a file whole or not at all (a reader or an interruption never sees half of it)."""
     with written_whole(path) as tmp, open(tmp, mode, **({} if "b" in mode else {"newline": ""})) as f:
         writer(f)
-
-
-def _unit_direction(direction, dim: int) -> np.ndarray:
-    direction = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
-    if direction.shape != (dim,) or not np.all(np.isfinite(direction)) or not np.linalg.norm(direction) > 0:
-        raise ValueError(f"direction must be a non-zero vector of {dim} values, got {np.ravel(direction).tolist()}")
-    return direction / np.linalg.norm(direction)
 
 
 def read_checkpoint(path: str) -> dict:
@@ -440,6 +446,8 @@ def run_search(
     _check_seed(seed)
     _check_stop_after(stop_after)
     _check_samples(samples, jitter)
+    executor = checked_executor(executor)
+    checked_thread_count(blas_threads)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     fingerprint = scene_fingerprint(scene)
     if resume and overwrite:
@@ -480,8 +488,7 @@ def run_search(
                 start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
                 state = _new_state(settings, start, fingerprint)
                 state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
-                made = not os.path.exists(out_dir)
-                os.makedirs(out_dir, exist_ok=True)
+                made = made_folder(out_dir)
                 replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
             elif state["history"]:
                 _write_outputs(paths, data, state)  # a resumed search's files match its checkpoint
@@ -500,15 +507,17 @@ def run_search(
         if bar:
             bar.close()
         done, kept = _stopped(paths, data, objective, replacing)
-        if made and not done:  # the folder this search made, left empty (it stayed behind: an audit)
-            with contextlib.suppress(OSError):
-                os.rmdir(out_dir)
+        remove_if_empty(out_dir, made)  # (the folder this search made stayed behind: an audit)
         raise SearchInterrupted(done, generations, out_dir, kept) from None
     except WorkersLost as lost:
         if bar:
             bar.close()
         done, kept = _stopped(paths, data, objective, replacing)
+        remove_if_empty(out_dir, made)
         raise SearchWorkersLost(str(lost), done, generations, out_dir, kept) from lost
+    except Exception:
+        remove_if_empty(out_dir, made)
+        raise
     return _result(state, paths, precompute)
 
 
@@ -522,12 +531,11 @@ def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: 
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
     steps = scene.n_steps if steps is None else steps
     rollout_steps(steps)
-    for name, value in (("tip_limit_degrees", tip_limit_degrees), ("tip_weight", tip_weight)):
-        if not (np.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be non-negative, got {value!r}")
+    tip_limit_degrees = _nonnegative(tip_limit_degrees, "tip_limit_degrees")
+    tip_weight = _nonnegative(tip_weight, "tip_weight")
     return {
         "steps": int(steps),
-        "direction": _unit_direction(direction, scene.dim).tolist(),
+        "direction": unit_direction(direction, scene.dim).tolist(),
         "objective": objective,
         "tip_limit": float(np.radians(tip_limit_degrees)),
         "tip_weight": float(tip_weight),
@@ -540,8 +548,7 @@ def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
         # a fraction ran: 2.5 generations ran 3
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise ValueError(f"{name} must be an integer of at least {least}, got {value!r}")
-    if not (np.isfinite(sigma0) and sigma0 > 0):
-        raise ValueError(f"sigma0 must be positive, got {sigma0!r}")
+    _positive_scalar(sigma0, "sigma0")
 
 
 def _check_seed(seed) -> None:
@@ -735,7 +742,7 @@ def _check_samples(samples: int, jitter: float) -> None:
     """The rollouts of a candidate: a positive count; its copies' changes in [0, 0.5) (see :func:`_jittered`)."""
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    if not 0.0 <= jitter < 0.5:
+    if not _nonnegative(jitter, "jitter") < 0.5:
         raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")
 
 

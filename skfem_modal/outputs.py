@@ -32,6 +32,8 @@ __all__ = [
     "listed",
     "clear_earlier_run",
     "clear_earlier_study",
+    "made_folder",
+    "remove_if_empty",
 ]
 
 #: The files of a run (the frame series' index, tables, summary).
@@ -153,6 +155,28 @@ def _check_writable(directory: str, what: str = "the output folder") -> None:
             f"{what} {directory!r} cannot be written: {existing!r} refuses a new folder "
             f"({err.strerror}); choose another output folder"
         ) from None
+
+
+def made_folder(directory: str) -> bool:
+    """Make ``directory`` (and its parents) for a study's or a search's files: whether it is new.
+
+    A new one the work then leaves empty (it failed before writing) is for :func:`remove_if_empty`.
+    """
+    new = not os.path.exists(directory)
+    os.makedirs(directory, exist_ok=True)
+    return new
+
+
+def remove_if_empty(directory: str, new: bool) -> None:
+    """After work that failed: remove ``directory`` if it was ``new`` (:func:`made_folder`) and holds nothing.
+
+    A search that failed in its first generation left an empty folder behind, to be mistaken for a result.
+    """
+    if new:
+        try:
+            os.rmdir(directory)  # refuses a folder that holds anything
+        except OSError:
+            pass
 
 
 def earlier_study(directory) -> list[str]:

@@ -52,14 +52,15 @@ import warnings
 
 import numpy as np
 
+from .checks import _nonnegative
 from .interrupts import exit_with_parent
 from .mesh import body_size
 from .monitor import MotionMonitor
 from .muscles import checked_ramp, sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
-from .study import WorkersLost, dask_client, lost_workers, make_executor
-from .threads import limited_blas_threads
+from .study import WorkersLost, checked_executor, dask_client, lost_workers, make_executor
+from .threads import checked_thread_count, limited_blas_threads
 
 __all__ = ["OBJECTIVES", "MAX_ROLLOUT_STEPS", "Trial", "Rollouts", "rollout", "rollout_steps", "body_rotation_rows"]
 
@@ -93,6 +94,17 @@ def rollout_steps(steps) -> int:
             "state): give fewer"
         )
     return int(steps)
+
+
+def unit_direction(direction, dim: int) -> np.ndarray:
+    """A travel direction made a unit vector (shape (dim,); None: +x), or a ValueError naming what it got."""
+    try:
+        vector = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
+    except (TypeError, ValueError):
+        vector = None
+    if vector is None or vector.shape != (dim,) or not np.all(np.isfinite(vector)) or not np.linalg.norm(vector) > 0:
+        raise ValueError(f"direction must be a non-zero, finite vector of {dim} values, got {direction!r}")
+    return vector / np.linalg.norm(vector)
 
 
 def body_rotation_rows(sim) -> np.ndarray:
@@ -160,14 +172,11 @@ class Trial:
         if objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
         rollout_steps(steps)
-        direction = np.asarray(direction, dtype=float)
-        if direction.shape != (sim.dim,) or not np.linalg.norm(direction) > 0:
-            raise ValueError(f"direction must be a non-zero vector of {sim.dim} values, got {direction.tolist()}")
         self.sim = sim
         self.steps = int(steps)
-        self.direction = direction / np.linalg.norm(direction)
+        self.direction = unit_direction(direction, sim.dim)
         self.objective = objective
-        self.tip_limit, self.tip_weight = float(tip_limit), float(tip_weight)
+        self.tip_limit, self.tip_weight = _nonnegative(tip_limit, "tip_limit"), _nonnegative(tip_weight, "tip_weight")
         self.ramp = checked_ramp(ramp, "the trial's ramp")
         self.size = body_size(sim.mesh)
         self.rotation_rows = body_rotation_rows(sim)
@@ -222,6 +231,8 @@ class Trial:
         """
         sim = self.sim
         for key in ("amplitude", "period", "phase"):  # (a single amplitude was stretched to every muscle)
+            if key not in gait:
+                raise ValueError(f"the gait has no {key!r}: a gait has an amplitude, a period and a phase per muscle")
             if np.ndim(gait[key]) != 1 or len(gait[key]) != sim.n_muscles:
                 raise ValueError(
                     f"the gait's {key} must have one value per muscle ({sim.n_muscles}), got {gait[key]!r}"
@@ -288,12 +299,20 @@ class Trial:
         }
 
 
-def _limit_blas(threads, parent=None) -> None:
-    """Limit this worker process's BLAS threads for as long as it lives (once; never the search's own process)."""
-    if threads is not None and not _BLAS_LIMIT and os.getpid() != parent:
+def _limit_blas(threads) -> None:
+    """Limit the BLAS threads of a worker process of the search's own pool for as long as it lives."""
+    if threads is not None and not _BLAS_LIMIT:
         limit = limited_blas_threads(threads)
         limit.__enter__()
         _BLAS_LIMIT.append(limit)
+
+
+def _task_blas_limit(task: dict):
+    """The BLAS limit for one task: ``blas_threads`` while it runs in a worker of the caller's executor (a
+    dask worker, a pool of the caller's: left as they were after it); none in the search's own pool (limited
+    for its life) or in the search's own process (threads of its executor: the caller's settings)."""
+    own = _BLAS_LIMIT or os.getpid() == task.get("parent")
+    return limited_blas_threads(None if own else task.get("blas_threads"))
 
 
 def _install(key: str, payload: bytes, blas_threads) -> None:
@@ -324,18 +343,18 @@ def rollout(task: dict) -> dict:
         :meth:`Trial.run`'s, with this worker's ``pid`` and how many trials
         it has ``received`` and ``built``.
     """
-    _limit_blas(task.get("blas_threads"), task.get("parent"))
     key = task["trial"]
-    if key not in _TRIALS:
-        if task.get("payload") is not None:
-            _TRIALS[key] = pickle.loads(task["payload"])
-        elif task.get("recipe") is not None:
-            _TRIALS[key] = Trial.from_scene(**task["recipe"])
-        else:
-            raise RuntimeError("this worker holds no trial of that key and was sent no scene to build it from")
-        while len(_TRIALS) > _KEPT_TRIALS:
-            del _TRIALS[next(iter(_TRIALS))]  # the oldest
-    score = _TRIALS[key].run(task["gait"])
+    with _task_blas_limit(task):
+        if key not in _TRIALS:
+            if task.get("payload") is not None:
+                _TRIALS[key] = pickle.loads(task["payload"])
+            elif task.get("recipe") is not None:
+                _TRIALS[key] = Trial.from_scene(**task["recipe"])
+            else:
+                raise RuntimeError("this worker holds no trial of that key and was sent no scene to build it from")
+            while len(_TRIALS) > _KEPT_TRIALS:
+                del _TRIALS[next(iter(_TRIALS))]  # the oldest
+        score = _TRIALS[key].run(task["gait"])
     score.update(pid=os.getpid(), **_COUNTS)
     return score
 
@@ -368,7 +387,8 @@ class Rollouts:
     def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
         clock = time.perf_counter()
         self._close, self._scattered, self._payload, self._lost_payloads = None, None, None, 0
-        self.blas_threads = blas_threads
+        self.blas_threads = checked_thread_count(blas_threads)
+        executor = checked_executor(executor)
         client = dask_client(executor)
         self.recipe = None
         if executor is not None and client is None:

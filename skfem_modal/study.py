@@ -47,7 +47,7 @@ import numpy as np
 from .export import written_whole
 from .interrupts import QuietSpawnContext, exit_with_parent
 from .mesh import body_size
-from .outputs import clear_earlier_study
+from .outputs import clear_earlier_study, made_folder, remove_if_empty
 from .sim import simulate
 from .threads import limited_blas_threads
 
@@ -62,6 +62,7 @@ __all__ = [
     "pareto_front",
     "recommend",
     "make_executor",
+    "checked_executor",
     "WorkersLost",
     "lost_workers",
     "dask_client",
@@ -700,6 +701,43 @@ class WorkersLost(RuntimeError):
     """An executor lost its workers (a process killed, the dask scheduler gone): the tasks they had are lost."""
 
 
+def checked_executor(executor):
+    """An executor given by a caller, as one whose ``submit`` and ``map`` give results: or a clear error.
+
+    A dask ``Client`` is taken as ``client.get_executor()`` (its own ``map`` gives futures, not results:
+    a search failed after all its rollouts); anything without ``submit`` and ``map`` (a dask
+    ``LocalCluster``, say) is refused before any work.
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor, dask Client or None
+
+    Examples
+    --------
+    >>> from concurrent.futures import ThreadPoolExecutor
+    >>> with ThreadPoolExecutor(1) as pool:
+    ...     checked_executor(pool) is pool
+    True
+    >>> checked_executor("tcp://host:8786")
+    Traceback (most recent call last):
+    ...
+    TypeError: executor must be a concurrent.futures.Executor or a dask Client, got a str (an address: scheduler=)
+    """
+    if executor is None or isinstance(executor, Executor):
+        return executor
+    kind = type(executor)
+    from_dask = kind.__module__.startswith("distributed")
+    if from_dask and callable(getattr(executor, "get_executor", None)):
+        return executor.get_executor()
+    if not from_dask and all(callable(getattr(executor, name, None)) for name in ("submit", "map")):
+        return executor  # an executor of its own kind, duck-typed as concurrent.futures' are
+    hint = {"str": " (an address: scheduler=)", "LocalCluster": " (pass dask.distributed.Client(cluster))"}
+    raise TypeError(
+        f"executor must be a concurrent.futures.Executor or a dask Client, got a {kind.__name__}"
+        + hint.get(kind.__name__, "")
+    )
+
+
 def dask_client(executor):
     """The dask client behind an executor (``client.get_executor()``), or None for any other executor.
 
@@ -825,12 +863,14 @@ def run_study(
             "compares settings over the same motion, its preset's length"
         )
     close = None
+    executor = checked_executor(executor)
     if executor is None:  # a scheduler that does not answer: before the folder is made
         executor, close = make_executor(workers, scheduler, initializer=None if scheduler else _quiet_worker)
     started = time.perf_counter()
     stopped = True  # until the runs are done: an interrupt or an error does not wait for the others
+    made = False
     try:
-        os.makedirs(out_dir, exist_ok=True)
+        made = made_folder(out_dir)
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
         scenes = {f: resolution_scene(data, f) for f in resolutions}
         references = _run_references(executor, scenes, base_dir, cfg["steps"], say)
@@ -845,8 +885,9 @@ def run_study(
             say(f"{row['label']:28s} {row['step_ms']:8.3f} ms")
         modal_rows = modal_convergence(tuple(cfg["modal"]))
         stopped = False
-    except Exception as error:
-        said = lost_workers(error, executor)
+    except BaseException as error:
+        remove_if_empty(out_dir, made)  # nothing is written until the runs are done
+        said = lost_workers(error, executor) if isinstance(error, Exception) else None
         if said is None:
             raise
         raise WorkersLost(f"the study lost its workers: {said}; a study keeps no checkpoint: run it again") from None

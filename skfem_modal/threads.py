@@ -21,7 +21,9 @@ import ctypes
 import os
 from contextlib import contextmanager
 
-__all__ = ["limited_blas_threads", "openblas_threads"]
+import numpy as np
+
+__all__ = ["limited_blas_threads", "openblas_threads", "checked_thread_count"]
 
 # OpenBLAS's own entry point, under the names its builds export it
 # (scipy-openblas wheels add a prefix and, for 64-bit integers, a suffix)
@@ -31,6 +33,23 @@ _SETTERS = (
     "scipy_openblas_set_num_threads",
     "scipy_openblas_set_num_threads64_",
 )
+
+
+def checked_thread_count(limit, name: str = "blas_threads") -> int | None:
+    """A BLAS thread count: None (leave the libraries as they are) or a whole number >= 1; else a ValueError naming it.
+
+    Examples
+    --------
+    >>> checked_thread_count(0)
+    Traceback (most recent call last):
+    ...
+    ValueError: blas_threads must be None or a whole number of threads >= 1, got 0
+    """
+    if limit is None:
+        return None
+    if isinstance(limit, (bool, np.bool_)) or not isinstance(limit, (int, np.integer)) or limit < 1:
+        raise ValueError(f"{name} must be None or a whole number of threads >= 1, got {limit!r}")
+    return int(limit)
 
 
 @contextmanager
@@ -48,7 +67,7 @@ def limited_blas_threads(limit: int | None = 1):
     >>> with limited_blas_threads(1):
     ...     _ = np.ones((200, 200)) @ np.ones((200, 200))
     """
-    if limit is None:
+    if checked_thread_count(limit, "limit") is None:
         yield
         return
     try:

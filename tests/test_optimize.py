@@ -538,3 +538,13 @@ def test_rollouts_go_on_when_dask_loses_the_scattered_trial():
     scores = [{k: v for k, v in score.items() if k not in ("pid", "received", "built")} for score in first]
     assert [{k: v for k, v in score.items() if k not in ("pid", "received", "built")} for score in again] == scores
     assert killed.isdisjoint(score["pid"] for score in again)  # the new workers ran them
+
+
+@pytest.mark.slow
+def test_a_dask_client_itself_serves_as_the_executor(local, tmp_path):
+    """An audit: ``executor=Client(processes=False)`` ran every rollout, then failed ('Future' object is not
+    subscriptable): a client's own map gives futures."""
+    distributed = pytest.importorskip("dask.distributed", reason="dask is in the distributed extra")
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        result = search(tmp_path, executor=client)
+    assert result["best"] == local["best"]

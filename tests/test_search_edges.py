@@ -700,3 +700,112 @@ def test_a_gait_of_the_wrong_length_a_non_whole_space_and_stop_after_are_refused
         ):
             run_search(tiny, tmp_path / "s", generations=2, popsize=3, steps=5, stop_after=stop_after)
     assert not (tmp_path / "s").exists()
+
+
+# ------------------------------------------------------------ executors and settings of the caller's
+
+
+def test_an_executor_that_is_no_executor_is_refused_before_any_work(tmp_path):
+    """An audit: a dask LocalCluster passed as the executor failed after the precompute (it has no map)."""
+    LocalCluster = type("LocalCluster", (), {"__module__": "distributed.deploy.local"})
+    for executor, said in (
+        (LocalCluster(), r"got a LocalCluster \(pass dask.distributed.Client\(cluster\)\)"),
+        ("tcp://127.0.0.1:8786", r"got a str \(an address: scheduler=\)"),
+    ):
+        with pytest.raises(TypeError, match=said):
+            search(tmp_path / "out", executor=executor)
+        with pytest.raises(TypeError, match=said):
+            study.run_study(study.FLOATING_CATERPILLAR, tmp_path / "study", executor=executor)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("threads", ["x", 0, -1, True, 1.5])
+def test_blas_threads_are_a_whole_number_checked_before_any_work(tmp_path, threads):
+    """An audit: blas_threads='x' was reported as the workers lost; 0 was taken."""
+    with pytest.raises(
+        ValueError, match=f"blas_threads must be None or a whole number of threads >= 1, got {threads!r}"
+    ):
+        search(tmp_path / "out", blas_threads=threads)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_search_that_fails_in_its_first_generation_leaves_no_empty_folder(tmp_path, monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    def fail(self, gait):
+        raise RuntimeError("a rollout failed")
+
+    monkeypatch.setattr(rollouts.Trial, "run", fail)
+    with ThreadPoolExecutor(1) as pool, pytest.raises(RuntimeError, match="a rollout failed"):
+        search(tmp_path / "new", executor=pool)
+    assert not (tmp_path / "new").exists()
+
+
+def _openblas_threads():
+    from skfem_modal.threads import openblas_threads
+
+    return openblas_threads()
+
+
+def _two_blas_threads():
+    from skfem_modal.threads import _loaded_openblas
+
+    for library in _loaded_openblas():
+        library.set(2)
+
+
+def test_the_workers_of_a_callers_pool_keep_their_blas_threads(tmp_path, uninterrupted):
+    """An audit: the search left the workers of the caller's own pool at one BLAS thread for good."""
+    import multiprocessing
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"), initializer=_two_blas_threads) as pool:
+        before = pool.submit(_openblas_threads).result()
+        result = search(tmp_path, executor=pool, blas_threads=1)
+        after = pool.submit(_openblas_threads).result()
+    assert before and set(before) == {2}
+    assert after == before
+    assert result["best"] == uninterrupted["best"]  # the rollouts themselves ran with one thread, as the pool's
+
+
+def test_trial_settings_are_checked_by_name(cat_mesh):
+    sim = sm.ModalMuscle.from_mesh(cat_mesh, n_muscles=2, n_weights=2, n_clusters=3)
+    for settings, error, said in (
+        ({"tip_limit": -0.1}, ValueError, "tip_limit must be non-negative and finite, got -0.1"),
+        ({"tip_weight": float("nan")}, ValueError, "tip_weight must be non-negative and finite, got nan"),
+        ({"tip_weight": "10"}, TypeError, "tip_weight must be a number, got '10'"),
+        ({"direction": [np.inf, 0.0]}, ValueError, r"direction must be a non-zero, finite vector of 2 values"),
+        ({"direction": "x"}, ValueError, r"direction must be a non-zero, finite vector of 2 values, got 'x'"),
+    ):
+        with pytest.raises(error, match=said):
+            rollouts.Trial(sim, 5, **{"direction": [1.0, 0.0], **settings})
+    trial = rollouts.Trial(sim, 5, [1.0, 0.0])
+    with pytest.raises(ValueError, match="the gait has no 'phase'"):
+        trial.run({"amplitude": [0.1, 0.1], "period": [1.0, 1.0]})
+
+
+def test_a_gait_space_checks_the_lengths_it_maps():
+    space = GaitSpace(2)
+    with pytest.raises(ValueError, match=r"3 x 2 values \(amplitudes, periods, phases\): 5"):
+        space.gait(np.zeros(5))
+    with pytest.raises(ValueError, match=r"the gait's period must have one value per muscle \(2\), got \[1.0\]"):
+        space.point({"amplitude": [0.1, 0.2], "period": [1.0], "phase": [0.0, 0.5]})
+    with pytest.raises(ValueError, match="the gait has no 'period'"):
+        space.point({"amplitude": [0.1, 0.2]})
+    gait = {"amplitude": [0.1, 0.2], "period": [1.0, 1.5], "phase": [0.0, 0.5]}
+    back = space.gait(space.point(gait))
+    assert {key: pytest.approx(value, abs=1e-15) for key, value in gait.items()} == back
+    assert space.point({"amplitude": [0.1, 0.2], "period": [1.0, 1.5], "phase": None})[4:] == pytest.approx([0, 0])
+
+
+@pytest.mark.parametrize(
+    "setting, value, error, said",
+    [
+        ("sigma0", "0.2", TypeError, "sigma0 must be a number, got '0.2'"),
+        ("jitter", "0.01", TypeError, "jitter must be a number, got '0.01'"),
+        ("tip_limit_degrees", "60", TypeError, "tip_limit_degrees must be a number, got '60'"),
+    ],
+)
+def test_search_settings_given_as_text_are_refused_by_name(tmp_path, setting, value, error, said):
+    with pytest.raises(error, match=said):
+        search(tmp_path / "out", **{setting: value})
+    assert not (tmp_path / "out").exists()
