@@ -85,6 +85,8 @@ _PASSES = 16
 _JOIN = 4
 # vertices a step's projections look at, at most (the end of the step checks them all)
 _MOST = 32
+# heights that differ by less than this fraction of the size count as level when the lowest are picked
+_LEVEL = 1e-8
 # operators of sets of pushed and sticking vertices kept, the latest used
 _OPERATORS = 64
 # steps that keep the last step's picked vertices (while none is found below the ground at an end)
@@ -733,15 +735,25 @@ class CoulombContact(_Ground):
         if room <= 0 or not rest.size:
             return kept
         where = np.take(self.rest, rest, axis=1)  # (dim, n), its rows contiguous
-        corner = where.min(axis=1)
-        extent = where.max(axis=1) - corner
-        wide = extent > 0.05 * extent.max()  # a flat patch is cut along its width only
+        low_corner, high_corner = where.min(axis=1), where.max(axis=1)
+        extent = high_corner - low_corner
+        # a flat patch is cut along its width only (the bound nudged off a round 0.05: a creature's feet,
+        # 0.1 high and 2 long, were cut in height or not by the round-off of where the scene stood)
+        wide = extent > 0.0500001 * extent.max()
         side = (float(np.prod(extent[wide])) / room) ** (1.0 / np.count_nonzero(wide))
-        cells = ((where - corner[:, None]) / side).astype(np.int64)
+        # cells centred on the box's middle, half a cell off it: a body mirrored, or turned a quarter
+        # about an axis, is cut alike, and a regular mesh's vertices keep off the cells' edges (from a
+        # corner, they fell either side of an edge by the round-off of where the scene stood)
+        middle = 0.5 * (low_corner + high_corner)
+        cells = np.floor((where - middle[:, None]) / side + 0.5).astype(np.int64)
+        cells -= cells.min(axis=1, keepdims=True)
         cell = np.ravel_multi_index(cells, cells.max(axis=1) + 1)
-        order = np.lexsort((low[rest], cell))  # by cell, the lowest first in each
+        # heights equal but for round-off are level: the lowest of a flat sole is the first numbered (by
+        # the last digits of its height, moving the whole scene changed the pick: 1e-3 of the size a step)
+        level = np.rint((low[rest] - self.ground) / (_LEVEL * self.size[rest]))
+        order = np.lexsort((level, cell))  # by cell, the lowest first in each (then the first numbered)
         first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
-        first = first[np.argsort(low[rest][first])][:room]  # the lowest cells' vertices, if too many
+        first = first[np.lexsort((rest[first], level[first]))][:room]  # the lowest cells', if too many
         return np.concatenate([kept, rest[first]])
 
     def _pick(self, picked, z_start, start=None) -> None:
