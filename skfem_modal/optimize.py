@@ -129,7 +129,10 @@ class GaitSpace:
 
     def __init__(self, n_muscles: int, amplitude_max: float = 1.0, period_min: float = 0.3, period_max: float = 2.0):
         if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 1:
-            raise ValueError(f"a gait search needs a whole number of muscles, at least one, got {n_muscles!r}")
+            raise ValueError(
+                f"a gait search needs a whole number of muscles, at least one, got {n_muscles!r} (a scene's "
+                "muscles.count; a scene without a [muscles] section has none)"
+            )
         for name, value in (("amplitude_max", amplitude_max), ("period_min", period_min), ("period_max", period_max)):
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not np.isfinite(value):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")

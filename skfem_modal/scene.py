@@ -148,7 +148,11 @@ SCHEMA: dict[str, Any] = {
         "flip": Key(
             "strs",
             None,
-            'Mirror the mesh along these axes first, e.g. ["y"] for an outline traced in image coordinates (y down).',
+            'Mirror the mesh along these axes first, e.g. ["y"] for an outline traced in image coordinates (y down). '
+            "A mode's sign makes its largest entry positive, so a mirrored (or turned) mesh can get some muscles "
+            "with the other sign, and the same gait is then not the mirror image of the unflipped body's (the "
+            "caterpillar crawl of examples/ travels +0.475 in x; flipped in x, +2.86 with its signs, and "
+            "-0.475, the mirror image, only with each of its muscles.signs negated): set signs to match.",
             check=lambda v: None if all(a in ("x", "y", "z") for a in v) else 'a list of "x", "y", "z"',
         ),
         "merge": Key(
@@ -236,7 +240,7 @@ SCHEMA: dict[str, Any] = {
             "int",
             4,
             "Muscles: the lowest linear modes after the rigid ones (with pinned "
-            "vertices, the modes of the clamped body). 0 for none.",
+            "vertices, the modes of the clamped body). 0 for none, as in a scene without a [muscles] section.",
             check=lambda v: None if v >= 0 else "an integer >= 0",
         ),
         "signs": Key(
@@ -780,12 +784,17 @@ class Scene:
         :meth:`to_dict`'s ``source`` is taken as the source (a run's
         ``summary.json`` scene builds again).
         """
+        errors: list[str] = []
         if isinstance(data, dict) and "source" in data:
             data = dict(data)
             given = data.pop("source")
+            if not isinstance(given, str):  # (any value was taken, and dropped, without a word)
+                errors.append(f"source: expected the path the scene was read from (a string), got {given!r}")
             source = given if source == "dict" and isinstance(given, str) else source
-        errors: list[str] = []
         config = _validate_table(SCHEMA, resolve_paths(data, base_dir), "", errors)
+        if isinstance(data, dict) and data.get("muscles") is None:
+            # an effect the scene does not name is not simulated (4 muscles at rest stiffened such a body)
+            config["muscles"]["count"] = 0
         mesh = None
         table = None
         # every problem at once: the mesh is built when its own keys are right,

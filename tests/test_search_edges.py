@@ -367,7 +367,7 @@ def test_option_values_are_finite_before_any_work(tiny_scene, tmp_path, capsys, 
 def test_a_search_refused_by_the_library_is_said_without_its_banner(tmp_path, capsys):
     """The banner ("CMA-ES over ...") came before the error, as if the search had begun (an audit)."""
     scene = tmp_path / "float.toml"
-    scene.write_text('[mesh]\nshape = "caterpillar"\n[mesh.params]\nnx = 16\nny = 8\n')
+    scene.write_text('[mesh]\nshape = "caterpillar"\n[mesh.params]\nnx = 16\nny = 8\n[muscles]\ncount = 2\n')
     assert main(["optimize", str(scene), "--generations", "1", "--out", str(tmp_path / "s")]) == 2
     out = capsys.readouterr()
     assert out.out == "" and "the scene has no ground and no pins" in out.err
