@@ -253,7 +253,7 @@ def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
     if bad.size:
         where = "" if uniform else f" at elements {bad[:10].tolist()}"
         raise ValueError(
-            f"lam must be above -2 mu / {dim} (a positive bulk modulus, Poisson's ratio below 0.5), "
+            f"lam must be above -2 mu / {dim} (a positive bulk modulus: Poisson's ratio above -1), "
             f"got {lam[bad[0]]} with mu {mu[bad[0]]}{where}"
         )
     basis = scalar_basis(mesh, element)

@@ -322,7 +322,14 @@ def actuation_limits(mesh, modes, max_s: float = 2.0, element: str | None = None
         raise ValueError(f"modes must have shape ({n_rows}, m) for {element} on this mesh, got {D.shape}")
     if not np.all(np.isfinite(D)):
         raise ValueError("modes must be finite")
-    return ceilings_of_gradients(_jacobian(mesh, element) @ D, dim, max_s)
+    J = _jacobian(mesh, element)
+    ceilings = ceilings_of_gradients(J @ D, dim, max_s)
+    # a translation's gradients are round-off, not a deformation (the seal's: 1e-13, a ceiling of 1.7e13):
+    # below 1e-10 of the largest gradient a mode of its size could make, none
+    reach = float(abs(J).sum(axis=1).max()) * np.abs(D).max(axis=0, initial=0.0)
+    with np.errstate(divide="ignore"):
+        ceilings[max_s / ceilings <= 1e-10 * reach] = np.inf
+    return ceilings
 
 
 def ceilings_of_gradients(JD, dim: int, max_s: float = 2.0) -> np.ndarray:
