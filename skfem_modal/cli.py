@@ -427,13 +427,17 @@ def _is_option(word: str, option: str) -> bool:
 
 #: Options whose value may start with "-" (``--direction -x``): argparse would read it as an option.
 _SIGNED_VALUES = {"--direction": re.compile(r"-(?:[xyz]|[0-9.])", re.IGNORECASE)}
+# a negative number after any other option: argparse takes -1e6 (not -1 or -0.5) for an option of its own
+_NEGATIVE_NUMBER = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|-inf$|-nan$", re.IGNORECASE)
 
 
 def _joined_signed_values(argv: list[str]) -> list[str]:
-    """``--direction -x`` as ``--direction=-x`` (and ``-1,0``), which argparse reads as the option's value."""
+    """``--direction -x`` as ``--direction=-x`` (and ``-1,0``), ``--young -1e6`` as ``--young=-1e6``: argparse
+    reads them as the option's value (then checked and refused, or taken, by name)."""
     words = []
     for word in argv:
-        pattern = _SIGNED_VALUES.get(words[-1]) if words else None
+        option = words[-1] if words and words[-1].startswith("--") and "=" not in words[-1] else None
+        pattern = _SIGNED_VALUES.get(option, _NEGATIVE_NUMBER) if option else None
         if pattern is not None and pattern.match(word):
             words[-1] = f"{words[-1]}={word}"
         else:

@@ -241,3 +241,13 @@ def test_frames_and_vtu_files_refuse_data_they_cannot_write_before_writing(tmp_p
     np.testing.assert_array_equal(back.point_data["flag"], (mesh.p[0] > 0.5).astype(np.uint8))
     np.testing.assert_array_equal(back.cell_data["k"][0], np.arange(nT))
     assert sorted(os.listdir(tmp_path)) == ["ok.vtu"]
+
+
+def test_a_negative_number_in_scientific_notation_is_an_option_value(tmp_path, capsys):
+    """An audit: ``--young -1e6`` was read as an unknown option ('expected one argument'), not refused by name."""
+    from skfem_modal.cli import main
+
+    assert main(["modes", "--young", "-1e6", "--poisson", "0.3", "-k", "3", "--out", str(tmp_path / "m.vtu")]) == 2
+    assert "Young's modulus must be positive and finite, got -1000000.0" in capsys.readouterr().err
+    assert main(["modes", "--young", "1e6", "--poisson", "-2.5e-1", "-k", "7", "--out", str(tmp_path / "m.vtu")]) == 0
+    assert (tmp_path / "m.vtu").exists()
