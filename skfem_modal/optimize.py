@@ -41,6 +41,7 @@ import hashlib
 import json
 import os
 import pickle
+import re
 import time
 import warnings
 
@@ -798,10 +799,10 @@ def _write_outputs(paths: dict, data: dict, state: dict) -> None:
     overall = _overall_best(state)
     where = f"generation {overall['generation']}" if overall["generation"] else "the gait it started from"
     best = json.loads(json.dumps(data))
-    best["name"] = (
-        f"{data.get('name', 'scene')} (best gait of {state['generation']} generations: "
-        f"{where}, travel {overall['best_travel']:.4g})"
-    )
+    # (a searched scene searched again: its name says only the last search)
+    name = re.sub(r" \(best gait of [^()]*\)$", "", str(data.get("name", "scene")))
+    travel = f"travel {overall['best_travel']:.4g}"
+    best["name"] = f"{name} (best gait of {state['generation']} generations: {where}, {travel})"
     given = (data.get("muscles") or {}).get("gait") or {}
     # the scene's ramp is the searched gaits' too (the trial's): the best one replays with it
     ramp = {"ramp": given["ramp"]} if "ramp" in given else {}

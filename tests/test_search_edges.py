@@ -38,8 +38,8 @@ TINY["subspace"] = {"weights": 6, "clusters": 10}
 QUICK = ["--popsize", "2", "--steps", "20", "--workers", "1", "-q"]
 
 
-def search(out, **kw):
-    return run_search(TINY, out, **{"generations": 2, "popsize": 4, "seed": 3, "steps": 60, **kw})
+def search(out, data=TINY, **kw):
+    return run_search(data, out, **{"generations": 2, "popsize": 4, "seed": 3, "steps": 60, **kw})
 
 
 @pytest.fixture(scope="module")
@@ -809,3 +809,13 @@ def test_search_settings_given_as_text_are_refused_by_name(tmp_path, setting, va
     with pytest.raises(error, match=said):
         search(tmp_path / "out", **{setting: value})
     assert not (tmp_path / "out").exists()
+
+
+def test_a_searched_scene_searched_again_is_named_by_its_last_search(tmp_path):
+    """An audit: searching best_gait.toml again named it 'crawl (best gait of ...) (best gait of ...)'."""
+    search(tmp_path / "first", generations=1, popsize=2, steps=20)
+    searched = tomllib.loads((tmp_path / "first" / "best_gait.toml").read_text())
+    assert searched["name"].startswith(f"{TINY.get('name', 'scene')} (best gait of 1 generations: ")
+    search(tmp_path / "again", data=searched, generations=1, popsize=2, steps=20)
+    name = tomllib.loads((tmp_path / "again" / "best_gait.toml").read_text())["name"]
+    assert name.count("(best gait of") == 1 and name.startswith(TINY.get("name", "scene") + " (best gait of 1 ")
