@@ -33,7 +33,8 @@ _SIGN_TIE_RTOL = 1e-6
 # The shift below zero, relative to a typical DOF's K_ii / M_ii, when the null space of K is known
 # (given, if with no columns): near zero, because a thin body's lowest eigenvalues are. At 1e-6 a
 # 1000:1 plate's all sat near 1 / sigma after inversion, and Lanczos took 5557 solves for 6 of them,
-# against 33. Safe there: the solve's large error along the null space is projected away. With the
+# against 33. Safe there only because the null space, which the solve multiplies by 1 / |sigma|, is
+# projected out of both its right-hand side and its result (see _scaled_pairs_solver). With the
 # null space unknown (None), K may be singular anywhere: the shift stays at 1e-6, where the
 # eigenvalues keep 1e-9 of their digits (at 1e-10 a free body's lost some: 1.8e-9).
 _SHIFT = 1e-10
@@ -254,7 +255,12 @@ def _scaled_pairs_solver(K, M, node_dim: int, null):
     if q:
 
         def deflated(b):
-            x = solve(b)
+            # b is M v: v's null-space part goes before the solve, not only after it. Lanczos
+            # vectors regain some of it from round-off, and the solve multiplies it by
+            # 1 / |sigma| (1e10 of a typical 1 / lambda): projected away afterwards, it left
+            # round-off of that size in the result, which fed the next vector more (a free cube's
+            # 60 modes kept 1e-7 of rigid motion, and residuals of 1.6e-6, against 3e-14 now)
+            x = solve(b - MN @ (null.T @ b))
             return x - null @ (MN.T @ x)
 
         op = spla.LinearOperator(K.shape, matvec=deflated, dtype=np.float64)
