@@ -154,15 +154,21 @@ class Model:
             gravity = self.named.get("gravity")
             self.contact.bind(self.system, h, None if gravity is None else gravity.acceleration)
 
+    def assemble_or_undo(self, undo) -> None:
+        """Assemble after a change; if that fails (a singular system, a term out of range), ``undo()`` the
+        change, assemble as before, and raise: a refused setting leaves the model as it was (a refused
+        pin stiffness stayed, read back but not stepped with, and broke the next assignment of ``h``)."""
+        try:
+            self.assemble()
+        except Exception:
+            undo()
+            self.assemble()
+            raise
+
     def retime(self, h: float) -> None:
         """Reassemble at a new time step; if its system is singular, the old step stays and the error is raised."""
         old, self.h = self.h, float(h)
-        try:
-            self.assemble()
-        except ValueError:
-            self.h = old
-            self.assemble()
-            raise
+        self.assemble_or_undo(lambda: setattr(self, "h", old))
 
     def _singular_why(self, H, terms: dict) -> str:
         """Why the system matrix could not be factored, in words (``terms``: each effect's part of ``H``)."""
@@ -173,24 +179,30 @@ class Model:
             others = {name: _largest_entry(m) for name, m in terms.items() if name != "inertia"}
             name = max(others, key=others.get)
             what = "the stiffness" if name in ("elasticity", "muscles") else f"the {name} term"
+            if name == "pinned":  # (it said 'pin the body' of a pinned one)
+                remedy = "; give the pins a smaller stiffness (pin_stiffness, [pinned] stiffness)"
+                remedy += ", or a smaller time step"
+            else:
+                remedy = ", which leaves a free body's rigid motions undetermined; use a smaller time step"
+                remedy += ", or pin the body"
+                remedy += "" if what == "the stiffness" else f", or make the {name} coefficients smaller"
             return (
                 f"the system matrix is singular to working precision: with h = {self.h:g} the inertia term "
-                f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of {what} (up to {others[name]:.3g}), which "
-                "leaves a free body's rigid motions undetermined; use a smaller time step, or pin the body"
-                + ("" if what == "the stiffness" else f", or make the {name} coefficients smaller")
+                f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of {what} (up to {others[name]:.3g})" + remedy
             )
         return "the reduced system matrix is not positive definite: check that B has full column rank"
 
     def replace(self, effect) -> None:
         """Put an effect in (replacing the one of its name, or adding it) and reassemble."""
-        named = {**self.named, effect.name: effect}
+        named, before = {**self.named, effect.name: effect}, list(self.effects)
         self._set([named[n] for n in ORDER if n in named])
-        self.assemble()
+        self.assemble_or_undo(lambda: self._set(before))
 
     def remove(self, name: str) -> None:
         """Take an effect out and reassemble."""
+        before = list(self.effects)
         self._set([e for e in self.effects if e.name != name])
-        self.assemble()
+        self.assemble_or_undo(lambda: self._set(before))
 
     def constant(self, z, z_dot) -> np.ndarray:
         """The start-of-step part of a global solution, ``H^-1 (Pz z + Pv z_dot + f)``, shape (r,)."""

@@ -935,8 +935,8 @@ class ModalMuscle:
         pins = self._model.named.get("pinned")
         if pins is None:
             raise AttributeError("pin_stiffness: this simulator has no pinned vertices (build it with pinned=...)")
-        pins.given_stiffness = _positive_scalar(value, "pin_stiffness")
-        self._model.assemble()
+        old, pins.given_stiffness = pins.given_stiffness, _positive_scalar(value, "pin_stiffness")
+        self._model.assemble_or_undo(lambda: setattr(pins, "given_stiffness", old))
         self._rebuild()
 
     def _damp(self, alpha: float, beta: float) -> None:

@@ -404,3 +404,32 @@ def test_a_contact_model_switched_back_to_keeps_its_settings(flat):
     same = build(flat, contact_model="reference", stickiness=0.25)
     state = sim.rest_state()
     np.testing.assert_array_equal(sim.step(*state), same.step(*state))
+
+
+def test_a_setting_refused_by_the_system_keeps_its_value_and_the_trajectory():
+    """An audit: a pin stiffness refused as singular read back as assigned (the steps kept the old one) and
+    broke the next assignment of h; a damping refused as overflowing read back 1e300."""
+    from skfem_modal.mesh import beam2d
+
+    mesh = beam2d(2.0, 0.5, 8, 2)
+    pins = np.flatnonzero(mesh.p[0] < 1e-9)
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=1, n_weights=4, n_clusters=4, h=0.01, pinned=pins,
+                                gravity=[0.0, -9.8])  # fmt: skip
+    fresh = ModalMuscle.from_mesh(mesh, n_muscles=1, n_weights=4, n_clusters=4, h=0.01, pinned=pins,
+                                  gravity=[0.0, -9.8])  # fmt: skip
+    stiffness = sim.pin_stiffness
+    with pytest.raises(ValueError, match=r"give the pins a smaller stiffness \(pin_stiffness, \[pinned\] stiffness\)"):
+        sim.pin_stiffness = 1e30
+    assert sim.pin_stiffness == stiffness
+    with pytest.raises(ValueError, match="overflow"):
+        sim.damping_stiffness = 1e300
+    assert sim.damping_stiffness == 0.0 and "damping" not in sim.effects
+    z, z_dot, _ = sim.rest_state()
+    for _ in range(5):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+    y, y_dot, _ = fresh.rest_state()
+    for _ in range(5):
+        y, y_dot = fresh.step(y, y_dot, velocity=True)
+    np.testing.assert_array_equal(z, y)
+    sim.h = 0.02  # (refused: 'with h = 0.01', for the stiffness it had refused)
+    assert sim.h == 0.02
