@@ -242,6 +242,10 @@ def _damping_setting(name: str, coefficient: str, doc: str):
         damping = (coefficients["damping_mass"], coefficients["damping_stiffness"])
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, self.h, self.gravity, damping)
         self._damp(*damping)
+        if name == "damping_stiffness":  # (it stiffens each step: the iterations may lag, as at a large h)
+            warn_scale(
+                self._mesh, self._mu, self._rho, h=self.h, stacklevel=outside_stacklevel(), damping_stiffness=damping[1]
+            )
 
     return property(get, put, doc=doc)
 
@@ -340,7 +344,7 @@ def _from_mesh(
     damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
     with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
         _fits_float64(mesh, mu, gamma, rho, h, gravity, damping)
-        warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2)  # the caller of from_mesh
+        warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2, damping_stiffness=damping[1])  # the caller of from_mesh
         if ground is not None:
             g, axis = _gravity_and_up(gravity, up, mesh.p.shape[0])
             _pulled_to_ground(g, ground, axis)
@@ -731,7 +735,8 @@ class ModalMuscle:
         value = _positive_scalar(value, "h")
         damping = (self.damping_mass, self.damping_stiffness)
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity, damping)
-        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=outside_stacklevel())  # who assigns h
+        beta = self.damping_stiffness
+        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=outside_stacklevel(), damping_stiffness=beta)
         self._model.retime(value)
         self._rebuild()
 

@@ -130,7 +130,9 @@ def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> in
     return int(up)
 
 
-def material_length_scales(mu: float, rho: float, gravity=None, duration: float | None = None, h=None) -> dict:
+def material_length_scales(
+    mu: float, rho: float, gravity=None, duration: float | None = None, h=None, damping_stiffness: float = 0.0
+) -> dict:
     """Lengths a material sets, against which a mesh's size is judged.
 
     ``weight``: ``mu / (rho |g|)``, the size at which a body's own weight
@@ -150,6 +152,9 @@ def material_length_scales(mu: float, rho: float, gravity=None, duration: float 
         Simulated time.
     h : float, optional
         Time step.
+    damping_stiffness : float
+        Stiffness-proportional damping ``beta``: a step's system holds the stiffness times
+        ``1 + beta / h``, and ``step`` grows with its square root.
 
     Returns
     -------
@@ -170,12 +175,19 @@ def material_length_scales(mu: float, rho: float, gravity=None, duration: float 
     if duration is not None:
         scales["waves"] = speed * float(duration)
     if h is not None:
-        scales["step"] = speed * float(h)
+        scales["step"] = speed * float(h) * math.sqrt(1.0 + float(damping_stiffness) / float(h))
     return scales
 
 
 def scale_mismatch(
-    mesh, mu: float, rho: float, gravity=None, duration: float | None = None, what: str = "mesh", h=None
+    mesh,
+    mu: float,
+    rho: float,
+    gravity=None,
+    duration: float | None = None,
+    what: str = "mesh",
+    h=None,
+    damping_stiffness: float = 0.0,
 ):
     """Why the mesh's size and the material's length scales are far apart, or None.
 
@@ -186,7 +198,7 @@ def scale_mismatch(
     Parameters
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
-    mu, rho, gravity, duration, h
+    mu, rho, gravity, duration, h, damping_stiffness
         See :func:`material_length_scales`.
     what : str
         How to name the mesh.
@@ -220,7 +232,7 @@ def scale_mismatch(
         if not (value.size and np.all(np.isfinite(value)) and np.all(value > 0)):
             raise ValueError(f"{name} must be positive and finite, got {value.tolist()}")
     size = body_size(mesh)
-    scales = material_length_scales(mu, rho, gravity, duration, h)
+    scales = material_length_scales(mu, rho, gravity, duration, h, damping_stiffness)
     step = scales.pop("step", None)
     meaning = {
         "weight": ("mu / (rho |g|), the size its own weight strains by 100 %", "collapse under its own weight"),
@@ -246,18 +258,37 @@ def scale_mismatch(
                 "scale it (mesh.scale), or give a stiffer material."
             )
     if step is not None and step > CROSSING * size:
+        damped = (
+            f" with the stiffness damping's 1 + beta / h = {1.0 + damping_stiffness / float(h):.3g} times the "
+            "stiffness (a damped spin at 10 iterations a step was stopped dead)"
+            if damping_stiffness
+            else ""
+        )
+        crossing = "sqrt(mu (1 + beta / h) / rho) h" if damping_stiffness else "sqrt(mu / rho) h"
         return (
             f"{what} is {size:.4g} length units across, and an elastic wave crosses {step / size:.2g} of it in one "
-            f"time step (sqrt(mu / rho) h = {step:.3g}, above {CROSSING}): the local/global iterations turn it too "
+            f"time step{damped} ({crossing} = {step:.3g}, above {CROSSING}): the local/global iterations turn it too "
             "slowly, so its rotations lag and a spinning or tipping body slows down unphysically (a unit square "
             "with mu = 1e6 and h = 0.02 lost all its spin in half a second), and a step on the ground can gain "
             "energy (a caterpillar with mu = 1e6 landing at h = 0.3: 0.5 % in a step with 10 iterations, none with "
-            f"30). Use a smaller time step (h <= {CROSSING * size / step * float(h):.2g} here), more iterations "
+            f"30). Use a smaller time step{' or damping' if damping_stiffness else ''} "
+            f"(h <= {_largest_step(size, mu, rho, damping_stiffness):.2g} here"
+            f"{', at this damping' if damping_stiffness else ''}), more iterations "
             "(max_iter), or warm_start = true (not under the reference "
             "contact; it follows a spinning or rolling body, not a stiff one tipping over a corner, whose steps can "
             "then gain energy)."
         )
     return None
+
+
+def _largest_step(size: float, mu: float, rho: float, damping_stiffness: float = 0.0) -> float:
+    """The largest ``h`` whose ``step`` (:func:`material_length_scales`) is :data:`CROSSING` of ``size``.
+
+    ``(mu / rho) (h^2 + beta h) = (CROSSING size)^2``, solved for ``h`` (without cancellation).
+    """
+    X = (CROSSING * size) ** 2 * float(rho) / float(mu)
+    beta = float(damping_stiffness)
+    return 2.0 * X / (beta + math.sqrt(beta * beta + 4.0 * X))
 
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
@@ -275,13 +306,17 @@ def outside_stacklevel() -> int:
     return level
 
 
-def warn_scale(mesh, mu, rho, gravity=None, duration=None, what: str = "mesh", h=None, stacklevel: int = 2) -> None:
+def warn_scale(
+    mesh, mu, rho, gravity=None, duration=None, what: str = "mesh", h=None, stacklevel: int = 2, damping_stiffness=0.0
+) -> None:
     """Warn (:class:`ScaleWarning`) with :func:`scale_mismatch`'s message, if any.
 
     ``mu`` and ``rho`` may be per element (their means are compared); ``stacklevel`` as for
     :func:`warnings.warn`, counted from the caller.
     """
-    message = scale_mismatch(mesh, float(np.mean(mu)), float(np.mean(rho)), gravity, duration, what, h)
+    message = scale_mismatch(
+        mesh, float(np.mean(mu)), float(np.mean(rho)), gravity, duration, what, h, float(damping_stiffness)
+    )
     if message:
         warnings.warn(message, ScaleWarning, stacklevel=stacklevel + 1)
 
