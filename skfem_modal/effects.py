@@ -323,6 +323,10 @@ class Pins(Effect):
         """The spring stiffness at time step ``h``."""
         if self.given_stiffness is not None:
             return self.given_stiffness
+        return self.default_stiffness(h)
+
+    def default_stiffness(self, h) -> float:
+        """The stiffness pins get when none is given, at time step ``h``."""
         passive, mass = self._scale
         return 1e3 * max(passive, mass / h**2)
 
