@@ -82,6 +82,7 @@ __all__ = [
     "HOVER_CLEARANCE",
     "SINK_LIMIT",
     "INVERTED_LIMIT",
+    "PIN_LIMIT",
 ]
 
 #: A spread this many times the rest spread (or this many times smaller) is not physical.
@@ -96,6 +97,8 @@ HOVER_CLEARANCE = 1e-3
 SINK_LIMIT = 0.25
 #: More than this fraction of the elements inside out is a body folded through itself (slivers of real meshes: 0.19 %).
 INVERTED_LIMIT = 0.01
+#: Pinned vertices this far from their pins, of the body's size, have let go (the default pins: below 4e-4).
+PIN_LIMIT = 0.01
 
 
 def _beyond_limits(push, ratio):
@@ -178,6 +181,9 @@ class MotionMonitor:
         self._rest_sign = np.sign(_signed_measures(sim.mesh.p, sim.mesh.t))
         self.inverted = 0  # the most elements inside out in a state checked (:meth:`check_elements`)
         self._inverted_step = 0  # the step of that state
+        self._pinned = np.asarray(sim.pinned, dtype=np.int64)
+        self._pins = sim.mesh.p.T[self._pinned]  # where the pinned vertices are held
+        self.pin_drift = 0.0  # the farthest a pinned vertex was from its pin in a state checked
         contact = sim.model.contact
         self._contact = None  # with a ground: its model, allowance, candidates and boundary vertices
         self._deepest_allowed = math.inf
@@ -240,7 +246,8 @@ class MotionMonitor:
                 self.first_problem_step.setdefault("sink", step)
 
     def check_elements(self, step: int, positions) -> int:
-        """Count the elements inside out (signed measure against its rest sign) in the state after ``step`` steps.
+        """Count the elements inside out (signed measure against its rest sign) in the state after ``step`` steps;
+        measure how far the pinned vertices are from their pins.
 
         Parameters
         ----------
@@ -260,6 +267,11 @@ class MotionMonitor:
             self._inverted_step = step
         if inverted > INVERTED_LIMIT * self._elements.shape[1]:
             self.first_problem_step.setdefault("inverted", step)
+        if self._pinned.size:
+            drift = float(np.linalg.norm(np.asarray(positions)[self._pinned] - self._pins, axis=1).max())
+            self.pin_drift = max(self.pin_drift, drift)
+            if drift > PIN_LIMIT * self.size:  # (pins of 1e-6 let a beam fall 80 units, reported physical)
+                self.first_problem_step.setdefault("pins", step)
         return inverted
 
     def run_problems(self, states) -> dict:
@@ -413,6 +425,13 @@ class MotionMonitor:
                 "body sizes above the ground, held up against gravity with nothing under it (the reference "
                 "contact at a large time step keeps its points where each step started them): the Coulomb contact "
                 '(ground.model = "coulomb") or a smaller time.step lands it'
+            )
+        if "pins" in self.first_problem_step:
+            step = self.first_problem_step["pins"]
+            texts.append(
+                f"from step {step} (t = {step * self.h:g}) the pinned vertices drifted from their pins, up to "
+                f"{self.pin_drift:.3g} ({self.pin_drift / self.size:.3g} body sizes) in the states checked: the pins "
+                "let go, too soft for the forces on them (pin_stiffness, [pinned] stiffness: the default holds)"
             )
         if "sink" in self.first_problem_step:
             texts.append(self._sinking())

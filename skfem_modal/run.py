@@ -422,7 +422,6 @@ class _RunFiles:
         m = sim.n_muscles
         self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
         self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
-        self.worst_pin = 0.0
         self.deepest = self.deepest_relative = 0.0  # every vertex of the frames written, below the ground
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
@@ -456,9 +455,6 @@ class _RunFiles:
             depths = contact.ground - x[:, contact.up]
             self.deepest = max(self.deepest, float(depths.max()))
             self.deepest_relative = max(self.deepest_relative, float((depths / contact.sizes).max()))
-        if sim.pinned.size:
-            drift = np.linalg.norm(x[sim.pinned] - sim.mesh.p.T[sim.pinned], axis=1)
-            self.worst_pin = max(self.worst_pin, float(drift.max()))
         self.frames.write(step * sim.h, x, field_data={"activation": a} if sim.n_muscles else None)
         self._framed = step
 
@@ -478,7 +474,7 @@ class _RunFiles:
             ground["worst_penetration"] = max(ground["worst_penetration"], self.deepest)
             ground["worst_penetration_relative"] = max(ground["worst_penetration_relative"], self.deepest_relative)
         frames = self.frames
-        pinned = {"worst_drift_written_frames": self.worst_pin} if self.sim.pinned.size else None
+        pinned = {"worst_drift_written_frames": self.monitor.pin_drift} if self.sim.pinned.size else None
         times = [frames.times[0], frames.times[-1]]
         summary.update(
             pinned=pinned, frames={"count": frames.count, "every": self.every, "pvd": "frames.pvd", "times": times}

@@ -367,3 +367,23 @@ def test_a_floating_body_turned_inside_out_is_not_told_of_a_ground():
     inverted = [w for w in summary["motion"]["warnings"] if "were inside out" in w]
     assert inverted and inverted[0].endswith("the body folded through itself")
     assert not any("ground" in str(w.message) for w in caught)
+
+
+def test_pins_that_let_go_are_reported(tmp_path):
+    """An audit: pins of stiffness 1e-6 let a pinned beam fall 80 units, reported as physical, no warning."""
+    import tomllib
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parent.parent / "examples" / "beam_pinned.toml"
+    data = tomllib.loads(example.read_text())
+    data["muscles"].pop("table", None)
+    data["gravity"] = {"acceleration": [0.0, -9.8]}
+    data["time"] = {"step": 0.01, "steps": 60}
+    held = run_scene(Scene.from_dict(data), tmp_path / "held", every=10)
+    size = held["motion"]["body_size"]
+    assert held["motion"]["physical"] and held["pinned"]["worst_drift_written_frames"] < 4e-4 * size
+    data["pinned"]["stiffness"] = 1e-6
+    with pytest.warns(MotionWarning, match=r"the pinned vertices drifted from their pins, up to .* the pins let go"):
+        loose = run_scene(Scene.from_dict(data), tmp_path / "loose", every=10)
+    assert not loose["motion"]["physical"] and loose["motion"]["first_problem_step"]["pins"] % 10 == 0
+    assert loose["pinned"]["worst_drift_written_frames"] > 0.01 * loose["motion"]["body_size"]
