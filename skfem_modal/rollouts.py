@@ -49,6 +49,7 @@ import threading
 import time
 import uuid
 import warnings
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -78,6 +79,8 @@ _TRIALS: dict = {}
 _KEPT_TRIALS = 3
 _COUNTS = {"received": 0, "built": 0}
 _BLAS_LIMIT: list = []  # the open thread limit of this worker process (kept open while it lives)
+_TASK_LIMIT: list = []  # in a worker of the caller's: the limit of the tasks running, then one entry each
+_TASK_LIMIT_LOCK = threading.Lock()
 
 
 #: Steps a rollout may have at most: it keeps each step's state (a million steps of 100 coordinates: 0.8 GB).
@@ -307,12 +310,33 @@ def _limit_blas(threads) -> None:
         _BLAS_LIMIT.append(limit)
 
 
+@contextmanager
 def _task_blas_limit(task: dict):
     """The BLAS limit for one task: ``blas_threads`` while it runs in a worker of the caller's executor (a
     dask worker, a pool of the caller's: left as they were after it); none in the search's own pool (limited
-    for its life) or in the search's own process (threads of its executor: the caller's settings)."""
-    own = _BLAS_LIMIT or os.getpid() == task.get("parent")
-    return limited_blas_threads(None if own else task.get("blas_threads"))
+    for its life) or in the search's own process (threads of its executor: the caller's settings).
+
+    The limit is the process's: tasks running at once in one worker's threads share it, set by the first
+    to start and lifted by the last to end (each setting and lifting its own, one task's end lifted the
+    limit under another still running, whose sums then took another order).
+    """
+    threads = task.get("blas_threads")
+    if threads is None or _BLAS_LIMIT or os.getpid() == task.get("parent"):
+        yield
+        return
+    with _TASK_LIMIT_LOCK:
+        if not _TASK_LIMIT:
+            limit = limited_blas_threads(threads)
+            limit.__enter__()
+            _TASK_LIMIT.append(limit)
+        _TASK_LIMIT.append(None)  # one entry a running task, after the limit
+    try:
+        yield
+    finally:
+        with _TASK_LIMIT_LOCK:
+            _TASK_LIMIT.pop()
+            if len(_TASK_LIMIT) == 1:
+                _TASK_LIMIT.pop().__exit__(None, None, None)
 
 
 def _install(key: str, payload: bytes, blas_threads) -> None:

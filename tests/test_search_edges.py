@@ -819,3 +819,31 @@ def test_a_searched_scene_searched_again_is_named_by_its_last_search(tmp_path):
     search(tmp_path / "again", data=searched, generations=1, popsize=2, steps=20)
     name = tomllib.loads((tmp_path / "again" / "best_gait.toml").read_text())["name"]
     assert name.count("(best gait of") == 1 and name.startswith(TINY.get("name", "scene") + " (best gait of 1 ")
+
+
+def test_tasks_running_at_once_in_a_callers_worker_share_one_blas_limit():
+    """The limit is the process's: with each task setting and lifting its own, the first task to end lifted
+    it under the second, still running."""
+    import threading
+
+    from skfem_modal.threads import openblas_threads
+
+    before = openblas_threads()
+    if not before or max(before) < 2:
+        pytest.skip("needs OpenBLAS with more than one thread to see a limit")
+    task = {"blas_threads": 1, "parent": -1}  # (not this process: a worker of the caller's)
+    first_in, first_out, seen = threading.Event(), threading.Event(), []
+
+    def first():
+        with rollouts._task_blas_limit(task):
+            first_in.set()
+            first_out.wait(10)
+
+    worker = threading.Thread(target=first)
+    worker.start()
+    first_in.wait(10)
+    with rollouts._task_blas_limit(task):
+        first_out.set()
+        worker.join(10)  # the first task ended while this one runs
+        seen.append(openblas_threads())
+    assert seen == [[1] * len(before)] and openblas_threads() == before
