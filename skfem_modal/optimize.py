@@ -248,6 +248,21 @@ def _write_atomic(path: str, writer, mode: str = "wb") -> None:
         writer(f)
 
 
+#: What a search needs that the default install lacks.
+CMA_NEEDED = "which needs the optimize extra: pip install 'skfem_modal[optimize]'"
+
+
+def _cma():
+    """The CMA-ES package, imported quietly (it warns of plots without matplotlib, which a search never draws)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            import cma
+        except ModuleNotFoundError:
+            raise ValueError(f"the gait search runs CMA-ES, {CMA_NEEDED}") from None
+    return cma
+
+
 def read_checkpoint(path: str) -> dict:
     """A search's checkpoint: its state (the CMA-ES state, the history, the settings).
 
@@ -261,6 +276,11 @@ def read_checkpoint(path: str) -> dict:
             state = pickle.load(f)
     except OSError:
         raise
+    except ModuleNotFoundError as error:
+        if error.name != "cma":
+            raise ValueError(f"{path} is not a search checkpoint that can be read ({error})") from None
+        # (said as the checkpoint's damage, without the install it needs)
+        raise ValueError(f"{path}: a search checkpoint holds CMA-ES's state, {CMA_NEEDED}") from None
     except Exception as error:  # unpickling damaged bytes fails in any of a dozen ways
         said = f"{type(error).__name__}: {error}"
         raise ValueError(f"{path} is not a search checkpoint that can be read ({said})") from None
@@ -450,6 +470,7 @@ def run_search(
     _check_seed(seed)
     _check_stop_after(stop_after)
     _check_samples(samples, jitter)
+    _cma()  # (without it the search failed after its banner, with a traceback)
     executor = checked_executor(executor)
     checked_thread_count(blas_threads)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
@@ -586,7 +607,7 @@ def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: i
 
 def _new_state(settings: dict, x0, data: dict) -> dict:
     """A new search's state: CMA-ES at ``x0``, seeded by the settings' seed; ``data`` the scene searched."""
-    import cma
+    cma = _cma()
 
     # cma seeds numpy's global generator (seed 0 would mean "time": shift by one)
     options = {"popsize": settings["popsize"], "seed": settings["seed"] + 1, "bounds": [0.0, 1.0], "verbose": -9}

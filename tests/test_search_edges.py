@@ -847,3 +847,18 @@ def test_tasks_running_at_once_in_a_callers_worker_share_one_blas_limit():
         worker.join(10)  # the first task ended while this one runs
         seen.append(openblas_threads())
     assert seen == [[1] * len(before)] and openblas_threads() == before
+
+
+def test_a_search_and_a_transfer_without_cma_name_the_extra_before_any_work(tmp_path, tiny_scene, capsys, monkeypatch):
+    """A new-user trial: without the optimize extra, optimize printed its banner, then a traceback (exit 1);
+    transfer called the checkpoint unreadable."""
+    search(tmp_path / "done", generations=1, popsize=2, steps=20)  # a search made with cma
+    monkeypatch.setitem(sys.modules, "cma", None)  # and now without it
+    args = ["optimize", tiny_scene, "--generations", "1", "--out", str(tmp_path / "s")] + QUICK
+    assert main(args) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and "needs the optimize extra: pip install 'skfem_modal[optimize]'" in out.err
+    assert "Traceback" not in out.err and not (tmp_path / "s").exists()
+    assert main(["transfer", str(tmp_path / "done")]) == 2
+    err = capsys.readouterr().err
+    assert "a search checkpoint holds CMA-ES's state, which needs the optimize extra" in err
