@@ -640,7 +640,7 @@ def cmd_play(args) -> int:
             say=say,
         )
     except PlayError as err:
-        print(f"skfem-modal play: {err}", file=sys.stderr)
+        print(f"skfem-modal play: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return EXIT_OK
 

@@ -191,7 +191,10 @@ def render_problems(backend: str = "auto", fmt: str = "gif") -> list[str]:
             problems.append("pyvista is not installed: pip install 'skfem_modal[plot]', or use --backend matplotlib")
         else:
             if not gl_available():
-                problems.append("pyvista cannot render off-screen here (no working OpenGL): use --backend matplotlib")
+                problems.append(
+                    "pyvista cannot render off-screen here (no working OpenGL): use --backend matplotlib, or "
+                    "install Mesa's EGL (Debian: apt-get install libegl1 libgl1-mesa-dri)"
+                )
     if fmt == "mp4":
         problem = _mp4_problem()
         if problem:

@@ -391,7 +391,7 @@ def test_without_pyvista_the_error_says_what_to_install(monkeypatch, capsys):
     with pytest.raises(PlayError, match=r"needs pyvista: pip install"):
         play(frames=1)
     assert main(["play", "--frames", "1"]) == 2
-    assert "skfem-modal play: the live window needs pyvista" in capsys.readouterr().err
+    assert "skfem-modal play: error: the live window needs pyvista" in capsys.readouterr().err
 
 
 def test_without_a_display_the_error_says_what_to_set(monkeypatch, capsys):
