@@ -16,6 +16,7 @@ from .fem import _positive
 from .mesh import part_sizes
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
+from .values import is_whole
 
 
 def _array(value, shape, name):
@@ -50,7 +51,7 @@ def _fraction(value, name):
 
 
 def _count(value, name):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+    if not is_whole(value) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
 
@@ -87,7 +88,7 @@ def _vertices(value, n, name):
 
 
 def _axis(value, dim):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < dim:
+    if not is_whole(value) or not 0 <= value < dim:
         raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {value!r}")
     return int(value)
 

@@ -431,18 +431,40 @@ _SIGNED_VALUES = {"--direction": re.compile(r"-(?:[xyz]|[0-9.])", re.IGNORECASE)
 _NEGATIVE_NUMBER = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|-inf$|-nan$", re.IGNORECASE)
 
 
-def _joined_signed_values(argv: list[str]) -> list[str]:
+def _joined_signed_values(argv: list[str], single=None) -> list[str]:
     """``--direction -x`` as ``--direction=-x`` (and ``-1,0``), ``--young -1e6`` as ``--young=-1e6``: argparse
-    reads them as the option's value (then checked and refused, or taken, by name)."""
+    reads them as the option's value (then checked and refused, or taken, by name).
+
+    ``single``: the options that take one value (default: those of :func:`build_parser`); a word after a flag,
+    an option of several values or ``--`` is left alone.
+    """
+    single = _single_value_options(build_parser()) if single is None else single
     words = []
     for word in argv:
-        option = words[-1] if words and words[-1].startswith("--") and "=" not in words[-1] else None
+        if word == "--" and "--" not in words:
+            words.append(word)
+            continue
+        option = words[-1] if words and "--" not in words and words[-1] in single else None
         pattern = _SIGNED_VALUES.get(option, _NEGATIVE_NUMBER) if option else None
         if pattern is not None and pattern.match(word):
             words[-1] = f"{words[-1]}={word}"
         else:
             words.append(word)
     return words
+
+
+def _single_value_options(parser) -> set[str]:
+    """The long options of ``parser`` and of its commands that take exactly one value."""
+    commands = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    parsers = [parser] + [p for a in commands for p in a.choices.values()]
+    return {
+        name
+        for p in parsers
+        for action in p._actions
+        if action.nargs is None and action.option_strings
+        for name in action.option_strings
+        if name.startswith("--")
+    }
 
 
 def cmd_optimize(args) -> int:
@@ -918,8 +940,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point of the ``skfem-modal`` console script."""
     parser = build_parser()
-    args = parser.parse_args(_joined_signed_values(list(sys.argv[1:] if argv is None else argv)))
-    args.argv = list(sys.argv[1:] if argv is None else argv)
+    given = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(_joined_signed_values(given, _single_value_options(parser)))
+    args.argv = given
     try:
         with warnings.catch_warnings(), terminate_as_interrupt():
             warnings.showwarning = _warning_printer(args.command)

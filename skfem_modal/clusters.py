@@ -22,6 +22,7 @@ import scipy.sparse as sps
 from scipy.cluster.vq import kmeans2
 
 from .mesh import _signed_measures, check_mesh, connected_parts
+from .values import is_whole
 
 __all__ = ["average_onto_elements", "spectral_clusters", "rotation_clusters", "CLUSTER_BY"]
 
@@ -212,7 +213,7 @@ def cluster_count_problem(n_elements: int, n_parts: int, k: int) -> str | None:
 
 def seed_problem(seed) -> str | None:
     """What a k-means seed must be (a phrase after "must be"), or None: scipy's ``kmeans2`` takes 0..2**32 - 1."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**32:
+    if not is_whole(seed) or not 0 <= seed < 2**32:
         return "an integer in 0..4294967295 (2**32 - 1)"
     return None
 
@@ -221,7 +222,7 @@ def _check_count(k, nT, seed) -> None:
     problem = seed_problem(seed)
     if problem:
         raise ValueError(f"seed must be {problem}, got {seed!r}")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+    if not is_whole(k):
         raise TypeError(f"k (the number of clusters) must be an integer, got {type(k).__name__}")
     if not 1 <= k <= nT:
         raise ValueError(f"k (the number of clusters) must be {cluster_count_problem(nT, 1, k)}, got {k}")

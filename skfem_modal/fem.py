@@ -252,8 +252,9 @@ def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
     bad = np.nonzero(~(lam + 2.0 * mu / dim > 0.0))[0]
     if bad.size:
         where = "" if uniform else f" at elements {bad[:10].tolist()}"
+        ratio = ": Poisson's ratio above -1" if dim == 3 else ""  # (in 2D every ratio below 0.5 keeps it)
         raise ValueError(
-            f"lam must be above -2 mu / {dim} (a positive bulk modulus: Poisson's ratio above -1), "
+            f"lam must be above -2 mu / {dim} (a positive bulk modulus{ratio}), "
             f"got {lam[bad[0]]} with mu {mu[bad[0]]}{where}"
         )
     basis = scalar_basis(mesh, element)

@@ -19,6 +19,7 @@ from .mesh import connected_parts, sample_boundary
 from .modal import muscle_count_problem, muscle_modes
 from .modal import muscle_signs as checked_signs
 from .subspace import mass_orthonormalize, skinning_eigenmodes, weight_count_problem
+from .values import is_whole
 
 __all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters", "count_problems"]
 
@@ -138,7 +139,7 @@ def count_problems(
     problems = [
         (name, f"(a {type(value).__name__}) must be an integer")
         for name, value in counts.items()
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)))
+        if value is not None and (not is_whole(value))
     ]
     if problems:  # the rules below compare numbers
         return problems

@@ -40,6 +40,7 @@ from .motions import (
     rigid_mode_count,
     rigid_motions,
 )
+from .values import is_whole
 
 __all__ = [
     "linear_modal_analysis",
@@ -145,7 +146,7 @@ def linear_modal_analysis(
         raise ValueError(f"element must be one of {ELEMENTS}, got {element!r}")
     if mass not in ("lumped", "consistent"):
         raise ValueError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+    if not is_whole(k):
         raise TypeError(f"k must be an integer, got {type(k).__name__}")
     from .checks import _fits_float64  # here: checks imports the simulator's modules, which import this one
 
@@ -370,7 +371,7 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     -------
     D : ndarray, shape (n * dim, n_muscles)
     """
-    if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 0:
+    if not is_whole(n_muscles) or n_muscles < 0:
         raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
     if not n_muscles:
         return np.zeros((mesh.p.size, 0))

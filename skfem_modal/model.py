@@ -160,7 +160,7 @@ class Model:
         pin stiffness stayed, read back but not stepped with, and broke the next assignment of ``h``)."""
         try:
             self.assemble()
-        except Exception:
+        except BaseException:  # (Ctrl-C too: a half-made change would stay)
             undo()
             self.assemble()
             raise

@@ -55,6 +55,7 @@ from .rollouts import OBJECTIVES, Rollouts, Trial, rollout_steps, unit_direction
 from .run import Progress
 from .study import WorkersLost, checked_executor
 from .threads import checked_thread_count
+from .values import is_whole
 
 __all__ = [
     "GaitSpace",
@@ -129,7 +130,7 @@ class GaitSpace:
     """
 
     def __init__(self, n_muscles: int, amplitude_max: float = 1.0, period_min: float = 0.3, period_max: float = 2.0):
-        if isinstance(n_muscles, bool) or not isinstance(n_muscles, (int, np.integer)) or n_muscles < 1:
+        if not is_whole(n_muscles) or n_muscles < 1:
             raise ValueError(
                 f"a gait search needs a whole number of muscles, at least one, got {n_muscles!r} (a scene's "
                 "muscles.count; a scene without a [muscles] section has none)"
@@ -258,7 +259,9 @@ def _cma():
         warnings.simplefilter("ignore")
         try:
             import cma
-        except ModuleNotFoundError:
+        except ModuleNotFoundError as error:
+            if error.name != "cma":  # (a dependency of its own missing: said as it is)
+                raise
             raise ValueError(f"the gait search runs CMA-ES, {CMA_NEEDED}") from None
     return cma
 
@@ -503,7 +506,7 @@ def run_search(
     trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
     precompute = time.perf_counter() - clock
     recipe = {"data": data, "base_dir": None, **trial_settings}
-    bar, replacing, made = None, [], False
+    bar, replacing, made = None, [], None
     try:
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
@@ -571,14 +574,14 @@ def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
     """CMA-ES's settings: at least a generation of at least two candidates, a positive first step."""
     for name, value, least in (("generations", generations, 1), ("popsize", popsize, 2)):
         # a fraction ran: 2.5 generations ran 3
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+        if not is_whole(value) or value < least:
             raise ValueError(f"{name} must be an integer of at least {least}, got {value!r}")
     _positive_scalar(sigma0, "sigma0")
 
 
 def _check_seed(seed) -> None:
     """A seed CMA-ES takes deterministically: an integer from 0 to :data:`SEED_MAX`."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= SEED_MAX:
+    if not is_whole(seed) or not 0 <= seed <= SEED_MAX:
         raise ValueError(f"seed must be an integer from 0 to {SEED_MAX}, got {seed!r}")
 
 
@@ -586,7 +589,7 @@ def _check_stop_after(stop_after) -> None:
     """``stop_after``: None, or a positive whole number of generations (0 died in ``max`` of nothing)."""
     if stop_after is None:
         return
-    if isinstance(stop_after, bool) or not isinstance(stop_after, (int, np.integer)) or stop_after < 1:
+    if not is_whole(stop_after) or stop_after < 1:
         raise ValueError(f"stop_after must be a positive whole number of generations, got {stop_after!r}")
 
 
@@ -765,7 +768,7 @@ def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
 
 def _check_samples(samples: int, jitter: float) -> None:
     """The rollouts of a candidate: a positive count; its copies' changes in [0, 0.5) (see :func:`_jittered`)."""
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+    if not is_whole(samples) or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
     if not _nonnegative(jitter, "jitter") < 0.5:
         raise ValueError(f"jitter must be in [0, 0.5), got {jitter!r}")

@@ -157,26 +157,34 @@ def _check_writable(directory: str, what: str = "the output folder") -> None:
         ) from None
 
 
-def made_folder(directory: str) -> bool:
-    """Make ``directory`` (and its parents) for a study's or a search's files: whether it is new.
+def made_folder(directory: str) -> str | None:
+    """Make ``directory`` (and its parents) for a study's or a search's files: the topmost folder made, or None.
 
-    A new one the work then leaves empty (it failed before writing) is for :func:`remove_if_empty`.
+    What the work made and then left empty (it failed before writing) is for :func:`remove_if_empty`.
     """
-    new = not os.path.exists(directory)
+    top, existing = None, os.path.abspath(directory)
+    while not os.path.exists(existing):
+        top, existing = existing, os.path.dirname(existing)
     os.makedirs(directory, exist_ok=True)
-    return new
+    return top
 
 
-def remove_if_empty(directory: str, new: bool) -> None:
-    """After work that failed: remove ``directory`` if it was ``new`` (:func:`made_folder`) and holds nothing.
+def remove_if_empty(directory: str, made: str | None) -> None:
+    """After work that failed: remove ``directory`` and the parents :func:`made_folder` ``made`` for it, if empty.
 
     A search that failed in its first generation left an empty folder behind, to be mistaken for a result.
     """
-    if new:
+    if made is None:
+        return
+    folder = os.path.abspath(directory)
+    while True:
         try:
-            os.rmdir(directory)  # refuses a folder that holds anything
+            os.rmdir(folder)  # refuses a folder that holds anything
         except OSError:
-            pass
+            return
+        if folder == made or os.path.dirname(folder) == folder:
+            return
+        folder = os.path.dirname(folder)
 
 
 def earlier_study(directory) -> list[str]:

@@ -62,6 +62,7 @@ from .rotations import polar_rotations
 from .sim import SimulationError, simulate
 from .study import WorkersLost, checked_executor, dask_client, lost_workers, make_executor
 from .threads import checked_thread_count, limited_blas_threads
+from .values import is_whole
 
 __all__ = ["OBJECTIVES", "MAX_ROLLOUT_STEPS", "Trial", "Rollouts", "rollout", "rollout_steps", "body_rotation_rows"]
 
@@ -89,7 +90,7 @@ MAX_ROLLOUT_STEPS = 1_000_000
 
 def rollout_steps(steps) -> int:
     """A rollout's length, checked: a positive integer up to :data:`MAX_ROLLOUT_STEPS`."""
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+    if not is_whole(steps) or steps < 1:
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     if steps > MAX_ROLLOUT_STEPS:  # 2e10 asked a worker for 596 GiB
         raise ValueError(
@@ -433,7 +434,7 @@ class Rollouts:
                 workers,
                 None,
                 initializer=_install,
-                initargs=(self.handle, payload, blas_threads),
+                initargs=(self.handle, payload, self.blas_threads),
                 quiet_interrupts=True,
             )
         self.startup_seconds = time.perf_counter() - clock

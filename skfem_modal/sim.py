@@ -76,8 +76,9 @@ from .modal import muscle_modes
 from .model import Model
 from .solver import MAX_ITERATIONS, TOL, LocalGlobal, SimulationError, make_backends
 from .space import FullSpace, Subspace
-from .threads import limited_blas_threads
+from .threads import checked_thread_count, limited_blas_threads
 from .units import outside_stacklevel, up_axis, warn_scale
+from .values import is_whole
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -243,9 +244,7 @@ def _damping_setting(name: str, coefficient: str, doc: str):
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, self.h, self.gravity, damping)
         self._damp(*damping)
         if name == "damping_stiffness":  # (it stiffens each step: the iterations may lag, as at a large h)
-            warn_scale(
-                self._mesh, self._mu, self._rho, h=self.h, stacklevel=outside_stacklevel(), damping_stiffness=damping[1]
-            )
+            _warn_of_step(self)
 
     return property(get, put, doc=doc)
 
@@ -342,6 +341,7 @@ def _from_mesh(
     _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
     say = _stage_reporter(progress)
     damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
+    blas_threads = checked_thread_count(blas_threads)
     with limited_blas_threads(blas_threads), validated(mesh), ThreadPoolExecutor(max_workers=1) as pool:
         _fits_float64(mesh, mu, gamma, rho, h, gravity, damping)
         warn_scale(mesh, mu, rho, gravity, h=h, stacklevel=2, damping_stiffness=damping[1])  # the caller of from_mesh
@@ -399,6 +399,15 @@ def _nearest_setting(cls, name: str) -> str:
     if near:
         return f": did you mean {' or '.join(map(repr, near))}?"
     return f"; the settings one can assign are {', '.join(settings)}"
+
+
+def _warn_of_step(sim) -> None:
+    """Warn of what a simulator's time step (assigned, or its damping's) makes of it: lagging iterations
+    (:func:`~skfem_modal.units.warn_scale`), pins given a stiffness far above the default (which follows
+    ``1 / h^2``; a given one does not)."""
+    beta = sim.damping_stiffness
+    warn_scale(sim.mesh, sim._mu, sim._rho, h=sim.h, stacklevel=outside_stacklevel(), damping_stiffness=beta)
+    _warn_stiff_pins(sim.model.named.get("pinned"), sim.h)
 
 
 #: Pins this many times stiffer than their default stop the iterations converging (see _warn_stiff_pins).
@@ -761,10 +770,9 @@ class ModalMuscle:
         value = _positive_scalar(value, "h")
         damping = (self.damping_mass, self.damping_stiffness)
         _fits_float64(self._mesh, self._mu, self._gamma, self._rho, value, self.gravity, damping)
-        beta = self.damping_stiffness
-        warn_scale(self._mesh, self._mu, self._rho, h=value, stacklevel=outside_stacklevel(), damping_stiffness=beta)
         self._model.retime(value)
         self._rebuild()
+        _warn_of_step(self)
 
     @property
     def max_iter(self) -> int:
@@ -1288,7 +1296,7 @@ def simulate(sim, steps: int, activation=None, state=None):
     >>> last.step, round(last.time, 12), last.z.shape == sim.rest_state()[0].shape
     (5, 0.1, True)
     """
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+    if not is_whole(steps) or steps < 0:
         raise ValueError(f"steps must be an integer >= 0, got {steps!r}")
     if state is None:
         state = sim.rest_state()

@@ -726,9 +726,9 @@ def checked_executor(executor):
     if executor is None or isinstance(executor, Executor):
         return executor
     kind = type(executor)
-    from_dask = kind.__module__.startswith("distributed")
-    if from_dask and callable(getattr(executor, "get_executor", None)):
+    if callable(getattr(executor, "get_executor", None)):  # a dask Client, or a subclass of one's own
         return executor.get_executor()
+    from_dask = any(k.__module__.startswith("distributed") for k in kind.__mro__)
     if not from_dask and all(callable(getattr(executor, name, None)) for name in ("submit", "map")):
         return executor  # an executor of its own kind, duck-typed as concurrent.futures' are
     hint = {"str": " (an address: scheduler=)", "LocalCluster": " (pass dask.distributed.Client(cluster))"}
@@ -852,6 +852,7 @@ def run_study(
     scene = Scene.from_dict(data, base_dir=base_dir)  # every error before any work
     cfg = PRESETS[preset]
     out_dir = os.fspath(out_dir)
+    executor = checked_executor(executor)  # (after the earlier study was removed, it lost that study)
     clear_earlier_study(out_dir, overwrite, how=how)
     left_out = _left_out(scene.config["ground"], mesh_file=bool(data.get("mesh", {}).get("file")))
     say = print if progress else (lambda *a, **k: None)
@@ -863,12 +864,11 @@ def run_study(
             "compares settings over the same motion, its preset's length"
         )
     close = None
-    executor = checked_executor(executor)
     if executor is None:  # a scheduler that does not answer: before the folder is made
         executor, close = make_executor(workers, scheduler, initializer=None if scheduler else _quiet_worker)
     started = time.perf_counter()
     stopped = True  # until the runs are done: an interrupt or an error does not wait for the others
-    made = False
+    made = None
     try:
         made = made_folder(out_dir)
         resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]

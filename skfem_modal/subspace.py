@@ -21,6 +21,7 @@ from skfem.models.poisson import laplace
 from .eigen import canonical_eigenpairs, generic_weight
 from .fem import _mass, scalar_basis
 from .mesh import check_mesh, connected_parts
+from .values import is_whole
 
 __all__ = [
     "laplacian",
@@ -148,7 +149,7 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     """
     check_mesh(mesh)
     n = mesh.p.shape[1]
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+    if not is_whole(k):
         raise TypeError(f"k (the number of skinning weights) must be an integer, got {type(k).__name__}")
     parts = connected_parts(mesh)
     n_parts = int(parts.max()) + 1

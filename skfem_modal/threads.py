@@ -21,7 +21,7 @@ import ctypes
 import os
 from contextlib import contextmanager
 
-import numpy as np
+from .values import is_whole
 
 __all__ = ["limited_blas_threads", "openblas_threads", "checked_thread_count"]
 
@@ -47,7 +47,7 @@ def checked_thread_count(limit, name: str = "blas_threads") -> int | None:
     """
     if limit is None:
         return None
-    if isinstance(limit, (bool, np.bool_)) or not isinstance(limit, (int, np.integer)) or limit < 1:
+    if not is_whole(limit) or limit < 1:
         raise ValueError(f"{name} must be None or a whole number of threads >= 1, got {limit!r}")
     return int(limit)
 
@@ -67,7 +67,8 @@ def limited_blas_threads(limit: int | None = 1):
     >>> with limited_blas_threads(1):
     ...     _ = np.ones((200, 200)) @ np.ones((200, 200))
     """
-    if checked_thread_count(limit, "limit") is None:
+    limit = checked_thread_count(limit, "limit")  # (threadpoolctl takes no numpy integer)
+    if limit is None:
         yield
         return
     try:

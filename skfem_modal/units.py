@@ -19,6 +19,7 @@ import warnings
 import numpy as np
 
 from .mesh import body_size
+from .values import is_whole
 
 __all__ = ["up_axis", "ScaleWarning", "material_length_scales", "scale_mismatch", "warn_scale", "float_range_problems"]
 
@@ -95,7 +96,7 @@ def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> in
     """
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
-    if up is not None and (isinstance(up, bool) or not isinstance(up, (int, np.integer)) or not 0 <= up < dim):
+    if up is not None and (not is_whole(up) or not 0 <= up < dim):
         raise ValueError(f"up must be an axis index in 0..{dim - 1}, got {up!r}")
     g = None if gravity is None else np.asarray(gravity, dtype=np.float64).ravel()
     if g is not None and g.shape != (dim,):
@@ -231,6 +232,8 @@ def scale_mismatch(
         value = np.asarray(value, dtype=np.float64)
         if not (value.size and np.all(np.isfinite(value)) and np.all(value > 0)):
             raise ValueError(f"{name} must be positive and finite, got {value.tolist()}")
+    if not (isinstance(damping_stiffness, (int, float, np.number)) and 0 <= damping_stiffness < math.inf):
+        raise ValueError(f"damping_stiffness must be non-negative and finite, got {damping_stiffness!r}")
     size = body_size(mesh)
     scales = material_length_scales(mu, rho, gravity, duration, h, damping_stiffness)
     step = scales.pop("step", None)
@@ -272,7 +275,7 @@ def scale_mismatch(
             "with mu = 1e6 and h = 0.02 lost all its spin in half a second), and a step on the ground can gain "
             "energy (a caterpillar with mu = 1e6 landing at h = 0.3: 0.5 % in a step with 10 iterations, none with "
             f"30). Use a smaller time step{' or damping' if damping_stiffness else ''} "
-            f"(h <= {_largest_step(size, mu, rho, damping_stiffness):.2g} here"
+            f"(h <= {_two_digits_down(_largest_step(size, mu, rho, damping_stiffness)):.2g} here"
             f"{', at this damping' if damping_stiffness else ''}), more iterations "
             "(max_iter), or warm_start = true (not under the reference "
             "contact; it follows a spinning or rolling body, not a stiff one tipping over a corner, whose steps can "
@@ -288,7 +291,20 @@ def _largest_step(size: float, mu: float, rho: float, damping_stiffness: float =
     """
     X = (CROSSING * size) ** 2 * float(rho) / float(mu)
     beta = float(damping_stiffness)
-    return 2.0 * X / (beta + math.sqrt(beta * beta + 4.0 * X))
+    return 2.0 * X / (beta + math.hypot(beta, 2.0 * math.sqrt(X)))  # (hypot: a beta of 1e300 squared overflowed)
+
+
+def _two_digits_down(value: float) -> float:
+    """``value`` > 0 to two significant digits, rounded down (a bound advised is one that holds).
+
+    >>> _two_digits_down(0.01996), _two_digits_down(0.013)
+    (0.019, 0.013)
+    """
+    if not 0.0 < value < math.inf:  # (a step that underflowed: said as it is)
+        return value
+    exponent = math.floor(math.log10(value)) - 1
+    digits = math.floor(value / 10.0**exponent * (1 + 1e-12))
+    return float(f"{digits}e{exponent}")  # (read from its decimals: 13 * 10^-3 is 0.013000000000000001)
 
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep

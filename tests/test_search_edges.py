@@ -862,3 +862,35 @@ def test_a_search_and_a_transfer_without_cma_name_the_extra_before_any_work(tmp_
     assert main(["transfer", str(tmp_path / "done")]) == 2
     err = capsys.readouterr().err
     assert "a search checkpoint holds CMA-ES's state, which needs the optimize extra" in err
+
+
+def test_review_edges_of_executors_threads_and_folders(tmp_path, monkeypatch):
+    """A review: a numpy integer thread count passed the check, then broke the pool ('workers lost'); a study
+    refused its executor only after removing the earlier study it was to replace; a failed search into
+    a/b/c left a/ behind."""
+    result = search(tmp_path / "int64", generations=1, popsize=2, steps=20, workers=1, blas_threads=np.int64(1))
+    assert result["generations"] == 1
+    earlier = tmp_path / "study"
+    earlier.mkdir()
+    for name in ("study.csv", "study.md", "study.json", "modal.csv"):
+        (earlier / name).write_text("kept")
+    with pytest.raises(TypeError, match="got a str"):
+        study.run_study(study.FLOATING_CATERPILLAR, earlier, executor="tcp://127.0.0.1:8786", overwrite=True)
+    assert sorted(p.name for p in earlier.iterdir()) == ["modal.csv", "study.csv", "study.json", "study.md"]
+    from concurrent.futures import ThreadPoolExecutor
+
+    def fail(self, gait):
+        raise RuntimeError("a rollout failed")
+
+    monkeypatch.setattr(rollouts.Trial, "run", fail)
+    with ThreadPoolExecutor(1) as pool, pytest.raises(RuntimeError, match="a rollout failed"):
+        search(tmp_path / "a" / "b" / "c", executor=pool)
+    assert not (tmp_path / "a").exists()
+
+
+def test_negative_numbers_are_joined_only_to_options_of_one_value():
+    """A review: joining after any option swallowed a flag's positional and broke '--'."""
+    args = ["modes", "--young", "-1e6", "--merge", "-1", "--", "-2"]
+    assert _joined_signed_values(args) == ["modes", "--young=-1e6", "--merge", "-1", "--", "-2"]
+    args = ["optimize", "--period-range", "-1", "2", "--seed", "-3e0"]
+    assert _joined_signed_values(args) == ["optimize", "--period-range", "-1", "2", "--seed=-3e0"]

@@ -455,3 +455,18 @@ def test_pins_far_stiffer_than_their_default_are_warned():
         ModalMuscle.from_mesh(mesh, **build, pin_stiffness=1e17)
     with pytest.warns(UserWarning, match=r"stop short of converging"):
         sim.pin_stiffness = 1e18
+
+
+def test_a_time_step_that_makes_given_pins_far_stiffer_than_the_default_is_warned():
+    """A review: the default pin stiffness follows 1 / h^2, a given one does not: a larger h made given pins
+    3e4 times the default without a word."""
+    from skfem_modal.mesh import beam2d
+
+    mesh = beam2d(2.0, 0.5, 8, 2)
+    pins = np.flatnonzero(mesh.p[0] < 1e-9)
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=0, n_weights=4, n_clusters=4, mu=1e4, h=0.005, pinned=pins)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sim.pin_stiffness = 500 * sim.pin_stiffness
+    with pytest.warns(UserWarning, match="stop short of converging"):
+        sim.h = 0.1
