@@ -469,13 +469,8 @@ def run_search(
     space = space or GaitSpace(m)
     if space.m != m:
         raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
-    _check_evolution(generations, popsize, sigma0)
-    _check_seed(seed)
-    _check_stop_after(stop_after)
-    _check_samples(samples, jitter)
-    _cma()  # (without it the search failed after its banner, with a traceback)
+    _check_search(generations, popsize, sigma0, seed, stop_after, samples, jitter, blas_threads)
     executor = checked_executor(executor)
-    checked_thread_count(blas_threads)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     fingerprint = scene_fingerprint(scene)
     if resume and overwrite:
@@ -568,6 +563,17 @@ def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: 
         "tip_limit": float(np.radians(tip_limit_degrees)),
         "tip_weight": float(tip_weight),
     }
+
+
+def _check_search(generations, popsize, sigma0, seed, stop_after, samples, jitter, blas_threads) -> None:
+    """A search's own settings (not the scene's, not the rollouts'), each checked by name; and CMA-ES there
+    (without it the search failed after its banner, with a traceback)."""
+    _check_evolution(generations, popsize, sigma0)
+    _check_seed(seed)
+    _check_stop_after(stop_after)
+    _check_samples(samples, jitter)
+    checked_thread_count(blas_threads)
+    _cma()
 
 
 def _check_evolution(generations: int, popsize: int, sigma0: float) -> None:
