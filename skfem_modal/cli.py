@@ -427,16 +427,17 @@ def _is_option(word: str, option: str) -> bool:
 
 #: Options whose value may start with "-" (``--direction -x``): argparse would read it as an option.
 _SIGNED_VALUES = {"--direction": re.compile(r"-(?:[xyz]|[0-9.])", re.IGNORECASE)}
-# a negative number after any other option: argparse takes -1e6 (not -1 or -0.5) for an option of its own
+# a negative number as a value (argparse's own takes -1 and -0.5 but not -1e6, -inf or -nan, which it read as options)
 _NEGATIVE_NUMBER = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|-inf$|-nan$", re.IGNORECASE)
 
 
 def _joined_signed_values(argv: list[str], single=None) -> list[str]:
-    """``--direction -x`` as ``--direction=-x`` (and ``-1,0``), ``--young -1e6`` as ``--young=-1e6``: argparse
-    reads them as the option's value (then checked and refused, or taken, by name).
+    """``--direction -x`` as ``--direction=-x`` (and ``-1,0``): argparse reads it as the option's value
+    (then checked and refused, or taken, by name).
 
     ``single``: the options that take one value (default: those of :func:`build_parser`); a word after a flag,
-    an option of several values or ``--`` is left alone.
+    an option of several values or ``--`` is left alone. (Negative numbers need no joining: the parsers of
+    :func:`build_parser` take every one as a value, :data:`_NEGATIVE_NUMBER`.)
     """
     single = _single_value_options(build_parser()) if single is None else single
     words = []
@@ -445,7 +446,7 @@ def _joined_signed_values(argv: list[str], single=None) -> list[str]:
             words.append(word)
             continue
         option = words[-1] if words and "--" not in words and words[-1] in single else None
-        pattern = _SIGNED_VALUES.get(option, _NEGATIVE_NUMBER) if option else None
+        pattern = _SIGNED_VALUES.get(option)
         if pattern is not None and pattern.match(word):
             words[-1] = f"{words[-1]}={word}"
         else:
@@ -455,16 +456,20 @@ def _joined_signed_values(argv: list[str], single=None) -> list[str]:
 
 def _single_value_options(parser) -> set[str]:
     """The long options of ``parser`` and of its commands that take exactly one value."""
-    commands = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    parsers = [parser] + [p for a in commands for p in a.choices.values()]
     return {
         name
-        for p in parsers
+        for p in _all_parsers(parser)
         for action in p._actions
         if action.nargs is None and action.option_strings
         for name in action.option_strings
         if name.startswith("--")
     }
+
+
+def _all_parsers(parser) -> list:
+    """``parser`` and the parsers of its commands."""
+    commands = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return [parser] + [p for a in commands for p in a.choices.values()]
 
 
 def cmd_optimize(args) -> int:
@@ -934,6 +939,9 @@ def build_parser() -> argparse.ArgumentParser:
         if quiet is not None:
             p.add_argument("-q", "--quiet", action="store_true", help=quiet)
         p.set_defaults(func=run)
+    for each in _all_parsers(parser):
+        # (argparse's own test of a negative number, which decides whether a word is a value: see _NEGATIVE_NUMBER)
+        each._negative_number_matcher = _NEGATIVE_NUMBER
     return parser
 
 

@@ -902,9 +902,20 @@ def test_review_edges_of_executors_threads_and_folders(tmp_path, monkeypatch):
     assert not (tmp_path / "a").exists()
 
 
-def test_negative_numbers_are_joined_only_to_options_of_one_value():
-    """A review: joining after any option swallowed a flag's positional and broke '--'."""
-    args = ["modes", "--young", "-1e6", "--merge", "-1", "--", "-2"]
-    assert _joined_signed_values(args) == ["modes", "--young=-1e6", "--merge", "-1", "--", "-2"]
-    args = ["optimize", "--period-range", "-1", "2", "--seed", "-3e0"]
-    assert _joined_signed_values(args) == ["optimize", "--period-range", "-1", "2", "--seed=-3e0"]
+def test_negative_numbers_are_values_of_any_option(capsys):
+    """A review: joining after any option swallowed a flag's positional and broke '--'; and an option of two
+    values took no negative number in scientific notation (``--period-range -1e3 2``: 'expected 2 arguments')."""
+    from skfem_modal.cli import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(_joined_signed_values(["modes", "--young", "-1e6", "--merge", "-1e0"]))
+    assert (args.young, args.merge, args.mesh) == (-1e6, True, "-1e0")  # a flag's next word stays a positional
+    args = parser.parse_args(["modes", "--", "-2e0"])
+    assert args.mesh == "-2e0"
+    for args, said in (
+        (["--period-range", "-1e3", "2"], "argument --period-range: expected a positive finite number, got '-1e3'"),
+        (["--seed", "-inf"], "argument --seed: "),
+    ):
+        with pytest.raises(SystemExit) as stopped:
+            main(["optimize", *args, "--out", "never"])
+        assert stopped.value.code == 2 and said in capsys.readouterr().err
