@@ -1076,8 +1076,10 @@ def _plot(out_dir, rows, front, meta) -> str:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    # the front's settings are long and crowd each other near the knee: numbered on the plot, spelt out beside it
+    fig, (ax, key) = plt.subplots(1, 2, figsize=(10.5, 4.8), gridspec_kw={"width_ratios": [2.2, 1.0]})
     markers = {
         "base": "*",
         "weights": "o",
@@ -1111,21 +1113,30 @@ def _plot(out_dir, rows, front, meta) -> str:
         lw=1,
         label="Pareto front",
     )
-    for i in f:
+    for number, i in enumerate(f, 1):
         ax.annotate(
-            rows[i]["label"],
+            str(number),
             (rows[i]["step_ms"], 100 * rows[i]["trajectory_error"]),
-            fontsize=6,
-            xytext=(3, 3),
+            fontsize=7,
+            xytext=(4, 2),
             textcoords="offset points",
         )
     ax.set_xlabel("milliseconds per step")
     ax.set_ylabel("trajectory error (%)")
+    plain = FuncFormatter(lambda value, _: f"{value:g}")
     ax.set_xscale("log")  # the accelerated iterations cost ten times more: the front would be squeezed
     ax.set_yscale("log")
+    for axis in (ax.xaxis, ax.yaxis):
+        # labels at 1, 2 and 5 of each decade, as plain numbers: matplotlib's 2x10^-2 labels ran into each other
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(plain)
+        axis.set_minor_formatter(NullFormatter())
     ax.set_title(f"{meta['scene']}: accuracy against cost", fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    key.axis("off")
+    key.legend(*ax.get_legend_handles_labels(), loc="lower left", fontsize=7, ncol=2)  # beside: not over the points
+    lines = [f"{number:2d}  {rows[i]['label']}" for number, i in enumerate(f, 1)]
+    key.text(0.0, 1.0, "Pareto front\n" + "\n".join(lines), va="top", ha="left", fontsize=7, family="monospace")
     fig.tight_layout()
     path = os.path.join(out_dir, "pareto.png")
     try:
