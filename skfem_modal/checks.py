@@ -93,12 +93,6 @@ def _axis(value, dim):
     return int(value)
 
 
-def _flag(value, name):
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
-
-
 def _acceleration_name(value, full_space=False):
     if value not in ACCELERATIONS:
         raise ValueError(f"acceleration must be one of {', '.join(map(repr, ACCELERATIONS))}, got {value!r}")
@@ -168,15 +162,50 @@ def _nonnegative(value, name):
     return _positive_scalar(value, name, allow_zero=True)
 
 
-def _basis(B, N: int) -> np.ndarray:
-    """A subspace basis as a checked (N, r) array (a sparse one made dense: the subspace is dense)."""
+def _vertex_field(x, n: int, dim: int, name: str = "x") -> np.ndarray:
+    """A field of one value per vertex coordinate, shape (n, dim) or (n dim,), checked finite, as floats."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape not in ((n, dim), (n * dim,)):
+        raise ValueError(f"{name} must have shape ({n}, {dim}) or ({n * dim},), one value per vertex, got {x.shape}")
+    if not np.isfinite(x).all():
+        raise ValueError(f"{name} must be finite")
+    return x
+
+
+def _basis(B, rest) -> np.ndarray:
+    """A subspace basis as a checked (N, r) array (a sparse one made dense: the subspace is dense).
+
+    ``rest`` (N,): the rest positions, interleaved, which ``B``'s columns must span.
+    """
+    N = rest.size
     B = B.toarray() if sps.issparse(B) else B
     B = np.asarray(B, dtype=np.float64)
     if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
         raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
     if not np.all(np.isfinite(B)):
         raise ValueError("B must be finite")
+    _spans_rest(B, rest)
     return B
+
+
+def _spans_rest(B, rest) -> None:
+    """Refuse a basis whose columns do not span the rest positions: its states could not be at rest.
+
+    The coefficients are fitted on a few spread rows (four a column) and checked on all, a product of
+    ``B``'s size; only when that misses (those rows may not tell the columns apart) on all rows.
+    """
+    N, r = B.shape
+    reach = max(float(np.abs(rest).max(initial=0.0)), float(np.ptp(rest.reshape(-1, 1)))) or 1.0
+    for rows in (np.unique(np.linspace(0, N - 1, min(N, 4 * r)).astype(np.int64)), slice(None)):
+        coefficients = np.linalg.lstsq(B[rows], rest[rows], rcond=None)[0]
+        miss = float(np.abs(B @ coefficients - rest).max())
+        if miss <= 1e-8 * reach:
+            return
+    raise ValueError(
+        f"B's columns do not span the rest pose: the closest B z is {miss:.3g} from the mesh's positions at some "
+        f"vertex ({miss / reach:.3g} of the largest coordinate); a subspace must hold the body at rest (a skinning "
+        "basis does: lbs_basis, skinning_eigenmodes, and mass_orthonormalize of either)"
+    )
 
 
 def _gravity_and_up(gravity, up, dim: int, ground: bool = True):
@@ -194,6 +223,8 @@ def _gravity_and_up(gravity, up, dim: int, ground: bool = True):
 def _pins(pinned, pin_stiffness, n: int):
     """Pinned vertices, shape (p,), or None, and their stiffness (None: the default), checked."""
     pinned = None if pinned is None else _vertices(pinned, n, "pinned")
+    if pinned is not None and pinned.size == n:
+        raise ValueError(f"pinned: all {n} vertices of the mesh are pinned: nothing is left free to move (pin fewer)")
     return pinned, None if pin_stiffness is None else _positive_scalar(pin_stiffness, "pin_stiffness")
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import math
 import os
 import secrets
 import sys
@@ -27,6 +28,7 @@ import numpy as np
 
 from .fem import scalar_basis
 from .mesh import _signed_measures, check_mesh
+from .values import is_real
 
 __all__ = [
     "pad3",
@@ -382,6 +384,7 @@ class FrameWriter:
     """
 
     def __init__(self, directory, mesh, name: str = "frames", cell_data=None):
+        check_mesh(mesh)
         self.directory = os.fspath(directory)
         self.name = name
         self.frame_dir = os.path.join(self.directory, name)
@@ -407,9 +410,11 @@ class FrameWriter:
         Parameters
         ----------
         time : float
+            Finite, after the last frame's.
         positions : ndarray, shape (n, dim)
+            Finite.
         point_data : dict of str to ndarray of shape (n,) or (n, c), optional
-            Extra per-vertex arrays (``displacement`` is always written).
+            Extra per-vertex arrays (``displacement`` is always written: not one of them).
         field_data : dict of str to array_like, optional
             Per-frame values (e.g. muscle activations), written exactly.
 
@@ -417,10 +422,27 @@ class FrameWriter:
         -------
         path : str
             The frame's ``.vtu`` file.
+
+        Raises
+        ------
+        ValueError, TypeError
+            Naming the argument, before anything is written.
         """
+        if not is_real(time) or not math.isfinite(time):
+            raise TypeError(f"time must be a finite number, got {time!r}")
+        if self.times and not time > self.times[-1]:
+            raise ValueError(f"time must come after the last frame's ({self.times[-1]!r}), got {time!r}")
         positions = np.asarray(positions, dtype=np.float64)
         if positions.shape != self.rest.shape:
             raise ValueError(f"positions must have shape {self.rest.shape}, got {positions.shape}")
+        if not np.isfinite(positions).all():
+            raise ValueError("positions must be finite")
+        n = self.rest.shape[0]
+        for key, value in (point_data or {}).items():
+            if key == "displacement":
+                raise ValueError("point_data 'displacement' is written with every frame: name yours otherwise")
+            if np.shape(value)[:1] != (n,) or np.ndim(value) > 2:
+                raise ValueError(f"point data {key!r} needs shape ({n},) or ({n}, c), got {np.shape(value)}")
         data = {"displacement": positions - self.rest}
         data.update(point_data or {})
         filename = f"frame_{self.count:05d}.vtu"

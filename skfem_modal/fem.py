@@ -22,7 +22,8 @@ import scipy.sparse as sps
 from skfem import Basis
 from skfem.element import ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2
 
-from .mesh import _signed_measures, check_mesh
+from .mesh import _signed_measures, check_mesh, check_points
+from .values import checked_flag
 
 __all__ = [
     "ELEMENTS",
@@ -181,6 +182,7 @@ def node_positions(mesh, element: str = "P1") -> np.ndarray:
         The vertices for P1; vertices then edge midpoints for P2
         (scikit-fem's DOF order).
     """
+    check_points(mesh)
     if element == "P1":
         return np.ascontiguousarray(mesh.p.T)
     return np.ascontiguousarray(scalar_basis(mesh, element).doflocs.T)
@@ -319,9 +321,8 @@ def mass_matrix(mesh, rho=1.0, lumped: bool = True, element: str = "P1", vector:
     >>> float(mass_matrix(beam2d(2.0, 1.0, 4, 2), rho=3.0, vector=False).sum())
     6.0
     """
-    for name, flag in (("lumped", lumped), ("vector", vector)):
-        if not isinstance(flag, (bool, np.bool_)):  # lumped=None gave the consistent matrix silently
-            raise TypeError(f"{name} must be True or False, got {flag!r}")
+    checked_flag(lumped, "lumped")  # lumped=None gave the consistent matrix silently
+    checked_flag(vector, "vector")
     check_mesh(mesh)
     return _mass(mesh, rho, lumped, element, vector)
 

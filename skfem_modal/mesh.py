@@ -19,12 +19,15 @@ import numpy as np
 from skfem import MeshTet, MeshTri
 from skfem.element import ElementTetP1, ElementTriP1
 
+from .values import checked_flag
+
 __all__ = [
     "MeshError",
     "body_size",
     "part_sizes",
     "make_mesh",
     "check_mesh",
+    "check_points",
     "validated",
     "load_mesh",
     "coincident_vertices",
@@ -110,31 +113,8 @@ def _longest_edges(p: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
     """Validate raw mesh arrays ``p`` (dim, n) and ``t`` (dim+1, nT)."""
-    if not isinstance(p, np.ndarray) or not isinstance(t, np.ndarray):
-        raise TypeError(f"{what}: points and elements must be numpy arrays")
-    if p.ndim != 2 or p.shape[0] not in (2, 3):
-        raise MeshError(f"{what}: points must have shape (dim, n) with dim 2 or 3, got {p.shape}")
+    _check_points(p, t, what=what)
     dim, n = p.shape
-    if not np.issubdtype(p.dtype, np.floating):
-        raise TypeError(f"{what}: point coordinates must be floating point, got dtype {p.dtype}")
-    if t.ndim != 2 or t.shape[0] != dim + 1:
-        raise MeshError(
-            f"{what}: a {dim}D mesh needs elements of shape ({dim + 1}, nT) ({_element_name(dim)}), got {t.shape}"
-        )
-    if not np.issubdtype(t.dtype, np.integer):
-        raise TypeError(f"{what}: element indices must be integers, got dtype {t.dtype}")
-    if n == 0 or t.shape[1] == 0:
-        raise MeshError(f"{what}: needs at least one element, got {n} points and {t.shape[1]} elements")
-    bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
-    if bad.size:
-        raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
-    extent, farthest = float(np.ptp(p, axis=1).max()), float(np.abs(p).max())
-    if extent > 0.0 and not (SIZE_RANGE[0] <= extent and farthest <= SIZE_RANGE[1]):
-        raise MeshError(
-            f"{what}: the mesh is {extent:.3g} across, with coordinates up to {farthest:.3g}: its areas, volumes "
-            f"and matrices overflow or underflow outside {SIZE_RANGE[0]:g} to {SIZE_RANGE[1]:g}; rescale its "
-            "coordinates first (e.g. make_mesh(points * scale, elements))"
-        )
     out = np.nonzero(((t < 0) | (t >= n)).any(axis=0))[0]
     if out.size:
         raise MeshError(f"{what}: {out.size} elements reference vertices outside 0..{n - 1}: {_listing(out)}")
@@ -184,6 +164,35 @@ def _check_arrays(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
             f"inside {'an' if dim == 2 else 'a'} {facet} of a neighbouring element without being one of its corners "
             f"(vertex {hanging[0]} in the {facet} ({first})), so the elements are not joined there: a crack "
             "through the body. Split the elements at the vertex, or mesh the body in one piece"
+        )
+
+
+def _check_points(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
+    """The checks of :func:`_check_arrays` that read the points once: types, shapes, finite coordinates, range."""
+    if not isinstance(p, np.ndarray) or not isinstance(t, np.ndarray):
+        raise TypeError(f"{what}: points and elements must be numpy arrays")
+    if p.ndim != 2 or p.shape[0] not in (2, 3):
+        raise MeshError(f"{what}: points must have shape (dim, n) with dim 2 or 3, got {p.shape}")
+    dim, n = p.shape
+    if not np.issubdtype(p.dtype, np.floating):
+        raise TypeError(f"{what}: point coordinates must be floating point, got dtype {p.dtype}")
+    if t.ndim != 2 or t.shape[0] != dim + 1:
+        raise MeshError(
+            f"{what}: a {dim}D mesh needs elements of shape ({dim + 1}, nT) ({_element_name(dim)}), got {t.shape}"
+        )
+    if not np.issubdtype(t.dtype, np.integer):
+        raise TypeError(f"{what}: element indices must be integers, got dtype {t.dtype}")
+    if n == 0 or t.shape[1] == 0:
+        raise MeshError(f"{what}: needs at least one element, got {n} points and {t.shape[1]} elements")
+    bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
+    if bad.size:
+        raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
+    extent, farthest = float(np.ptp(p, axis=1).max()), float(np.abs(p).max())
+    if extent > 0.0 and not (SIZE_RANGE[0] <= extent and farthest <= SIZE_RANGE[1]):
+        raise MeshError(
+            f"{what}: the mesh is {extent:.3g} across, with coordinates up to {farthest:.3g}: its areas, volumes "
+            f"and matrices overflow or underflow outside {SIZE_RANGE[0]:g} to {SIZE_RANGE[1]:g}; rescale its "
+            "coordinates first (e.g. make_mesh(points * scale, elements))"
         )
 
 
@@ -428,11 +437,26 @@ def check_mesh(mesh, *, what: str = "mesh") -> None:
     """
     if id(mesh) in _TRUSTED:
         return
+    _check_kind(mesh, what)
+    _check_arrays(mesh.p, mesh.t, what=what)
+
+
+def check_points(mesh, *, what: str = "mesh") -> None:
+    """The checks of :func:`check_mesh` that read the points only, one pass: for functions that use nothing else.
+
+    The mesh type, array shapes and dtypes, finite coordinates and their range.
+    """
+    if id(mesh) in _TRUSTED:
+        return
+    _check_kind(mesh, what)
+    _check_points(mesh.p, mesh.t, what=what)
+
+
+def _check_kind(mesh, what: str) -> None:
     if not isinstance(mesh, (MeshTri, MeshTet)) or mesh.elem not in (ElementTriP1, ElementTetP1):
         raise TypeError(
             f"{what}: expected a linear skfem.MeshTri or skfem.MeshTet, got {type(mesh).__name__}{_hint(mesh)}"
         )
-    _check_arrays(mesh.p, mesh.t, what=what)
 
 
 def _hint(mesh) -> str:
@@ -453,6 +477,7 @@ def body_size(mesh) -> float:
     >>> body_size(beam2d(2.0, 0.5, 4, 2))
     2.0
     """
+    check_points(mesh)
     return float(np.ptp(mesh.p, axis=1).max())
 
 
@@ -681,8 +706,7 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         :func:`check_mesh`; non-finite coordinates are named before anything
         else reads them).
     """
-    if not isinstance(merge, (bool, np.bool_)):
-        raise TypeError(f"merge must be True or False, got {merge!r}")
+    checked_flag(merge, "merge")
     path = os.fspath(path)
     if os.path.isdir(path):
         raise IsADirectoryError(f"mesh file {path!r} is a folder")
@@ -1167,6 +1191,8 @@ def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndar
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2:
         raise ValueError(f"farthest_point_sampling: points must be (n, d), got shape {pts.shape}")
+    if not np.isfinite(pts).all():  # a NaN is no distance: the same point was picked k times
+        raise ValueError("farthest_point_sampling: points must be finite")
     n = pts.shape[0]
     if not 1 <= k <= n:
         raise ValueError(f"farthest_point_sampling: k must be in 1..{n}, got {k}")

@@ -30,7 +30,7 @@ import numpy as np
 
 from .eigen import _group_end, canonical_eigenpairs, canonical_repeated, generic_weight, sign_convention
 from .fem import ELEMENTS, _jacobian, _mass, _stiffness, element_volumes, node_positions, vector_dofs
-from .mesh import check_mesh
+from .mesh import check_mesh, validated
 from .motions import (
     _hinge_motions,
     _node_parts,
@@ -373,16 +373,18 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     """
     if not is_whole(n_muscles) or n_muscles < 0:
         raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
+    check_mesh(mesh)
     if not n_muscles:
         return np.zeros((mesh.p.size, 0))
     signs = muscle_signs(signs, n_muscles, "signs")
-    problem = muscle_count_problem(mesh, n_muscles, pinned)
-    if problem:
-        raise ValueError(f"n_muscles: {n_muscles} {problem}")
-    n_rigid = rigid_mode_count(mesh, pinned)
-    _, found = linear_modal_analysis(
-        mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
-    )
+    with validated(mesh):  # (checked once: the modal analysis's own check returns at once)
+        problem = muscle_count_problem(mesh, n_muscles, pinned)
+        if problem:
+            raise ValueError(f"n_muscles: {n_muscles} {problem}")
+        n_rigid = rigid_mode_count(mesh, pinned)
+        _, found = linear_modal_analysis(
+            mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
+        )
     D = found[:, n_rigid:]
     return D if signs is None else D * signs
 

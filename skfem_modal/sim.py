@@ -49,7 +49,6 @@ from .checks import (
     _contact_settings,
     _count,
     _fits_float64,
-    _flag,
     _fraction,
     _gravity_and_up,
     _ground,
@@ -59,6 +58,7 @@ from .checks import (
     _pins,
     _positive_scalar,
     _pulled_to_ground,
+    _vertex_field,
 )
 from .contact import (
     ALLOWANCE,
@@ -78,7 +78,7 @@ from .solver import MAX_ITERATIONS, TOL, LocalGlobal, SimulationError, make_back
 from .space import FullSpace, Subspace
 from .threads import checked_thread_count, limited_blas_threads
 from .units import outside_stacklevel, up_axis, warn_scale
-from .values import is_whole
+from .values import checked_flag, is_whole
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -90,7 +90,7 @@ def _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space) -> 
         _nonnegative(tol, "tol"),
         _nonnegative(rtol, "rtol"),
         etol=_nonnegative(etol, "etol"),
-        warm_start=_flag(warm_start, "warm_start"),
+        warm_start=checked_flag(warm_start, "warm_start"),
         acceleration=_acceleration_name(acceleration, full_space),
     )
 
@@ -131,6 +131,13 @@ def _model_contact_vertices(mesh, model: str, default: dict | None):
     if default is None:
         return None
     return np.unique(sample_boundary(mesh, DEFAULT_CONTACTS[model], **default))  # ascending, as the constructor's
+
+
+def _non_finite_as_given(**state) -> None:
+    """Raise a SimulationError naming the part of a state given non-finite (a failed step's cause), if one is."""
+    for name, value in state.items():
+        if not np.all(np.isfinite(value)):
+            raise SimulationError(f"the state is non-finite as given: {name} holds NaN or infinity") from None
 
 
 def _checked_activation(a, m: int) -> np.ndarray:
@@ -334,7 +341,8 @@ def _from_mesh(
         _count(n_contacts, "n_contacts")
     _backend_name(backend)
     _acceleration_name(acceleration)
-    _flag(warm_start, "warm_start")
+    checked_flag(warm_start, "warm_start")
+    checked_flag(parallel, "parallel")
     settings = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
     contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, stickiness=stickiness,
                    push_out=push_out)  # fmt: skip
@@ -645,7 +653,7 @@ class ModalMuscle:
         check_mesh(mesh)
         dim, n = mesh.p.shape
         nT = mesh.t.shape[1]
-        B = None if B is None else _basis(B, n * dim)
+        B = None if B is None else _basis(B, mesh.p.T.ravel())
         D = D if callable(D) else _muscle_modes(D, n * dim)  # a callable: called once the passive operators are built
         labels = _labels(labels, nT, "labels")
         active_labels = np.zeros(nT, np.int64) if active_labels is None else _labels(active_labels, nT, "active_labels")
@@ -799,7 +807,7 @@ class ModalMuscle:
 
     @warm_start.setter
     def warm_start(self, value) -> None:
-        self._solver.warm_start = _flag(value, "warm_start")
+        self._solver.warm_start = checked_flag(value, "warm_start")
         _warn_if_idle(self._solver, self._model.contact, "warm_start")
 
     @property
@@ -914,8 +922,9 @@ class ModalMuscle:
         ``relative``: the deepest relative to the size of the vertex's own connected part (in a mesh of
         several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
         """
+        z = self._state(z)
         contact = self._model.contact
-        return 0.0 if contact is None else contact.penetration(self._state(z), relative)
+        return 0.0 if contact is None else contact.penetration(z, relative)
 
     @property
     def ground(self):
@@ -1039,7 +1048,7 @@ class ModalMuscle:
         -------
         z : ndarray, shape (r,)
         """
-        return self._space.coordinates(x, self.mass)
+        return self._space.coordinates(_vertex_field(x, *self._mesh.p.shape[::-1]), self.mass)
 
     def _state(self, z, name: str = "z") -> np.ndarray:
         """A state or velocity as a float array, checked to have shape (r,)."""
@@ -1119,6 +1128,8 @@ class ModalMuscle:
         z = np.asarray(z, dtype=np.float64)
         z_dot = np.asarray(z_dot, dtype=np.float64)
         r = self._space.r
+        if velocity is not True and velocity is not False:  # (a bool: "yes" would be true)
+            checked_flag(velocity, "velocity")
         if z.shape != (r,) or z_dot.shape != (r,):
             raise ValueError(f"z and z_dot must have shape ({r},), got {z.shape} and {z_dot.shape}")
         a = self._activation(a)
@@ -1129,12 +1140,7 @@ class ModalMuscle:
             except np.linalg.LinAlgError as err:  # (a contact's correction at a huge step, say): the step's trouble
                 raise SimulationError(f"the step's linear algebra failed: {err} (time step h = {self.h:g})") from err
             except SimulationError:
-                # a state given non-finite is the caller's, not the step's (checked only then: it costs a step)
-                for name, value in (("z", z), ("z_dot", z_dot)):
-                    if not np.all(np.isfinite(value)):
-                        raise SimulationError(
-                            f"the state is non-finite as given: {name} holds NaN or infinity"
-                        ) from None
+                _non_finite_as_given(z=z, z_dot=z_dot)  # the caller's, not the step's (checked only then)
                 raise
         self._stepped = True
         if velocity:

@@ -101,6 +101,8 @@ def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> in
     g = None if gravity is None else np.asarray(gravity, dtype=np.float64).ravel()
     if g is not None and g.shape != (dim,):
         raise ValueError(f"gravity must have {dim} components, got {g.size}")
+    if g is not None and not np.isfinite(g).all():
+        raise ValueError(f"gravity must be finite, got {g.tolist()}")
     if g is None or not np.any(g):
         return dim - 1 if up is None else int(up)
     down = int(np.argmax(np.abs(g)))

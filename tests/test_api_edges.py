@@ -238,3 +238,90 @@ def test_a_translation_has_no_ceiling_and_a_rotation_one(element):
     assert np.all(np.isinf(ceilings[:6][is_translation]))
     assert np.all(np.isfinite(ceilings[6:])) and np.all(ceilings[6:] > 0)
     assert np.all(np.isinf(sm.actuation_limits(mesh, translation, element=element)))
+
+
+# ------------------------------------------------------------ a new user's trial (2026-11-27, ninth session)
+
+
+def test_a_basis_that_misses_the_rest_pose_is_refused(sim):
+    """Built, its 'rest state' half the body away, and it moved 1.4 units in 20 steps without input."""
+    args = dict(mu=1e5, gamma=1e5, rho=1e3, h=0.01)
+    with pytest.raises(
+        ValueError, match=r"B's columns do not span the rest pose: the closest B z is 1.06 from the mesh"
+    ):
+        sm.ModalMuscle(sim.mesh, sim.B[:, 6:], sim.D, sim.labels, **args)
+    again = sm.ModalMuscle(sim.mesh, sim.B, sim.D, sim.labels, **args)  # its own basis does
+    z, _, _ = again.rest_state()
+    assert np.abs(again.positions(z) - sim.mesh.p.T).max() < 1e-12
+
+
+def test_frames_are_checked_before_they_are_written(tmp_path):
+    import meshio
+
+    from skfem_modal.export import FrameWriter
+
+    mesh = sm.beam2d(nx=4, ny=2)
+    n = mesh.p.shape[1]
+    with FrameWriter(tmp_path, mesh) as frames:
+        frames.write(0.0, mesh.p.T, point_data={"s": np.zeros(n)})
+        refused = [
+            ((0.1, mesh.p.T), {"point_data": {"s": np.zeros(3)}}, ValueError, r"point data 's' needs shape \(15,\)"),
+            ((0.1, mesh.p.T), {"point_data": {"displacement": np.zeros(n)}}, ValueError, "written with every frame"),
+            ((np.nan, mesh.p.T), {}, TypeError, "time must be a finite number, got nan"),
+            (("0.1", mesh.p.T), {}, TypeError, "time must be a finite number, got '0.1'"),
+            ((0.0, mesh.p.T), {}, ValueError, r"time must come after the last frame's \(0.0\), got 0.0"),
+            ((0.1, np.full((n, 2), np.nan)), {}, ValueError, "positions must be finite"),
+        ]
+        for args, kwargs, error, said in refused:
+            with pytest.raises(error, match=said):
+                frames.write(*args, **kwargs)
+        frames.write(0.5, mesh.p.T + 0.1)
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_00000.vtu", "frame_00001.vtu"]
+    assert meshio.read(tmp_path / "frames" / "frame_00000.vtu").point_data["s"].shape == (n,)
+    assert frames.times == [0.0, 0.5]
+
+
+def test_functions_that_take_a_mesh_check_it():
+    from skfem import MeshQuad, MeshTri
+
+    from skfem_modal.export import FrameWriter
+    from skfem_modal.fem import node_positions
+
+    nan_mesh = MeshTri(np.array([[0.0, 1.0, np.nan], [0.0, 0.0, 1.0]]), np.array([[0], [1], [2]]))
+    calls = [
+        sm.body_size,
+        node_positions,
+        lambda m: sm.muscle_modes(m, 1),
+        lambda m: sm.scale_mismatch(m, 1e5, 1e3, [0.0, -9.8]),
+        lambda m: FrameWriter("never", m),
+    ]
+    for call in calls:
+        with pytest.raises(TypeError, match="expected a linear skfem.MeshTri or skfem.MeshTet, got str"):
+            call("m")
+        with pytest.raises(TypeError, match=r"got MeshQuad1 \(split it into triangles: mesh.to_meshtri\(\)\)"):
+            call(MeshQuad())
+        with pytest.raises(sm.MeshError, match=r"1 vertices have non-finite coordinates: \[2\]"):
+            call(nan_mesh)
+
+
+def test_more_arguments_are_named_when_wrong(sim):
+    z, z_dot, a = sim.rest_state()
+    n = sim.mesh.p.shape[1]
+    with pytest.raises(ValueError, match="farthest_point_sampling: points must be finite"):
+        sm.farthest_point_sampling([[np.nan, 0.0], [1.0, 0.0], [2.0, 0.0]], 3)  # was [0, 0, 0]
+    for gravity in ([np.nan, -9.8], [0.0, -np.inf]):
+        with pytest.raises(ValueError, match="gravity must be finite"):
+            sm.up_axis(gravity, 2)  # [nan, -9.8] gave x
+    with pytest.raises(ValueError, match=rf"x must have shape \({n}, 2\) or \({2 * n},\), one value per vertex"):
+        sim.coordinates(np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="x must be finite"):
+        sim.coordinates(np.full((n, 2), np.nan))
+    with pytest.raises(ValueError, match=r"z must have shape \(24,\)"):
+        sim.penetration(z[:-1])  # no ground: it said 0.0
+    with pytest.raises(TypeError, match="velocity must be True or False, got 'yes'"):
+        sim.step(z, z_dot, a, velocity="yes")
+    with pytest.raises(TypeError, match="parallel must be True or False, got 'no'"):
+        sm.ModalMuscle.from_mesh(sim.mesh, parallel="no")
+    for muscles in (4, 0):  # it blamed the muscles, or built a body pinned everywhere
+        with pytest.raises(ValueError, match=rf"pinned: all {n} vertices of the mesh are pinned"):
+            sm.ModalMuscle.from_mesh(sim.mesh, n_muscles=muscles, pinned=np.arange(n))

@@ -9,7 +9,7 @@ from skfem_modal.clusters import spectral_clusters
 from skfem_modal.mesh import MeshError, boundary_vertices, connected_parts, mesh_summary
 from skfem_modal.scene import Scene
 from skfem_modal.sim import ModalMuscle
-from skfem_modal.subspace import laplacian, skinning_eigenmodes
+from skfem_modal.subspace import laplacian, lbs_basis, skinning_eigenmodes
 
 GOOD = sm.beam2d(2.0, 1.0, 4, 2)
 
@@ -50,7 +50,7 @@ ENTRY_POINTS = {
     "export_modes": lambda m: sm.export_modes("/nonexistent/never_written.vtu", m, np.zeros((m.p.size, 1))),
     "ModalMuscle.from_mesh": lambda m: ModalMuscle.from_mesh(m, n_muscles=1, n_weights=2, n_clusters=2),
     "ModalMuscle": lambda m: ModalMuscle(
-        m, np.ones((m.p.size, 1)), None, np.zeros(m.t.shape[1], int), mu=1.0, gamma=1.0, rho=1.0, h=0.1
+        m, np.eye(m.p.size), None, np.zeros(m.t.shape[1], int), mu=1.0, gamma=1.0, rho=1.0, h=0.1
     ),
 }
 
@@ -116,7 +116,7 @@ def test_k_larger_than_possible():
 )
 def test_simulator_parameters(kwargs, message):
     base = dict(mu=1.0, gamma=1.0, rho=1.0, h=0.1)
-    B = np.ones((GOOD.p.size, 1))
+    B = lbs_basis(GOOD.p.T, np.ones((GOOD.p.shape[1], 1)))  # the affine maps: the rest pose among them
     with pytest.raises((ValueError, TypeError), match=message):
         ModalMuscle(GOOD, B, None, np.zeros(16, int), **{**base, **kwargs})
 
@@ -136,7 +136,7 @@ def test_material_given_as_text_is_named(kwargs, message):
 
 
 def test_labels_and_arrays_of_the_wrong_kind():
-    B = np.ones((GOOD.p.size, 1))
+    B = lbs_basis(GOOD.p.T, np.ones((GOOD.p.shape[1], 1)))
     kw = dict(mu=1.0, gamma=1.0, rho=1.0, h=0.1)
     with pytest.raises(TypeError, match="labels must be integers"):
         ModalMuscle(GOOD, B, None, np.full(16, "a"), **kw)

@@ -16,6 +16,7 @@ from skfem_modal.eigen import lowest_eigenpairs
 from skfem_modal.fem import _mass, _stiffness
 from skfem_modal.scene import Scene, SceneError
 from skfem_modal.sim import ModalMuscle
+from skfem_modal.subspace import lbs_basis
 
 SMALL = sm.caterpillar(nx=20, ny=10)
 FAST = dict(n_muscles=2, n_weights=3, n_clusters=3)
@@ -259,7 +260,7 @@ def test_contact_settings_without_a_ground_are_named(arguments, named, monkeypat
 
 def test_the_constructor_names_contact_settings_without_a_ground():
     m = SMALL
-    B = np.ones((m.p.size, 1))
+    B = lbs_basis(m.p.T, np.ones((m.p.shape[1], 1)))
     with pytest.raises(ValueError, match="friction=0.1: a contact setting, but there is no ground"):
         ModalMuscle(m, B, None, np.zeros(m.t.shape[1], int), mu=1.0, gamma=1.0, rho=1.0, h=0.1, friction=0.1)
 
