@@ -15,11 +15,15 @@ physical ones:
   Elasticity and muscles are internal and never move it (momentum is
   conserved); contact and pins move it by a small fraction of the body's size
   a step when the step resolves the motion. More than :data:`PUSH_LIMIT`
-  body sizes in one step is a step far too large for the scene.
+  body sizes in one step is a step far too large for the scene. A ground
+  holding the body's weight up (up to a step of free fall, upwards) is no
+  push: a box resting on the ground at ``h = 0.5`` was "moved" 2.5 body
+  sizes a step by it.
 
 Measured on the examples and the default crawl: spread
 ratios 0.74-1.33, pushes below 0.04 body sizes; with ``time.step = 1000`` the
-built-in crawl's push reaches 4.9e6 body sizes.
+built-in crawl's push reaches 2.7 body sizes (its reference contact lets it
+through the ground).
 
 A body can also stay put in the air: a contact that holds it up with
 nothing under it (the reference contact at a large step keeps its points
@@ -89,6 +93,8 @@ __all__ = [
 SPREAD_LIMIT = 3.0
 #: Forces other than gravity moving the centre of mass this many body sizes in one step are not physical.
 PUSH_LIMIT = 1.0
+#: A time step longer than this share of the gait's shortest period samples it at aliased phases (Nyquist's).
+GAIT_STEPS = 0.5
 #: Steps in a row a body held still in the air (see the module's text) counts as hovering.
 HOVER_STEPS = 3
 #: Clear of the ground by this much of its size, a body is in the air (the Coulomb contact's allowance is 2e-4).
@@ -132,6 +138,9 @@ class MotionMonitor:
         (:func:`~skfem_modal.units.material_length_scales`): a body more than
         :data:`~skfem_modal.units.FAR` times as large collapses under its weight at any time step,
         and a spread is blamed on the material, not on the time step.
+    gait_period : float, optional
+        The shortest period of the muscles' gait: a time step longer than :data:`GAIT_STEPS` of it
+        samples the gait at aliased phases (reported as ``gait``, from step 1).
 
     Examples
     --------
@@ -145,7 +154,7 @@ class MotionMonitor:
     True
     """
 
-    def __init__(self, sim, gravity=None, weight_scale=None):
+    def __init__(self, sim, gravity=None, weight_scale=None, gait_period=None):
         dim = self.dim = sim.dim
         self.weight_scale = weight_scale
         self._mean = self._gram = None  # the full space's state is the positions themselves
@@ -167,6 +176,9 @@ class MotionMonitor:
         self.spread_ratio = [1.0, 1.0]  # least and largest
         self.push = 0.0  # largest, in body sizes
         self.first_problem_step = {}
+        self.gait_period = gait_period
+        if gait_period is not None and self.h > GAIT_STEPS * gait_period:
+            self.first_problem_step["gait"] = 1
         self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
         self.ceiling_fraction = 0.0  # the largest |activation| / ceiling commanded
         # pins or drag may hold a body up in the air: then nothing is hovering
@@ -174,6 +186,8 @@ class MotionMonitor:
         fall = math.sqrt(float(self._gravity_step @ self._gravity_step))
         self._up = None if held or fall == 0.0 else -self._gravity_step / fall
         self._fall = fall  # how far free fall moves a body in a step (its second difference)
+        # with a ground: the way it holds the body's weight up (not a push, up to a step of free fall)
+        self._support = -self._gravity_step / fall if sim.model.contact is not None and fall > 0.0 else None
         self._hovering = 0  # steps in a row held still in the air
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
@@ -227,7 +241,7 @@ class MotionMonitor:
         com = self._com_rows @ z
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
-        push = math.sqrt(float(excess @ excess)) / self.size
+        push = float(self._pushes(excess[None])[0])
         self._previous, self._velocity_step = com, change
         ratio = self._spread(z) / self.rest_spread
         if ratio < self.spread_ratio[0]:
@@ -304,11 +318,19 @@ class MotionMonitor:
         change = np.diff(states @ self._com_rows.T, axis=0)  # (T, dim): the centre of mass's motion a step
         excess = change - self._gravity_step
         excess[1:] -= change[:-1]
-        push = np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
+        push = self._pushes(excess)
         ratio = self._spreads(states[1:]) / self.rest_spread
         pushed, spread = _beyond_limits(push, ratio)
         found = {"push": np.flatnonzero(pushed), "spread": np.flatnonzero(spread)}
         return {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
+
+    def _pushes(self, excess) -> np.ndarray:
+        """How far forces other than gravity moved the centre of mass, of the body's size, for steps' ``excess``
+        (T, dim) over free fall: the ground's holding the weight up left out."""
+        if self._support is not None:
+            held = np.clip(excess @ self._support, 0.0, self._fall)
+            excess = excess - held[:, None] * self._support
+        return np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
 
     def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:
         """Count the steps in a row the body stays still, clear of the ground, held up by something."""
@@ -385,22 +407,10 @@ class MotionMonitor:
             )
         return f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step"
 
-    def finish(self, warn: bool = True) -> dict:
-        """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
-
-        Returns
-        -------
-        report : dict
-            ``physical``, ``warnings`` (sentences), ``largest_ceiling_fraction``
-            (the largest activation over its ceiling), ``body_size`` (largest
-            rest extent), ``spread_ratio`` (least and largest),
-            ``largest_push_body_sizes``, ``deepest_body_sizes`` (the deepest any boundary
-            vertex went into the ground, of its body's size), ``inverted_elements`` (the
-            most inside out in a state checked) and ``first_problem_step``.
-        """
+    def _problems(self, overdriven: bool) -> list[str]:
+        """A sentence for each problem seen (:meth:`finish`), but the ceilings' and the blame."""
         texts = []
         low, high = self.spread_ratio
-        overdriven = "ceilings" in self.first_problem_step
         if "spread" in self.first_problem_step:
             step = self.first_problem_step["spread"]
             size = f"grew to {high:.3g} times" if high > SPREAD_LIMIT else f"shrank to {low:.3g} times"
@@ -418,7 +428,7 @@ class MotionMonitor:
             step, n = self.first_problem_step["inverted"], self._elements.shape[1]
             texts.append(
                 f"from step {step} (t = {step * self.h:g}) more than {100 * INVERTED_LIMIT:g} % of the elements "
-                f"were inside out, up to {self.inverted} of the {n} ({100 * self.inverted / n:.2g} %, at "
+                f"were inside out, up to {self.inverted} of the {n} ({100 * self.inverted / n:.3g} %, at "
                 f"t = {self._inverted_step * self.h:g}) in the states checked (the frames written and the last): "
                 "the body folded through itself"
                 + (
@@ -442,11 +452,36 @@ class MotionMonitor:
                 f"{self.pin_drift:.3g} ({self.pin_drift / self.size:.3g} body sizes) in the states checked: the pins "
                 "let go, too soft for the forces on them (pin_stiffness, [pinned] stiffness: the default holds)"
             )
+        if "gait" in self.first_problem_step:
+            period = self.gait_period
+            texts.append(
+                f"the gait's shortest period ({period:g}) is less than two time steps (h = {self.h:g}): the muscles "
+                f"are sampled at aliased phases, not as the gait asks; a time.step of at most {period / 20:.2g} "
+                "(twenty a period) resolves it"
+            )
         if "sink" in self.first_problem_step:
             texts.append(self._sinking())
         if "non_finite" in self.first_problem_step:
             step = self.first_problem_step["non_finite"]
             texts.append(f"at step {step} (t = {step * self.h:g}) the state became non-finite")
+        return texts
+
+    def finish(self, warn: bool = True) -> dict:
+        """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
+
+        Returns
+        -------
+        report : dict
+            ``physical``, ``warnings`` (sentences), ``largest_ceiling_fraction``
+            (the largest activation over its ceiling), ``body_size`` (largest
+            rest extent), ``spread_ratio`` (least and largest),
+            ``largest_push_body_sizes``, ``deepest_body_sizes`` (the deepest any boundary
+            vertex went into the ground after a step, or any vertex in a state checked, of its
+            part's size: the summary's ``worst_penetration_relative``), ``inverted_elements`` (the
+            most inside out in a state checked) and ``first_problem_step``.
+        """
+        overdriven = "ceilings" in self.first_problem_step
+        texts = self._problems(overdriven)
         physical = not texts
         if texts and (overdriven or {"spread", "push", "inverted"} & set(self.first_problem_step)):
             texts.append(self._blame(overdriven))
@@ -467,9 +502,13 @@ class MotionMonitor:
             "warnings": texts,
             "largest_ceiling_fraction": self.ceiling_fraction,
             "body_size": self.size,
-            "spread_ratio": [low, high],
+            "spread_ratio": list(self.spread_ratio),
             "largest_push_body_sizes": self.push,
-            "deepest_body_sizes": self.deepest if self._contact is not None else None,  # (no ground: none)
+            # the steps' boundary vertices and every vertex of the states checked (the start's frame too), as the
+            # summary's ground has it (no ground: none)
+            "deepest_body_sizes": max(self.deepest, self.deepest_vertex_relative)
+            if self._contact is not None
+            else None,
             "inverted_elements": self.inverted,
             "first_problem_step": dict(self.first_problem_step),
         }

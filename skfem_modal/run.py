@@ -217,7 +217,7 @@ def run_scene(
     g = None if gravity is None else gravity["acceleration"]
     material = scene.material()
     weight = material_length_scales(np.mean(material["mu"]), np.mean(material["rho"]), g).get("weight")
-    log["monitor"] = MotionMonitor(sim, g, weight_scale=weight)
+    log["monitor"] = MotionMonitor(sim, g, weight_scale=weight, gait_period=scene.shortest_period())
     files = None if out_dir is None else _RunFiles(os.fspath(out_dir), sim, every, log["monitor"])
     bar = Progress(scene.n_steps, "steps", enabled=progress)
     status, error, failure = "completed", None, None

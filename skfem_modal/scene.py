@@ -1122,6 +1122,15 @@ class Scene:
             )
         return self.activation_fractions(t) * ceilings
 
+    def shortest_period(self) -> float | None:
+        """The shortest period of the sine gait's moving muscles (amplitude not 0), or None (no such gait)."""
+        muscles = self.config["muscles"]
+        gait = muscles["gait"]
+        if self._table is not None or gait is None or not muscles["count"]:
+            return None
+        moving = [p for a, p in zip(gait["amplitude"], gait["period"]) if a != 0.0]
+        return float(min(moving)) if moving else None
+
     def activation_fractions(self, t: float) -> np.ndarray:
         """Muscle activations at time ``t`` as fractions of the ceilings, shape (count,)."""
         muscles = self.config["muscles"]

@@ -117,18 +117,19 @@ def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> in
                     f"pulls along: give it (up = {below} for {_AXES[below]}, which it pulls down along), or "
                     f"gravity along -{_AXES[down]}"
                 )
+            # (mirroring the mesh alone changes nothing here: the gravity is what must turn)
             raise ValueError(
                 f"gravity {_vector(g)} pulls along +{_AXES[down]}, so no axis points up against it onto a "
-                f"ground: give gravity along -{_AXES[down]} (or mirror the mesh along {_AXES[down]} first: "
-                f'mesh.flip = ["{_AXES[down]}"] in a scene, skfem_modal.mirror in Python; an outline traced '
-                "in image coordinates has y down)"
+                f"ground: give gravity along -{_AXES[down]} (if the mesh is upside down too, as an outline "
+                f'traced in image coordinates with y down is, also mirror it: mesh.flip = ["{_AXES[down]}"] '
+                "in a scene, skfem_modal.mirror in Python)"
             )
         return down
     if not g[up] < 0:
-        hint = f"give up = {down} ({_AXES[down]})" if g[down] < 0 else f"mirror the mesh along {_AXES[down]}"
+        hint = f"give up = {down} ({_AXES[down]}), or " if g[down] < 0 else ""
         raise ValueError(
             f"gravity {_vector(g)} has no component along -{_AXES[up]}, but the up axis is {_AXES[up]} "
-            f"(up = {up}): {hint}, or a gravity that pulls along -{_AXES[up]}"
+            f"(up = {up}): {hint}give a gravity that pulls along -{_AXES[up]}"
         )
     return int(up)
 

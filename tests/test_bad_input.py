@@ -171,9 +171,17 @@ def test_an_incline_steeper_than_45_degrees_asks_for_the_up_axis_by_name():
     with pytest.raises(ValueError, match="so no axis points up against it"):  # nothing pulls down at all
         up_axis([8.49, 4.9], 2)
     assert up_axis([8.49, -4.9], 2, up=1) == 1
-    # the advice names the axis gravity pulls along (it said flip y for a gravity along +x)
-    with pytest.raises(ValueError, match=r'mirror the mesh along x first: mesh.flip = \["x"\]'):
+    # the advice names the axis gravity pulls along (it said flip y for a gravity along +x), and turning
+    # the gravity is the fix: mirroring the mesh alone, which it offered instead, left the same error
+    with pytest.raises(
+        ValueError, match=r'give gravity along -x \(if the mesh is upside down too, .*mesh\.flip = \["x"\]'
+    ):
         up_axis([9.8, 0.0], 2)
+    for up in (0, 1):
+        with pytest.raises(ValueError, match=rf"\(up = {up}\): give a gravity that pulls along -[xy]$"):
+            up_axis([9.8, 0.0], 2, up=up)  # it said: mirror the mesh along x
+    with pytest.raises(ValueError, match=r"\(up = 1\): give up = 0 \(x\), or give a gravity that pulls along -y$"):
+        up_axis([-9.8, 0.0], 2, up=1)
 
 
 def test_a_floating_body_may_fall_any_way():

@@ -123,22 +123,48 @@ def test_a_huge_time_step_is_reported_in_the_terminal_and_the_summary(tmp_path, 
     scale, *err = capsys.readouterr().err.splitlines()
     # the scene's ScaleWarning first, said by the command as its own warnings are
     assert scale.startswith("skfem-modal run: warning: mesh 'caterpillar' is 2 length units across, and an elastic")
-    assert err[0].startswith("skfem-modal run: warning: from step 1 (t = 1000) forces other than gravity moved")
-    assert "body sizes in one step: the motion is not resolved" in err[0]
-    assert (
-        err[1]
-        == "skfem-modal run: warning: the time step h = 1000 is too large for this scene; try a smaller time.step"
-    )
+    assert err == [
+        "skfem-modal run: warning: the gait's shortest period (0.6) is less than two time steps (h = 1000): the "
+        "muscles are sampled at aliased phases, not as the gait asks; a time.step of at most 0.03 (twenty a period) "
+        "resolves it"
+    ]
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["status"] == "completed"
     motion = summary["motion"]
-    assert not motion["physical"] and len(motion["warnings"]) == 2
-    assert motion["largest_push_body_sizes"] > 1e5 * PUSH_LIMIT
-    # the library warns too
+    assert not motion["physical"] and motion["first_problem_step"] == {"gait": 1}
+    # the Coulomb contact holds the body's weight, 4.9e6 body sizes of free fall a step: no push (it was
+    # reported as one, "moved the centre of mass 4.9e6 body sizes")
+    assert motion["largest_push_body_sizes"] < PUSH_LIMIT
+    # the library warns too; the reference contact lets the body through the ground, a push
     data = copy.deepcopy(DEFAULT_SCENE)
     data["time"] = {"step": 1e3, "steps": 20}
-    with pytest.warns(MotionWarning):
-        run_scene(Scene.from_dict(data), None)
+    with pytest.warns(MotionWarning, match="forces other than gravity moved the centre of mass up to 2.72 body sizes"):
+        motion = run_scene(Scene.from_dict(data), None)["motion"]
+    assert {"gait", "push", "sink"} <= set(motion["first_problem_step"])
+
+
+def test_a_body_resting_on_the_ground_at_a_large_step_is_not_pushed(tmp_path):
+    """A new user's trial: a box resting at h = 0.5 was "moved 2.52 body sizes in one step", not physical.
+
+    It only lay there: the ground held its weight against a step of free fall (g h^2 = 2.45).
+    """
+    scene = Scene.from_dict(
+        {
+            "mesh": {"shape": "box3d", "params": {"nx": 6, "ny": 6, "nz": 3, "size": [1.0, 1.0, 0.5]}},
+            "material": {"mu": 1e4, "rho": 1e3},
+            "muscles": {"count": 0},
+            "time": {"step": 0.5, "steps": 10},
+            "gravity": {"acceleration": [0.0, 0.0, -9.8]},
+            "ground": {"offset": 0.0},
+        }
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MotionWarning)
+        summary = run_scene(scene, tmp_path / "box")
+    motion = summary["motion"]
+    assert motion["physical"] and motion["largest_push_body_sizes"] < 0.1
+    com = np.loadtxt(tmp_path / "box" / "com.csv", delimiter=",", skiprows=1)
+    assert np.abs(np.diff(com[-5:, 1:], axis=0)).max() < 1e-6  # it rests
 
 
 GHOST = Path(__file__).resolve().parents[2] / "shared" / "meshes" / "ghost.obj"
@@ -234,7 +260,8 @@ def test_a_body_held_in_the_air_by_the_contact_is_reported_hovering(tmp_path, ca
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
         landed = run_scene(_ground_scene("coulomb"), None)["motion"]
-    assert landed["physical"] and landed["largest_push_body_sizes"] > 0.1  # the ground stopped a fall of 0.44 sizes
+    # the ground stopped a fall of 0.44 sizes after 0.025: holding the weight is no push, nor the landing here
+    assert landed["physical"] and landed["largest_push_body_sizes"] < 0.05
 
 
 def test_a_body_pinned_in_the_air_or_falling_through_drag_is_not_hovering():
@@ -345,7 +372,8 @@ def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_grou
     paths = [path for _, path in read_run(tmp_path / "soft")["frames"]]
     deepest = max(float(-meshio.read(path).points[:, 1].min()) for path in paths)  # the ground at 0
     assert summary["ground"]["worst_penetration"] == pytest.approx(deepest, rel=1e-12)
-    assert deepest > 100 * motion["deepest_body_sizes"] * 2.0  # far below the boundary's
+    # and so does the motion's, the same number (it was the boundary's after each step, 100 times less)
+    assert motion["deepest_body_sizes"] == summary["ground"]["worst_penetration_relative"] > 0.05
     # a stiff one does not fold; and without files the last state is checked (the soft one folds there too)
     with warnings.catch_warnings():
         warnings.simplefilter("error", MotionWarning)
@@ -387,3 +415,20 @@ def test_pins_that_let_go_are_reported(tmp_path):
         loose = run_scene(Scene.from_dict(data), tmp_path / "loose", every=10)
     assert not loose["motion"]["physical"] and loose["motion"]["first_problem_step"]["pins"] % 10 == 0
     assert loose["pinned"]["worst_drift_written_frames"] > 0.01 * loose["motion"]["body_size"]
+
+
+def test_the_motions_depth_is_the_summarys(tmp_path):
+    """A new user's trial: a box starting 1e-4 into the ground (within the allowance) had the ground's
+    worst_penetration_relative 1.0e-4 but the motion's deepest_body_sizes 5e-5, the start left out."""
+    scene = Scene.from_dict(
+        {
+            "mesh": {"shape": "box3d"},
+            "muscles": {"count": 0},
+            "time": {"steps": 50},
+            "gravity": {"acceleration": [0.0, 0.0, -9.8]},
+            "ground": {"height": 1e-4},
+        }
+    )
+    summary = run_scene(scene, tmp_path / "run")
+    deepest = summary["ground"]["worst_penetration_relative"]
+    assert summary["motion"]["deepest_body_sizes"] == deepest == pytest.approx(1e-4, rel=1e-9)
