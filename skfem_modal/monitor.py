@@ -201,11 +201,11 @@ class MotionMonitor:
         self._pins = sim.mesh.p.T[self._pinned]  # where the pinned vertices are held
         self.pin_drift = 0.0  # the farthest a pinned vertex was from its pin in a state checked
         contact = sim.model.contact
-        self._ground = contact  # (its plane and each vertex's part size)
-        self._contact = None  # with a ground: its model, allowance, candidates and boundary vertices
+        self._plane = contact  # the contact effect: its plane and each vertex's part size
+        self._contact_terms = None  # with a ground: its model, allowance, candidates and boundary vertices
         self._deepest_allowed = math.inf
         if contact is not None:
-            self._contact = (sim.contact_model, sim.allowance, contact.vertices.size, contact.boundary_sizes.size)
+            self._contact_terms = (sim.contact_model, sim.allowance, contact.vertices.size, contact.boundary_sizes.size)
             self._deepest_allowed = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
     def _spread(self, z) -> float:
@@ -284,12 +284,12 @@ class MotionMonitor:
             self._inverted_step = step
         if inverted > INVERTED_LIMIT * self._elements.shape[1]:
             self.first_problem_step.setdefault("inverted", step)
-        if self._ground is not None:
+        if self._plane is not None:
             # an inner vertex is below the boundary's lowest only through elements inside out (a soft box
             # folded: 8.4 % of its size, its boundary 0.019 %), which the steps' boundary check does not see
-            depths = self._ground.ground - np.asarray(positions)[:, self._ground.up]
+            depths = self._plane.ground - np.asarray(positions)[:, self._plane.up]
             self.deepest_vertex = max(self.deepest_vertex, float(depths.max()))
-            self.deepest_vertex_relative = max(self.deepest_vertex_relative, float((depths / self._ground.sizes).max()))
+            self.deepest_vertex_relative = max(self.deepest_vertex_relative, float((depths / self._plane.sizes).max()))
         if self._pinned.size:
             drift = float(np.linalg.norm(np.asarray(positions)[self._pinned] - self._pins, axis=1).max())
             self.pin_drift = max(self.pin_drift, drift)
@@ -346,7 +346,7 @@ class MotionMonitor:
     def _sinking(self) -> str:
         """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""
         step = self.first_problem_step["sink"]
-        model, allowance, candidates, boundary = self._contact
+        model, allowance, candidates, boundary = self._contact_terms
         went = f"from step {step} (t = {step * self.h:g}) vertices went into the ground, up to {self.deepest:.3g} "
         went += "of the body's size"
         if model == "reference":
@@ -433,7 +433,7 @@ class MotionMonitor:
                 "the body folded through itself"
                 + (
                     ", so vertices inside it may be below the ground while its boundary is not"
-                    if self._contact is not None
+                    if self._contact_terms is not None
                     else ""  # (said of a floating body, the ground was one it does not have)
                 )
             )
@@ -507,7 +507,7 @@ class MotionMonitor:
             # the steps' boundary vertices and every vertex of the states checked (the start's frame too), as the
             # summary's ground has it (no ground: none)
             "deepest_body_sizes": max(self.deepest, self.deepest_vertex_relative)
-            if self._contact is not None
+            if self._contact_terms is not None
             else None,
             "inverted_elements": self.inverted,
             "first_problem_step": dict(self.first_problem_step),
