@@ -15,10 +15,10 @@ physical ones:
   Elasticity and muscles are internal and never move it (momentum is
   conserved); contact and pins move it by a small fraction of the body's size
   a step when the step resolves the motion. More than :data:`PUSH_LIMIT`
-  body sizes in one step is a step far too large for the scene. A ground
-  holding the body's weight up (up to a step of free fall, upwards) is no
-  push: a box resting on the ground at ``h = 0.5`` was "moved" 2.5 body
-  sizes a step by it.
+  body sizes in one step is a step far too large for the scene. What holds
+  the body's weight (up to a step of free fall) is no push: a ground in the
+  steps that end on it, pins and drag in every step (a box resting on the
+  ground at ``h = 0.5`` was "moved" 2.5 body sizes a step by it).
 
 Measured on the examples and the default crawl: spread
 ratios 0.74-1.33, pushes below 0.04 body sizes; with ``time.step = 1000`` the
@@ -121,6 +121,32 @@ class CeilingWarning(MotionWarning):
     """A run drove its muscles beyond their ceilings (activations of more than 1 of the ceiling)."""
 
 
+def _weight_held(gravity_step):
+    """A step's free fall, held whole (pins, drag): its direction (1, dim) and length (1,), or None without gravity."""
+    fall = float(np.linalg.norm(gravity_step))
+    return None if fall == 0.0 else ((-gravity_step / fall)[None], np.array([fall]))
+
+
+def _ground_holds(contact, gravity_step):
+    """What a ground may hold of a step's free fall, as directions (k, dim) and how far along each (k,), or None.
+
+    Its normal force holds the fall along the up axis; its friction, on an incline, the fall along the
+    ground (a body resting there, or sliding slower than free). Neither is a push: a box resting on the
+    ground at h = 0.5 was "moved 2.52 body sizes a step" by it. Nor is pins' or drag's holding the weight
+    (:func:`_weight_held`).
+    """
+    if contact is None or not np.any(gravity_step):
+        return None
+    normal = np.zeros_like(gravity_step)
+    normal[contact.up] = 1.0
+    along = gravity_step - gravity_step[contact.up] * normal  # the fall along the ground
+    held = [(normal, max(0.0, -float(gravity_step[contact.up])))]
+    slide = float(np.linalg.norm(along))
+    if slide > 0.0:
+        held.append((-along / slide, slide))
+    return np.array([d for d, _ in held]), np.array([m for _, m in held])
+
+
 class MotionMonitor:
     """Spread and push of a run's body, fed one reduced state a step.
 
@@ -177,8 +203,6 @@ class MotionMonitor:
         self.push = 0.0  # largest, in body sizes
         self.first_problem_step = {}
         self.gait_period = gait_period
-        if gait_period is not None and self.h > GAIT_STEPS * gait_period:
-            self.first_problem_step["gait"] = 1
         self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
         self.ceiling_fraction = 0.0  # the largest |activation| / ceiling commanded
         # pins or drag may hold a body up in the air: then nothing is hovering
@@ -186,8 +210,11 @@ class MotionMonitor:
         fall = math.sqrt(float(self._gravity_step @ self._gravity_step))
         self._up = None if held or fall == 0.0 else -self._gravity_step / fall
         self._fall = fall  # how far free fall moves a body in a step (its second difference)
-        # with a ground: the way it holds the body's weight up (not a push, up to a step of free fall)
-        self._support = -self._gravity_step / fall if sim.model.contact is not None and fall > 0.0 else None
+        # what may hold the weight up (no push): pins or drag in every step, a ground in the steps on it
+        self._always_held = _weight_held(self._gravity_step) if held else None
+        self._ground_held = _ground_holds(sim.model.contact, self._gravity_step)
+        if self._aliases(gait_period):
+            self.first_problem_step["gait"] = 1
         self._hovering = 0  # steps in a row held still in the air
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
@@ -241,7 +268,11 @@ class MotionMonitor:
         com = self._com_rows @ z
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
-        push = float(self._pushes(excess[None])[0])
+        touching = clearance is not None and clearance < HOVER_CLEARANCE * self.size
+        if touching or self._always_held is not None:
+            push = float(self._pushes(excess[None], touching)[0])
+        else:
+            push = math.sqrt(excess @ excess) / self.size
         self._previous, self._velocity_step = com, change
         ratio = self._spread(z) / self.rest_spread
         if ratio < self.spread_ratio[0]:
@@ -297,7 +328,7 @@ class MotionMonitor:
                 self.first_problem_step.setdefault("pins", step)
         return inverted
 
-    def run_problems(self, states) -> dict:
+    def run_problems(self, states, gait_period=None) -> dict:
         """The first steps of a run from rest whose push or spread is not physical, all at once.
 
         What :meth:`update` finds step by step (``push`` and ``spread``; not the
@@ -308,28 +339,44 @@ class MotionMonitor:
         ----------
         states : ndarray, shape (T + 1, r)
             The rest state (zero velocity), then the state after each step.
+        gait_period : float, optional
+            The shortest period of the run's gait (``gait`` if the time step aliases it).
 
         Returns
         -------
         first_problem_step : dict
-            ``push`` and ``spread`` (1-based steps), each where it was first seen; empty if none was.
+            ``push``, ``spread`` and ``gait`` (1-based steps), each where it was first seen; empty if none was.
         """
         states = np.asarray(states, dtype=np.float64)
         change = np.diff(states @ self._com_rows.T, axis=0)  # (T, dim): the centre of mass's motion a step
         excess = change - self._gravity_step
         excess[1:] -= change[:-1]
-        push = self._pushes(excess)
+        touching = False
+        if self._plane is not None:  # the lowest boundary vertex within HOVER_CLEARANCE of the ground
+            lowest = self._plane.boundary(np.ascontiguousarray(states[1:].T)).min(axis=0)
+            touching = lowest - self._plane.ground < HOVER_CLEARANCE * self.size
+        push = self._pushes(excess, touching)
         ratio = self._spreads(states[1:]) / self.rest_spread
         pushed, spread = _beyond_limits(push, ratio)
         found = {"push": np.flatnonzero(pushed), "spread": np.flatnonzero(spread)}
-        return {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
+        found = {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
+        if self._aliases(gait_period):
+            found["gait"] = 1
+        return found
 
-    def _pushes(self, excess) -> np.ndarray:
+    def _aliases(self, gait_period) -> bool:
+        """Whether the time step is too long for a gait of this shortest period (None: no gait)."""
+        return gait_period is not None and self.h > GAIT_STEPS * gait_period
+
+    def _pushes(self, excess, touching) -> np.ndarray:
         """How far forces other than gravity moved the centre of mass, of the body's size, for steps' ``excess``
-        (T, dim) over free fall: the ground's holding the weight up left out."""
-        if self._support is not None:
-            held = np.clip(excess @ self._support, 0.0, self._fall)
-            excess = excess - held[:, None] * self._support
+        (T, dim) over free fall; in the steps ending on the ground (``touching``, (T,) bool), what it may hold
+        of the weight (:func:`_ground_holds`) left out, and in every step what pins or drag may."""
+        for holds, where in ((self._always_held, True), (self._ground_held, touching)):
+            if holds is not None:
+                directions, most = holds
+                held = np.clip(excess @ directions.T, 0.0, most) * np.reshape(where, (-1, 1))
+                excess = excess - held @ directions
         return np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
 
     def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:

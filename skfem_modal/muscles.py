@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sps
 
 __all__ = [
+    "shortest_period",
     "checked_ramp",
     "cluster_sum_operator",
     "gait_ramp",
@@ -174,6 +175,16 @@ def sine_gait(t, amplitudes, periods, phases, ramp=0.0) -> np.ndarray:
             f"the gait must be finite: amplitudes {amplitudes.tolist()}, phases {phases.tolist()}, t {t!r}"
         )
     return a
+
+
+def shortest_period(amplitudes, periods) -> float | None:
+    """The shortest period of a sine gait's moving muscles (amplitude not 0), or None if none moves.
+
+    >>> shortest_period([0.2, 0.0, 0.1], [1.0, 0.1, 0.5])
+    0.5
+    """
+    moving = np.asarray(periods, dtype=np.float64)[np.asarray(amplitudes, dtype=np.float64) != 0.0]
+    return float(moving.min()) if moving.size else None
 
 
 def checked_ramp(value, name: str = "ramp") -> float:

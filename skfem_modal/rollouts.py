@@ -57,7 +57,7 @@ from .checks import _nonnegative
 from .interrupts import exit_with_parent
 from .mesh import body_size
 from .monitor import MotionMonitor
-from .muscles import checked_ramp, sine_gait
+from .muscles import checked_ramp, shortest_period, sine_gait
 from .rotations import polar_rotations
 from .sim import SimulationError, simulate
 from .study import WorkersLost, checked_executor, dask_client, lost_workers, make_executor
@@ -272,7 +272,7 @@ class Trial:
                     "mean_iterations": nan,
                 }
         score = self.score(sim.com(states[-1]) - start, frames)
-        score["physical"] = not self.monitor.run_problems(states)
+        score["physical"] = not self.monitor.run_problems(states, shortest_period(amplitudes, periods))
         if not score["physical"]:
             score["fitness"] = fail
         return {**score, "mean_iterations": iterations / self.steps}

@@ -35,7 +35,7 @@ from .mesh import (
     shape_parameters,
     vertices_where,
 )
-from .muscles import _sine
+from .muscles import _sine, shortest_period
 from .solver import MAX_ITERATIONS, TOL
 from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
 
@@ -1128,8 +1128,7 @@ class Scene:
         gait = muscles["gait"]
         if self._table is not None or gait is None or not muscles["count"]:
             return None
-        moving = [p for a, p in zip(gait["amplitude"], gait["period"]) if a != 0.0]
-        return float(min(moving)) if moving else None
+        return shortest_period(gait["amplitude"], gait["period"])
 
     def activation_fractions(self, t: float) -> np.ndarray:
         """Muscle activations at time ``t`` as fractions of the ceilings, shape (count,)."""

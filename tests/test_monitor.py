@@ -432,3 +432,46 @@ def test_the_motions_depth_is_the_summarys(tmp_path):
     summary = run_scene(scene, tmp_path / "run")
     deepest = summary["ground"]["worst_penetration_relative"]
     assert summary["motion"]["deepest_body_sizes"] == deepest == pytest.approx(1e-4, rel=1e-9)
+
+
+def _held_box(**changes):
+    data = {
+        "mesh": {"shape": "box3d", "params": {"nx": 4, "ny": 4, "nz": 2, "size": [1.0, 1.0, 0.5]}},
+        "material": {"mu": 1e6, "rho": 1e3},
+        "muscles": {"count": 0},
+        "time": {"step": 0.5, "steps": 10},
+        "gravity": {"acceleration": [0.0, 0.0, -9.8]},
+        "ground": {"offset": 0.0},
+    }
+    data.update(changes)
+    return Scene.from_dict({key: value for key, value in data.items() if value is not None})
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"ground": None, "damping": {"mass": 50.0}},  # falling at its drag's terminal speed
+        {"ground": {"height": -1e4}, "damping": {"mass": 50.0}},  # the same over a ground it never reaches
+        {"ground": None, "pinned": {"where": ["x == min"]}},
+        {"ground": {"height": -1e4}, "pinned": {"where": ["x == min"]}},
+        {"gravity": {"acceleration": [4.9, 0.0, -8.487]}, "ground": {"offset": 0.0, "friction": 0.0}},  # sliding
+    ],
+)
+def test_what_holds_the_weight_is_no_push(changes, tmp_path):
+    """A review: the ground's exemption held whether or not the body touched it (drag over a far ground was
+    physical, without one not), and on a slope it left the normal force's share across gravity (1.06 body
+    sizes, 'not resolved'). Pins, drag and a ground under the body all hold the weight: no push."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MotionWarning)
+        motion = run_scene(_held_box(**changes), tmp_path / "run")["motion"]
+    assert motion["physical"] and motion["largest_push_body_sizes"] < 0.01, motion["first_problem_step"]
+
+
+def test_a_rollout_whose_step_aliases_its_gait_is_not_physical():
+    """A review: the searches' rollouts skipped the gait check, so a search could pick a gait that run refuses."""
+    from skfem_modal.rollouts import Trial
+
+    trial = Trial.from_scene(copy.deepcopy(DEFAULT_SCENE), steps=20, direction=[-1.0, 0.0])
+    gait = {"amplitude": [0.2] * 4, "phase": [0.0] * 4}
+    assert not trial.run({**gait, "period": [0.015] * 4})["physical"]  # 1.5 steps a period
+    assert trial.run({**gait, "period": [0.5] * 4})["physical"]
