@@ -192,12 +192,18 @@ def _spans_rest(B, rest) -> None:
     """Refuse a basis whose columns do not span the rest positions: its states could not be at rest.
 
     The coefficients are fitted on a few spread rows (four a column) and checked on all, a product of
-    ``B``'s size; only when that misses (those rows may not tell the columns apart) on all rows.
+    ``B``'s size; only when that misses (those rows may not tell the columns apart) on all rows. The
+    columns are fitted at unit length (an affine basis of a body 1e-9 across has columns 1e9 apart).
+    A square basis spans everything it can: its rank is checked with the model's mass matrix.
     """
     N, r = B.shape
+    if r >= N:
+        return
     reach = max(float(np.abs(rest).max(initial=0.0)), float(np.ptp(rest.reshape(-1, 1)))) or 1.0
+    lengths = np.sqrt(np.einsum("ij,ij->j", B, B))
+    lengths[lengths == 0.0] = 1.0
     for rows in (np.unique(np.linspace(0, N - 1, min(N, 4 * r)).astype(np.int64)), slice(None)):
-        coefficients = np.linalg.lstsq(B[rows], rest[rows], rcond=None)[0]
+        coefficients = np.linalg.lstsq(B[rows] / lengths, rest[rows], rcond=None)[0] / lengths
         miss = float(np.abs(B @ coefficients - rest).max())
         if miss <= 1e-8 * reach:
             return
@@ -220,11 +226,17 @@ def _gravity_and_up(gravity, up, dim: int, ground: bool = True):
     return gravity, up_axis(gravity, dim, up, ground)
 
 
+def nothing_free(held: int, n: int, name: str, fewer: str) -> str | None:
+    """Why holding ``held`` of a mesh's ``n`` vertices in place (as ``name`` does) leaves nothing to move, or None."""
+    return f"{name} holds all {n} vertices of the mesh: nothing is left free to move ({fewer})" if held >= n else None
+
+
 def _pins(pinned, pin_stiffness, n: int):
     """Pinned vertices, shape (p,), or None, and their stiffness (None: the default), checked."""
     pinned = None if pinned is None else _vertices(pinned, n, "pinned")
-    if pinned is not None and pinned.size == n:
-        raise ValueError(f"pinned: all {n} vertices of the mesh are pinned: nothing is left free to move (pin fewer)")
+    problem = None if pinned is None else nothing_free(pinned.size, n, "pinned", "pin fewer")
+    if problem:
+        raise ValueError(problem)
     return pinned, None if pin_stiffness is None else _positive_scalar(pin_stiffness, "pin_stiffness")
 
 

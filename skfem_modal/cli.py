@@ -20,6 +20,7 @@ import warnings
 
 import numpy as np
 
+from .checks import nothing_free
 from .interrupts import EXIT_INTERRUPTED, Terminated, terminate_as_interrupt
 from .outputs import check_output_file
 from .study import WorkersLost
@@ -113,11 +114,9 @@ def cmd_modes(args) -> int:
         fixed = np.unique(np.concatenate([vertices_where(mesh, cond) for cond in args.fix]))
         if fixed.size == 0:
             raise ValueError(f"--fix {' '.join(args.fix)} selects no vertex")
-        if fixed.size == mesh.p.shape[1]:
-            raise ValueError(
-                f"--fix {' '.join(args.fix)} selects all {fixed.size} vertices: nothing is left free to move "
-                "(fix fewer)"
-            )
+        everything = nothing_free(fixed.size, mesh.p.shape[1], f"--fix {' '.join(args.fix)}", "fix fewer")
+        if everything:
+            raise ValueError(everything)
     info = mesh_summary(mesh)
     say = _say(args)
     say(
@@ -428,7 +427,7 @@ def _is_option(word: str, option: str) -> bool:
 #: Options whose value may start with "-" (``--direction -x``): argparse would read it as an option.
 _SIGNED_VALUES = {"--direction": re.compile(r"-(?:[xyz]|[0-9.])", re.IGNORECASE)}
 # a negative number as a value (argparse's own takes -1 and -0.5 but not -1e6, -inf or -nan, which it read as options)
-_NEGATIVE_NUMBER = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|-inf$|-nan$", re.IGNORECASE)
+_NEGATIVE_NUMBER = re.compile(r"-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$|-inf(?:inity)?$|-nan$", re.IGNORECASE)
 
 
 def _joined_signed_values(argv: list[str], single=None) -> list[str]:

@@ -28,7 +28,7 @@ import numpy as np
 
 from .fem import scalar_basis
 from .mesh import _signed_measures, check_mesh
-from .values import is_real
+from .values import is_real, is_whole
 
 __all__ = [
     "pad3",
@@ -428,8 +428,16 @@ class FrameWriter:
         ValueError, TypeError
             Naming the argument, before anything is written.
         """
-        if not is_real(time) or not math.isfinite(time):
-            raise TypeError(f"time must be a finite number, got {time!r}")
+        if isinstance(time, np.ndarray) and time.ndim == 0:
+            time = time.item()
+        if not is_real(time):
+            raise TypeError(f"time must be a number, got {time!r}")
+        try:
+            seconds = float(time)
+        except OverflowError:  # an integer beyond a float's range
+            seconds = math.inf
+        if not math.isfinite(seconds):
+            raise ValueError("time must fit a float" if is_whole(time) else f"time must be finite, got {time!r}")
         if self.times and not time > self.times[-1]:
             raise ValueError(f"time must come after the last frame's ({self.times[-1]!r}), got {time!r}")
         positions = np.asarray(positions, dtype=np.float64)

@@ -373,11 +373,10 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     """
     if not is_whole(n_muscles) or n_muscles < 0:
         raise ValueError(f"n_muscles must be an integer >= 0, got {n_muscles!r}")
-    check_mesh(mesh)
-    if not n_muscles:
-        return np.zeros((mesh.p.size, 0))
-    signs = muscle_signs(signs, n_muscles, "signs")
-    with validated(mesh):  # (checked once: the modal analysis's own check returns at once)
+    with validated(mesh):  # checked here, once: the modal analysis's own check returns at once
+        if not n_muscles:
+            return np.zeros((mesh.p.size, 0))
+        signs = muscle_signs(signs, n_muscles, "signs")
         problem = muscle_count_problem(mesh, n_muscles, pinned)
         if problem:
             raise ValueError(f"n_muscles: {n_muscles} {problem}")

@@ -200,7 +200,8 @@ class MotionMonitor:
         self._previous = self._com_rows @ z_rest
         self._velocity_step = np.zeros(dim)  # the last step's change of the centre of mass
         self.spread_ratio = [1.0, 1.0]  # least and largest
-        self.push = 0.0  # largest, in body sizes
+        self._push = 0.0  # largest, in body sizes, of the steps measured (the property measures the others)
+        self._steps = []  # (step, on the ground, excess over free fall) of the steps whose push is not measured yet
         self.first_problem_step = {}
         self.gait_period = gait_period
         self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
@@ -268,23 +269,15 @@ class MotionMonitor:
         com = self._com_rows @ z
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
-        touching = clearance is not None and clearance < HOVER_CLEARANCE * self.size
-        if touching or self._always_held is not None:
-            push = float(self._pushes(excess[None], touching)[0])
-        else:
-            push = math.sqrt(excess @ excess) / self.size
+        # the pushes are measured in batches (what holds the weight, for all steps at once: :meth:`_pushes`)
+        self._steps.append((step, clearance is not None and clearance < HOVER_CLEARANCE * self.size, excess))
         self._previous, self._velocity_step = com, change
         ratio = self._spread(z) / self.rest_spread
         if ratio < self.spread_ratio[0]:
             self.spread_ratio[0] = ratio
         elif ratio > self.spread_ratio[1]:
             self.spread_ratio[1] = ratio
-        if push > self.push:
-            self.push = push
-        pushed, spread = _beyond_limits(push, ratio)
-        if pushed:
-            self.first_problem_step.setdefault("push", step)
-        if spread:
+        if _beyond_limits(0.0, ratio)[1]:
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
@@ -513,6 +506,23 @@ class MotionMonitor:
             texts.append(f"at step {step} (t = {step * self.h:g}) the state became non-finite")
         return texts
 
+    @property
+    def push(self) -> float:
+        """The largest push so far, in body sizes."""
+        self._measure_pushes()
+        return self._push
+
+    def _measure_pushes(self) -> None:
+        """The pushes of the steps taken since the last measure, in one batch (``push`` in ``first_problem_step``)."""
+        if self._steps:
+            steps, touching, excess = zip(*self._steps)
+            self._steps = []
+            pushes = self._pushes(np.array(excess), np.array(touching))
+            self._push = max(self._push, float(pushes.max()))
+            pushed = np.flatnonzero(pushes > PUSH_LIMIT)
+            if pushed.size:
+                self.first_problem_step.setdefault("push", steps[pushed[0]])
+
     def finish(self, warn: bool = True) -> dict:
         """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
 
@@ -527,6 +537,7 @@ class MotionMonitor:
             part's size: the summary's ``worst_penetration_relative``), ``inverted_elements`` (the
             most inside out in a state checked) and ``first_problem_step``.
         """
+        self._measure_pushes()
         overdriven = "ceilings" in self.first_problem_step
         texts = self._problems(overdriven)
         physical = not texts

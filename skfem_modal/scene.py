@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .checks import _clear_of_ground, _pulled_to_ground
+from .checks import _clear_of_ground, _pulled_to_ground, nothing_free
 from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE, checked_allowance
 from .mesh import (
     _CONDITION,
@@ -1381,11 +1381,8 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
         selected = _pinned(pinned, mesh).size if usable else None
         if selected == 0:
             errors.append("pinned: the conditions select no vertex")
-        elif selected == mesh.p.shape[1]:
-            errors.append(
-                f"pinned: the conditions select all {selected} vertices of the mesh: nothing is left free to move "
-                "(pin fewer)"
-            )
+        elif selected and (everything := nothing_free(selected, mesh.p.shape[1], "pinned: the selection", "pin fewer")):
+            errors.append(everything)
     if not any(e.startswith(("material", "time.step", "gravity")) for e in errors):
         _check_float_range(config, mesh, acc, errors)
     _check_counts(config, mesh, errors, valid)

@@ -126,7 +126,8 @@ def up_axis(gravity, dim: int, up: int | None = None, ground: bool = True) -> in
             )
         return down
     if not g[up] < 0:
-        hint = f"give up = {down} ({_AXES[down]}), or " if g[down] < 0 else ""
+        below = int(np.argmin(g))  # the axis gravity pulls down along the most (an incline's need not be the largest)
+        hint = f"give up = {below} ({_AXES[below]}), or " if g[below] < 0 else ""
         raise ValueError(
             f"gravity {_vector(g)} has no component along -{_AXES[up]}, but the up axis is {_AXES[up]} "
             f"(up = {up}): {hint}give a gravity that pulls along -{_AXES[up]}"

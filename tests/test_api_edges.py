@@ -267,15 +267,16 @@ def test_frames_are_checked_before_they_are_written(tmp_path):
         refused = [
             ((0.1, mesh.p.T), {"point_data": {"s": np.zeros(3)}}, ValueError, r"point data 's' needs shape \(15,\)"),
             ((0.1, mesh.p.T), {"point_data": {"displacement": np.zeros(n)}}, ValueError, "written with every frame"),
-            ((np.nan, mesh.p.T), {}, TypeError, "time must be a finite number, got nan"),
-            (("0.1", mesh.p.T), {}, TypeError, "time must be a finite number, got '0.1'"),
+            ((np.nan, mesh.p.T), {}, ValueError, "time must be finite, got nan"),
+            ((10**400, mesh.p.T), {}, ValueError, "time must fit a float"),
+            (("0.1", mesh.p.T), {}, TypeError, "time must be a number, got '0.1'"),
             ((0.0, mesh.p.T), {}, ValueError, r"time must come after the last frame's \(0.0\), got 0.0"),
             ((0.1, np.full((n, 2), np.nan)), {}, ValueError, "positions must be finite"),
         ]
         for args, kwargs, error, said in refused:
             with pytest.raises(error, match=said):
                 frames.write(*args, **kwargs)
-        frames.write(0.5, mesh.p.T + 0.1)
+        frames.write(np.array(0.5), mesh.p.T + 0.1)  # a 0-d array is a number
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_00000.vtu", "frame_00001.vtu"]
     assert meshio.read(tmp_path / "frames" / "frame_00000.vtu").point_data["s"].shape == (n,)
     assert frames.times == [0.0, 0.5]
@@ -323,5 +324,23 @@ def test_more_arguments_are_named_when_wrong(sim):
     with pytest.raises(TypeError, match="parallel must be True or False, got 'no'"):
         sm.ModalMuscle.from_mesh(sim.mesh, parallel="no")
     for muscles in (4, 0):  # it blamed the muscles, or built a body pinned everywhere
-        with pytest.raises(ValueError, match=rf"pinned: all {n} vertices of the mesh are pinned"):
+        with pytest.raises(
+            ValueError, match=rf"pinned holds all {n} vertices of the mesh: nothing is left free to move \(pin fewer\)"
+        ):
             sm.ModalMuscle.from_mesh(sim.mesh, n_muscles=muscles, pinned=np.arange(n))
+
+
+def test_an_affine_basis_spans_the_rest_pose_at_any_scale():
+    """A review: at 1e-9 the affine basis's columns are 1e9 apart, and the fit dropped the small ones."""
+    from skfem import MeshTri
+
+    from skfem_modal.checks import _basis
+    from skfem_modal.subspace import lbs_basis
+
+    base = sm.caterpillar(nx=12, ny=6)
+    for scale in (1e-9, 1.0, 1e9):
+        mesh = MeshTri(base.p * scale, base.t)
+        B = lbs_basis(mesh.p.T, np.ones((mesh.p.shape[1], 1)))
+        assert _basis(B, mesh.p.T.ravel()) is not None
+    with pytest.raises(ValueError, match="B's columns do not span the rest pose"):
+        _basis(B[:, [0, 1, 2, 4, 5]], mesh.p.T.ravel())  # without y e_y, the rest pose needs: y = a x + b

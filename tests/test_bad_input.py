@@ -182,6 +182,11 @@ def test_an_incline_steeper_than_45_degrees_asks_for_the_up_axis_by_name():
             up_axis([9.8, 0.0], 2, up=up)  # it said: mirror the mesh along x
     with pytest.raises(ValueError, match=r"\(up = 1\): give up = 0 \(x\), or give a gravity that pulls along -y$"):
         up_axis([-9.8, 0.0], 2, up=1)
+    # an incline steeper than 45 degrees: the axis it pulls down along is not its largest (a review)
+    with pytest.raises(ValueError, match=r"\(up = 0\): give up = 1 \(y\), or give a gravity that pulls along -x$"):
+        up_axis([8.49, -4.9], 2, up=0)
+    with pytest.raises(ValueError, match=r"\(up = 1\): give up = 2 \(z\), or give"):
+        up_axis([0.0, 9.8, -1.0], 3, up=1)
 
 
 def test_a_floating_body_may_fall_any_way():

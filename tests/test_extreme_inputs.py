@@ -154,7 +154,10 @@ def test_damping_too_large_for_float64_is_named_with_each_term_before_any_warnin
 # ---------------------------------------------------------- pinning everything
 def test_pinning_every_vertex_is_a_scene_error_naming_the_key():
     for pinned in ({"where": ["x >= min"]}, {"box": {"min": [-9.0, -9.0], "max": [9.0, 9.0]}}):
-        with pytest.raises(SceneError, match=f"pinned: the conditions select all {SMALL.p.shape[1]} vertices"):
+        with pytest.raises(
+            SceneError,
+            match=f"pinned: the selection holds all {SMALL.p.shape[1]} vertices of the mesh: nothing is left free",
+        ):
             Scene.from_dict(scene(pinned=pinned))
 
 
@@ -170,7 +173,10 @@ def test_muscles_beyond_the_pins_free_dofs_are_named():
 def test_the_modes_command_and_function_refuse_pinning_every_vertex(capsys):
     args = ["modes", "caterpillar:nx=20,ny=10", "-k", "5", "--fix", "x >= min", "--quiet"]
     assert main(args) == 2
-    assert f"--fix x >= min selects all {SMALL.p.shape[1]} vertices" in capsys.readouterr().err
+    assert (
+        f"--fix x >= min holds all {SMALL.p.shape[1]} vertices of the mesh: nothing is left free to move (fix fewer)"
+        in capsys.readouterr().err
+    )
     with pytest.raises(ValueError, match=f"fixed: pins all {SMALL.p.shape[1]} vertices: no degree of freedom"):
         sm.linear_modal_analysis(SMALL, 2, fixed=np.arange(SMALL.p.shape[1]))
 

@@ -914,7 +914,8 @@ def test_negative_numbers_are_values_of_any_option(capsys):
     assert args.mesh == "-2e0"
     for args, said in (
         (["--period-range", "-1e3", "2"], "argument --period-range: expected a positive finite number, got '-1e3'"),
-        (["--seed", "-inf"], "argument --seed: "),
+        (["--seed", "-inf"], "argument --seed: expected an integer from 0 to 4294967294, got '-inf'"),
+        (["--seed", "-Infinity"], "argument --seed: expected an integer from 0 to 4294967294, got '-Infinity'"),
     ):
         with pytest.raises(SystemExit) as stopped:
             main(["optimize", *args, "--out", "never"])
