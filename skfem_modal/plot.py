@@ -12,6 +12,7 @@ import contextlib
 import csv
 import functools
 import io
+import itertools
 import json
 import os
 import re
@@ -403,13 +404,17 @@ class _View:
         return lo, hi + [(hi[0] - lo[0]) * (1.0 / _DRAWING_WIDTH - 1.0), 0.0]
 
 
-def _plan(frames: list[_Frame], summary: dict, size) -> _View:
-    dim = frames[0].points.shape[1]
+def _plan(frames, summary: dict, size, drawn) -> _View:
+    """One camera, scale and colour range for every frame of a run (``frames``: an iterable of all of them),
+    with the windows of those ``drawn`` (indices into them)."""
+    frames = iter(frames)
+    first = next(frames)
+    dim = first.points.shape[1]
     up = up_vector(summary)
     camera = Camera.looking_at(up, dim)
     ground = summary["ground"]["height"] if summary.get("ground") else None
     boxes, deform, lows, highs = [], [], [], []
-    for f in frames:
+    for f in itertools.chain([first], frames):
         seen = f.points
         if ground is not None:  # the floor under the body is seen too
             seen = np.vstack([seen, _on_floor(f.points, up, ground)])
@@ -420,13 +425,13 @@ def _plan(frames: list[_Frame], summary: dict, size) -> _View:
         highs.append(f.points.max(axis=0))
     aspect = _DRAWING_WIDTH * size[0] / size[1]
     centres, half_height = frame_windows(np.array(boxes), aspect, follow_vertically=dim == 3)
-    body = float(np.ptp(frames[0].rest, axis=0).max())
+    body = float(np.ptp(first.rest, axis=0).max())
     lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
     # the floor fills every view: in 3D the far floor rises up the screen slowly, as sin(elevation)
     reach = 2.0 * half_height * max(aspect, 1.0 / np.sin(np.radians(ELEVATION)) if dim == 3 else 0.0)
     return _View(
         camera=camera,
-        centres=centres,
+        centres=centres[list(drawn)],
         half_height=half_height,
         aspect=aspect,
         # round-off of a body at rest never shows as colour
@@ -787,10 +792,20 @@ def render_run(
     animated = set(np.linspace(0, last, min(max_frames, len(listed))).round().astype(int).tolist())
     # the stills are always the run's first and last frames, whatever the animation holds
     drawn = sorted(animated | {0, last})
-    frames = [_read_frame(*listed[0])]
-    frames += [_read_frame(*listed[i], first=frames[0]) for i in drawn[1:]]
     size = (int(size[0]), int(size[1]))
-    view = _plan(frames, summary, size)
+    # the view is planned on every frame (its colour range, camera and scale the whole run's, whatever is
+    # drawn: with two frames drawn the colours topped out at the last one's deformation); the drawn ones are kept
+    frames = []
+
+    def every_frame():
+        first = _read_frame(*listed[0])
+        for index, entry in enumerate(listed):
+            frame = first if index == 0 else _read_frame(*entry, first=first)
+            if index in drawn:
+                frames.append(frame)
+            yield frame
+
+    view = _plan(every_frame(), summary, size, drawn)
     draw = _pyvista_frames if backend == "pyvista" else _matplotlib_frames
     written = {"backend": backend}
     written["com"] = plot_com(run, os.path.join(run_dir, "com.png"))

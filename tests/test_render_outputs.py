@@ -232,6 +232,11 @@ def test_last_frame_is_the_runs_last_whatever_max_frames(run_copy):
     assert np.abs(last - first).mean() > 1.0
     (only,) = gif_frames(run_copy / "animation.gif")
     assert np.abs(only - first).mean() < 1.5  # the one-frame animation is the first frame
+    # the colours, camera and scale are the whole run's, whatever is drawn (a new user's trial: with 2 frames
+    # drawn the colour bar topped out at the last frame's deformation, and the body was drawn larger)
+    assert main(["render", str(run_copy), "-q", "--backend", "matplotlib", "--max-frames", "21"]) == 0
+    np.testing.assert_array_equal(pixels(run_copy / "first_frame.png"), first)
+    np.testing.assert_array_equal(pixels(run_copy / "last_frame.png"), last)
 
 
 @pytest.mark.parametrize("size", [(1158, 652), (334, 334)])
