@@ -32,8 +32,9 @@ __all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virt
 
 
 _RECENT = 60  # frames the frame rate and the step time are measured over
-#: The smallest window: room for the sliders, their labels and the status line
-MIN_WINDOW = (200, 150)
+#: The smallest window: room for the status line (about 520 pixels of text), the buttons under it and the sliders
+#: (at 200 x 150 the sliders were gone and the buttons lay over the body and the status line)
+MIN_WINDOW = (560, 360)
 
 
 def window_size_problem(size) -> str | None:
@@ -42,7 +43,7 @@ def window_size_problem(size) -> str | None:
     >>> window_size_problem((960, 600)) is None
     True
     >>> window_size_problem((16, 16))
-    'window size must be at least 200 x 150 pixels (and at most 8192 a side), got 16 x 16'
+    'window size must be at least 560 x 360 pixels (and at most 8192 a side), got 16 x 16'
     """
     from .plot import MAX_PICTURE_SIDE
 

@@ -222,7 +222,7 @@ class PlayView:
         self.buttons = {}
         self.button_boxes = {}  # name -> (x, y, size) in pixels from the lower left
         for row, (name, label) in enumerate([("gait", "gait (g)"), ("pause", "pause (space)"), ("reset", "reset (r)")]):
-            y = height - 40 - row * 38
+            y = height - 66 - row * 38  # under the status line (it ran into the first button below 700 wide)
             self.button_boxes[name] = (x, y, size)
             self.buttons[name] = plotter.add_checkbox_button_widget(
                 lambda state, name=name: self._button(name, state),

@@ -365,7 +365,7 @@ def test_scripted_play_starts_with_the_gait_or_the_sliders_as_asked(crawl, monke
         ({"frames": 2, "screenshot": "shot.jpg"}, "screenshot shot.jpg: expected a .png file"),
         # found after all the frames were played, before (an audit)
         ({"frames": 2, "screenshot": "/proc/shot.png"}, "screenshot /proc/shot.png: /proc is not a folder this user"),
-        ({"frames": 2, "window_size": (100, 80)}, "window size must be at least 200 x 150"),
+        ({"frames": 2, "window_size": (100, 80)}, "window size must be at least 560 x 360"),
     ],
 )
 def test_bad_play_options_fail_before_any_window(kwargs, message):
@@ -798,14 +798,15 @@ def test_the_window_looks_at_a_y_up_body_from_the_front_as_render_does(display, 
     assert pictures.towards[2] > 0.5 and pictures.right[0] > 0.5  # from +z, x running right
 
 
-@pytest.mark.parametrize("size", ["16x16", "199x600", "200x149", "8193x600"])
+@pytest.mark.parametrize("size", ["16x16", "559x600", "960x359", "8193x600"])
 def test_the_command_refuses_the_window_sizes_play_refuses(size, capsys):
-    """--size took 16 to 8192 a side (the pictures' range), then play refused below 200 x 150 (an audit)."""
+    """--size took 16 to 8192 a side (the pictures' range), then play refused below 200 x 150 (an audit), where
+    the sliders were gone and the buttons lay over the status line (a new user's trial): now 560 x 360."""
     with pytest.raises(SystemExit) as usage:
         main(["play", "--size", size, "--frames", "2", "--off-screen"])
     assert usage.value.code == 2
     width, height = size.split("x")
-    said = "argument --size: window size must be at least 200 x 150 pixels (and at most 8192 a side)"
+    said = "argument --size: window size must be at least 560 x 360 pixels (and at most 8192 a side)"
     assert f"{said}, got {width} x {height}" in capsys.readouterr().err
 
 
