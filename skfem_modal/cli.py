@@ -614,6 +614,7 @@ def _float_in(low: float, what: str, *, open_low: bool):
 
 _positive_float = _float_in(0.0, "a positive finite number", open_low=True)
 _non_negative_float = _float_in(0.0, "a finite number >= 0", open_low=False)
+_finite_float = _float_in(-np.inf, "a finite number", open_low=True)
 
 
 def _seed(text: str) -> int:
@@ -685,11 +686,12 @@ def _modes_options(p) -> None:
         type=_positive_int,
         help=f"number of modes, rigid ones included (default: the rigid motions and {ELASTIC_MODES} elastic modes)",
     )
-    p.add_argument("--mu", type=float, help="Lame shear modulus (default 1)")
-    p.add_argument("--lam", type=float, help="Lame first parameter (default 1)")
+    # (checked as the options are read, before the mesh is: a bad --rho was named 'rho' after loading it)
+    p.add_argument("--mu", type=_positive_float, help="Lame shear modulus (default 1)")
+    p.add_argument("--lam", type=_finite_float, help="Lame first parameter (default 1)")
     p.add_argument("--young", type=float, help="Young's modulus (with --poisson, instead of --mu/--lam)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio")
-    p.add_argument("--rho", type=float, default=1.0, help="density")
+    p.add_argument("--rho", type=_positive_float, default=1.0, help="density")
     p.add_argument("--element", choices=["P1", "P2"], default="P1", help="linear or quadratic elements")
     p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped", help="mass matrix")
     p.add_argument(

@@ -256,8 +256,8 @@ def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
         where = "" if uniform else f" at elements {bad[:10].tolist()}"
         ratio = ": Poisson's ratio above -1" if dim == 3 else ""  # (in 2D every ratio below 0.5 keeps it)
         raise ValueError(
-            f"lam must be above -2 mu / {dim} (a positive bulk modulus{ratio}), "
-            f"got {lam[bad[0]]} with mu {mu[bad[0]]}{where}"
+            f"lam must be above -2 mu / {dim} (a positive bulk modulus{ratio}), got {lam[bad[0]]} with mu "
+            f"{mu[bad[0]]}, so above {-2.0 * mu[bad[0]] / dim:g}{where}"
         )
     basis = scalar_basis(mesh, element)
     J = _jacobian_from_basis(basis, dim)

@@ -251,3 +251,20 @@ def test_a_negative_number_in_scientific_notation_is_an_option_value(tmp_path, c
     assert "Young's modulus must be positive and finite, got -1000000.0" in capsys.readouterr().err
     assert main(["modes", "--young", "1e6", "--poisson", "-2.5e-1", "-k", "7", "--out", str(tmp_path / "m.vtu")]) == 0
     assert (tmp_path / "m.vtu").exists()
+
+
+@pytest.mark.parametrize(
+    "option, said", [("--rho", "expected a positive finite number"), ("--mu", "expected a positive finite number")]
+)
+def test_modes_names_a_bad_material_option_before_reading_the_mesh(option, said, capsys):
+    """A new user's trial: --rho 0 was refused as 'rho must be positive' after the seal's mesh was read."""
+    from skfem_modal.cli import main
+
+    for value in ("0", "nan"):
+        with pytest.raises(SystemExit) as usage:
+            main(["modes", "no_such_mesh.msh", option, value])  # the mesh is never read
+        assert usage.value.code == 2
+        assert f"argument {option}: {said}, got '{value}'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["modes", "no_such_mesh.msh", "--lam", "inf"])
+    assert "argument --lam: expected a finite number, got 'inf'" in capsys.readouterr().err
