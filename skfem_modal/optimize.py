@@ -497,12 +497,12 @@ def run_search(
         )
     if announce is not None:
         announce()
-    clock = time.perf_counter()
-    trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
-    precompute = time.perf_counter() - clock
-    recipe = {"data": data, "base_dir": None, **trial_settings}
     bar, replacing, made = None, [], None
-    try:
+    try:  # (from the precompute on: a Ctrl-C after the announcement says what there is to resume)
+        clock = time.perf_counter()
+        trial = Trial.from_scene(data, **trial_settings)  # whatever fails here, fails before anything is written
+        precompute = time.perf_counter() - clock
+        recipe = {"data": data, "base_dir": None, **trial_settings}
         with Rollouts(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
         ) as rollouts:  # a scheduler that does not answer: before the folder is made

@@ -920,3 +920,16 @@ def test_negative_numbers_are_values_of_any_option(capsys):
         with pytest.raises(SystemExit) as stopped:
             main(["optimize", *args, "--out", "never"])
         assert stopped.value.code == 2 and said in capsys.readouterr().err
+
+
+def test_a_stop_during_the_precompute_says_what_there_is_to_resume(tmp_path, monkeypatch):
+    """A new user's trial: Ctrl-C after the search announced itself, during its precompute, said only
+    'interrupted'; now what a stop says anywhere else (nothing checkpointed, nothing to resume)."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rollouts.Trial, "from_scene", interrupted)
+    with pytest.raises(optimize.SearchInterrupted, match="nothing was checkpointed in .*: there is nothing to resume"):
+        search(tmp_path / "s", workers=1)
+    assert not (tmp_path / "s").exists()
