@@ -1136,7 +1136,9 @@ def _plot(out_dir, rows, front, meta) -> str:
     key.axis("off")
     key.legend(*ax.get_legend_handles_labels(), loc="lower left", fontsize=7, ncol=2)  # beside: not over the points
     lines = [f"{number:2d}  {rows[i]['label']}" for number, i in enumerate(f, 1)]
-    key.text(0.0, 1.0, "Pareto front\n" + "\n".join(lines), va="top", ha="left", fontsize=7, family="monospace")
+    # above the legend's 7 rows whatever the front's length (a 30-point front ran into it at 7 points)
+    fontsize = min(7.0, 150.0 / (len(lines) + 1))
+    key.text(0.0, 1.0, "Pareto front\n" + "\n".join(lines), va="top", ha="left", fontsize=fontsize, family="monospace")
     fig.tight_layout()
     path = os.path.join(out_dir, "pareto.png")
     try:
