@@ -95,6 +95,8 @@ SPREAD_LIMIT = 3.0
 PUSH_LIMIT = 1.0
 #: A time step longer than this share of the gait's shortest period samples it at aliased phases (Nyquist's).
 GAIT_STEPS = 0.5
+# steps whose pushes are measured together (one batch of numpy calls instead of a few a step)
+_PUSH_BATCH = 1024
 #: Steps in a row a body held still in the air (see the module's text) counts as hovering.
 HOVER_STEPS = 3
 #: Clear of the ground by this much of its size, a body is in the air (the Coulomb contact's allowance is 2e-4).
@@ -271,6 +273,8 @@ class MotionMonitor:
         excess = change - self._velocity_step - self._gravity_step
         # the pushes are measured in batches (what holds the weight, for all steps at once: :meth:`_pushes`)
         self._steps.append((step, clearance is not None and clearance < HOVER_CLEARANCE * self.size, excess))
+        if len(self._steps) >= _PUSH_BATCH:  # (a long run holds no more than a batch)
+            self._measure_pushes()
         self._previous, self._velocity_step = com, change
         ratio = self._spread(z) / self.rest_spread
         if ratio < self.spread_ratio[0]:
