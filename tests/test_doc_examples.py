@@ -93,3 +93,23 @@ def test_readme_scene_file_is_a_valid_scene_of_what_it_says(tmp_path, capsys):
     (tmp_path / "my_scene.toml").write_text(text)
     assert main(["info", str(tmp_path / "my_scene.toml")]) == 0
     assert "phases [0.0, 0.25, 0.5, 0.75], ramped in over 0.5\n" in capsys.readouterr().out
+
+
+def test_cli_md_huge_step_warnings_are_what_a_run_says(tmp_path):
+    """docs/cli.md shows the built-in scene's warnings at step = 0.5, 20 steps: a run says exactly those."""
+    import copy
+    import warnings
+
+    from skfem_modal.run import run_scene
+    from skfem_modal.scene import DEFAULT_SCENE, Scene
+
+    text = open(os.path.join(ROOT, "docs", "cli.md"), encoding="utf-8").read()
+    prefix = "    skfem-modal run: warning: "
+    shown = [line[len(prefix) :] for line in text.splitlines() if line.startswith(prefix)]
+    shown = [line for line in shown if "(t = 0.5)" in line or "h = 0.5" in line]
+    data = copy.deepcopy(DEFAULT_SCENE)
+    data["time"] = {"step": 0.5, "steps": 20}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the command prints them as 'skfem-modal run: warning: ...')
+        motion = run_scene(Scene.from_dict(data), tmp_path / "out")["motion"]
+    assert len(shown) == 4 and motion["warnings"] == shown
