@@ -109,10 +109,9 @@ INVERTED_LIMIT = 0.01
 PIN_LIMIT = 0.01
 
 
-def _beyond_limits(push, ratio):
-    """Whether pushes (body sizes) and spread ratios (to the rest's) are beyond :data:`PUSH_LIMIT` and
-    :data:`SPREAD_LIMIT`, each a bool or an array of them (a NaN ratio is beyond)."""
-    return push > PUSH_LIMIT, np.logical_not((ratio >= 1.0 / SPREAD_LIMIT) & (ratio <= SPREAD_LIMIT))
+def _spread_beyond(ratio):
+    """Whether spread ratios (to the rest's) are beyond :data:`SPREAD_LIMIT`, a bool or an array (NaN is beyond)."""
+    return np.logical_not((ratio >= 1.0 / SPREAD_LIMIT) & (ratio <= SPREAD_LIMIT))
 
 
 class MotionWarning(RuntimeWarning):
@@ -281,7 +280,7 @@ class MotionMonitor:
             self.spread_ratio[0] = ratio
         elif ratio > self.spread_ratio[1]:
             self.spread_ratio[1] = ratio
-        if _beyond_limits(0.0, ratio)[1]:
+        if _spread_beyond(ratio):
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
@@ -354,8 +353,7 @@ class MotionMonitor:
             touching = lowest - self._plane.ground < HOVER_CLEARANCE * self.size
         push = self._pushes(excess, touching)
         ratio = self._spreads(states[1:]) / self.rest_spread
-        pushed, spread = _beyond_limits(push, ratio)
-        found = {"push": np.flatnonzero(pushed), "spread": np.flatnonzero(spread)}
+        found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(_spread_beyond(ratio))}
         found = {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
         if self._aliases(gait_period):
             found["gait"] = 1
