@@ -48,7 +48,8 @@ def compare(name, mesh, frames: int, rng) -> None:
     cell_type, cells = vtk_cells(mesh)
     with tempfile.TemporaryDirectory() as tmp:
         with FrameWriter(tmp, mesh, cell_data=clusters) as ours:
-            ms = per_frame(lambda k: ours.write(0.01 * ours.count, states[k], field_data={"activation": [0.1, 0.2]}), frames)
+            activation = {"activation": [0.1, 0.2]}
+            ms = per_frame(lambda k: ours.write(0.01 * ours.count, states[k], field_data=activation), frames)
         path = os.path.join(tmp, "frames", "frame_00000.vtu")
         back = meshio.read(path)
         assert np.array_equal(back.points, pad3(states[0])) and np.array_equal(back.cells[0].data, cells)

@@ -11,9 +11,9 @@ import numpy as np
 import scipy.sparse as sps
 
 from .acceleration import ACCELERATIONS
-from .contact import ALLOWANCE, MODELS, checked_allowance
+from .contact import ALLOWANCE, MODELS, THIN, allowance_lengths, checked_allowance
 from .fem import _positive
-from .mesh import part_sizes
+from .mesh import connected_labels, part_sizes
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
 from .values import is_whole
@@ -322,14 +322,17 @@ def _clear_of_ground(mesh, ground, up: int, allowance: float = ALLOWANCE) -> Non
     """
     if ground is None:
         return
-    sizes = part_sizes(mesh)  # each part of a mesh as large as itself
-    relative = (ground - mesh.p[up]) / sizes
-    deepest = int(np.argmax(relative))
-    if relative[deepest] > allowance:
-        lowest, depth = float(mesh.p[up, deepest]), ground - float(mesh.p[up, deepest])
+    labels = connected_labels(mesh)
+    sizes, lengths = part_sizes(mesh, labels), allowance_lengths(mesh, labels)  # each part as large as itself
+    depths = ground - mesh.p[up]
+    deepest = int(np.argmax(depths / lengths))
+    if depths[deepest] > allowance * lengths[deepest]:
+        lowest, depth = float(mesh.p[up, deepest]), float(depths[deepest])
         which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of a smaller part)"
+        thin = f" (a part this thin: {THIN:g} times its thickness)" if lengths[deepest] < sizes[deepest] else ""
         raise ValueError(
             f"the body starts inside the ground: {which} ({'xyz'[up]} = {lowest:.6g}) is {depth:.4g} "
-            f"({100 * relative[deepest]:.3g} % of its size) below the ground at {ground:.6g}; the contact would fling "
-            "it out. Put the ground at or below the body's lowest point (a scene's [ground] offset >= 0)"
+            f"({100 * depth / sizes[deepest]:.3g} % of its size) below the ground at {ground:.6g}, more than "
+            f"{100 * allowance:.3g} % of its size{thin}; the contact would fling it out. Put the ground at or below "
+            "the body's lowest point (a scene's [ground] offset >= 0)"
         )

@@ -50,7 +50,7 @@ from scipy.optimize import nnls
 from ._contact_sets import Picked, SetOperator
 from ._fast import dot
 from .effects import Effect
-from .mesh import boundary_vertices, connected_labels, part_sizes
+from .mesh import boundary_vertices, connected_labels, part_sizes, part_thicknesses
 from .solver import SimulationError
 
 __all__ = [
@@ -61,6 +61,8 @@ __all__ = [
     "ALLOWANCE",
     "MOST_ALLOWANCE",
     "checked_allowance",
+    "allowance_lengths",
+    "THIN",
 ]
 
 #: Contact models by name (a scene's ``ground.model``).
@@ -75,6 +77,10 @@ ALLOWANCE = 2e-4
 #: with 5e-3 gained 0.5 % of what its fall released in single steps, 2.2 % in all, and bounced; the seal at
 #: 1e-3 at most 1.3e-4 a step, at 2e-4 4.9e-5)
 MOST_ALLOWANCE = 1e-3
+#: A part thinner than its size over this has its allowance relative to this many times its thickness instead:
+#: the energy a sunk vertex regains by climbing out is the depth's, and a 100:1:1 beam's allowance of its size,
+#: 2 % of its thickness, let it gain 3 % of what a short drop released in single steps (30:1:1 0.6 %)
+THIN = 3.0
 
 _CACHE_SIZE = 512
 # layouts whose corrections the reference contact keeps (a simulator's backends, rebuilt when settings change)
@@ -104,6 +110,25 @@ GROUND_DURING_A_RUN = (
     "assigning {setting} during a run moved the ground plane, and the state stepped from is this deep under the "
     "new one: assign it at most the allowance above that state's lowest vertex"
 )
+
+
+def allowance_lengths(mesh, labels=None) -> np.ndarray:
+    """What each vertex's allowance is a share of: its part's size, or :data:`THIN` times its thickness if less.
+
+    ``labels`` (n,): the connected parts (:func:`~skfem_modal.mesh.connected_labels`), if already known.
+
+    Returns
+    -------
+    lengths : ndarray, shape (n,)
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import beam2d
+    >>> allowance_lengths(beam2d(2.0, 1.0, 4, 2)).max(), allowance_lengths(beam2d(30.0, 1.0, 60, 2)).max()
+    (np.float64(2.0), np.float64(3.0))
+    """
+    labels = connected_labels(mesh) if labels is None else labels
+    return np.minimum(part_sizes(mesh, labels), THIN * part_thicknesses(mesh, labels))
 
 
 def checked_allowance(value, name: str = "allowance") -> float:
@@ -521,7 +546,8 @@ class CoulombContact(_Ground):
         The Coulomb coefficient ``mu >= 0`` (0: frictionless).
     allowance : float
         How far below the ground a vertex may end a step, a share of its part's
-        size, in (0, :data:`MOST_ALLOWANCE`] (default :data:`ALLOWANCE`). A larger
+        size (or of :data:`THIN` times its thickness, if less: :func:`allowance_lengths`),
+        in (0, :data:`MOST_ALLOWANCE`] (default :data:`ALLOWANCE`). A larger
         one is cheaper: fewer steps find a vertex their iterations missed and run
         them again (``benchmarks/bench_contact.py``'s last table).
 
@@ -546,7 +572,7 @@ class CoulombContact(_Ground):
         self.size = self.sizes[self.vertices]  # (p,)
         self.part = self.parts[self.vertices]  # (p,)
         self.tol = 1e-9 * float(self.size.min())
-        self.allowance = self.relative_allowance * self.size
+        self.allowance = self.relative_allowance * allowance_lengths(space.mesh, self.parts)[self.vertices]
         # per candidate, made once (the ground of a contact does not move): the lowest height a step may
         # leave it at, and below which it counts as near the ground
         self._lowest = self.ground - self.allowance
@@ -678,14 +704,16 @@ class CoulombContact(_Ground):
     def _check_clear(self, z) -> None:
         """Raise if a state has a vertex deeper below the ground than the allowance (see :meth:`start_step`)."""
         depths = self.ground - self.heights_of(z)
-        deepest = int(np.argmax(depths / self.size))
+        deepest = int(np.argmax(depths / self.allowance))
         depth = float(depths[deepest])
         if depth > self.allowance[deepest]:
             share = 100 * depth / self.size[deepest]
+            thin = self.allowance[deepest] < self.relative_allowance * self.size[deepest]
+            of = f" of {THIN:g} times the thickness of a part this thin" if thin else ""
             raise ValueError(
                 f"the state starts inside the ground: a boundary vertex is {depth:.4g} ({share:.3g} % "
                 f"of the body's size) below the ground at {self.ground:.6g}, more than the contact's allowance "
-                f"({100 * self.relative_allowance:.3g} %); it would fling the body out. Start from a state above "
+                f"({100 * self.relative_allowance:.3g} %{of}); it would fling the body out. Start from a state above "
                 "the ground (sim.rest_state() is), or go on from where the last step ended"
                 + (f" ({self.replaced_for})" if self.replaced_for else "")
             )

@@ -25,6 +25,7 @@ __all__ = [
     "MeshError",
     "body_size",
     "part_sizes",
+    "part_thicknesses",
     "make_mesh",
     "check_mesh",
     "check_points",
@@ -512,6 +513,33 @@ def part_sizes(mesh, labels=None) -> np.ndarray:
     np.minimum.at(low, labels, mesh.p.T)
     np.maximum.at(high, labels, mesh.p.T)
     return (high - low).max(axis=1)[labels]
+
+
+def part_thicknesses(mesh, labels=None) -> np.ndarray:
+    """Each vertex's part thickness: the smallest extent of the connected part it is in, along its principal axes.
+
+    The axes are the eigenvectors of the part's vertex covariance, so a thin part is as thin turned
+    any way. ``labels`` (n,): the parts (:func:`connected_labels`), if already known.
+
+    Returns
+    -------
+    thicknesses : ndarray, shape (n,)
+
+    Examples
+    --------
+    >>> plank = beam2d(10.0, 1.0, 20, 2)
+    >>> turn = np.array([[1.0, -1.0], [1.0, 1.0]]) / np.sqrt(2.0)
+    >>> round(float(part_thicknesses(MeshTri(turn @ plank.p, plank.t)).max()), 12)
+    1.0
+    """
+    labels = connected_labels(mesh) if labels is None else labels
+    thicknesses = np.empty(labels.max() + 1)
+    for part in range(thicknesses.size):
+        points = mesh.p[:, labels == part]
+        centred = points - points.mean(axis=1, keepdims=True)
+        axes = np.linalg.eigh(centred @ centred.T)[1]
+        thicknesses[part] = np.ptp(axes.T @ centred, axis=1).min()
+    return thicknesses[labels]
 
 
 def make_mesh(points, elements, *, what: str = "mesh"):

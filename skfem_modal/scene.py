@@ -400,8 +400,9 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             'How far below the ground a vertex may end a step, a share of the body\'s size (model "coulomb"; '
-            "default 2e-4, at most 0.001). Larger is cheaper: fewer steps run their iterations again for a vertex "
-            "they missed (docs/contact.md, what the allowance costs).",
+            "default 2e-4, at most 0.001), or of 3 times its thickness if less (a thin body). Larger is cheaper: "
+            "fewer steps run their iterations again for a vertex they missed (docs/contact.md, what the allowance "
+            "costs).",
             "",
             _allowance,
         ),

@@ -16,7 +16,7 @@ import skfem
 from conftest import COULOMB_CRAWL
 
 import skfem_modal as sm
-from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE
+from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE, allowance_lengths
 from skfem_modal.reference import FullSpaceSimulator
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
@@ -431,6 +431,49 @@ def test_a_thin_plate_landing_flat_gains_no_energy():
     energy, kinetic, lowest = fall(sim, 0.6)
     assert np.diff(energy).max() <= 1e-4 * np.abs(energy).max()
     assert lowest.min() >= -ALLOWANCE and lowest[-1] < 1e-3  # on the ground
+
+
+@pytest.mark.parametrize("drop", [0.01, 0.03])
+def test_a_long_thin_beam_dropped_a_little_gains_no_energy(drop):
+    # the allowance was a share of the beam's length alone, 2 % of its thickness: the vertices that sank that
+    # far climbed back out, and one step gained 3.1 % (drop 0.01) and 0.57 % (0.03) of what the fall released.
+    # It is now a share of 3 times the thickness: 3e-4 at most (an audit of drops 0.01 to 0.1, friction 0 and 0.5)
+    mesh = sm.box3d(100, 2, 2, (100.0, 1.0, 1.0))
+    sim = sm.ModalMuscle.from_mesh(
+        mesh, n_muscles=4, h=0.01, gravity=[0.0, 0.0, -G], ground=float(mesh.p[2].min()) - drop, friction=0.5
+    )
+    assert sim.model.contact.allowance.max() == pytest.approx(ALLOWANCE * 3.0)  # 3 times the thickness, 1
+    z, z_dot, rest = sim.rest_state()
+    energy, lowest = [sim.mechanical_energy(z, z_dot)], []
+    for record in sm.simulate(sim, 200, lambda t: rest):
+        energy.append(sim.mechanical_energy(record.z, record.z_dot))
+        lowest.append(float(sim.positions(record.z)[:, 2].min()) - sim.ground)
+    released = energy[0] - min(energy)
+    assert released > 0.9 * sim.mass.sum() / 3 * G * drop  # it fell the whole way
+    assert np.diff(energy).max() <= 1e-3 * released
+    assert min(lowest) >= -ALLOWANCE * 3.0 and lowest[-1] < 1e-3  # within the thin part's allowance, on the ground
+
+
+def test_a_thin_part_has_a_share_of_its_thickness_as_its_allowance_turned_any_way():
+    plank = sm.beam2d(30.0, 1.0, 60, 2)
+    turn = np.array([[1.0, -1.0], [1.0, 1.0]]) / np.sqrt(2.0)
+    lengths = allowance_lengths(skfem.MeshTri(turn @ plank.p, plank.t))
+    assert lengths == pytest.approx(np.full(plank.p.shape[1], 3.0))
+    square = skfem.MeshTri.init_symmetric()
+    assert allowance_lengths(square) == pytest.approx(np.ones(square.p.shape[1]))  # its size: thicker than a third
+    # a plank and a square apart in one mesh: each by its own shape
+    both = skfem.MeshTri(np.hstack([plank.p, square.p + 40.0]), np.hstack([plank.t, square.t + plank.p.shape[1]]))
+    assert allowance_lengths(both) == pytest.approx(np.r_[np.full(plank.p.shape[1], 3.0), np.ones(5)])
+
+
+def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickness():
+    mesh = sm.beam2d(30.0, 1.0, 60, 2)
+    lowest = float(mesh.p[1].min())
+    kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -G])
+    sm.ModalMuscle.from_mesh(mesh, ground=lowest + 2.9 * ALLOWANCE, **kw)  # within 2e-4 of 3 times the thickness
+    with pytest.raises(ValueError, match=r"\(0.00233 % of its size\) below the ground at .*, more than 0.02 % "
+                       r"of its size \(a part this thin: 3 times its thickness\)"):  # fmt: skip
+        sm.ModalMuscle.from_mesh(mesh, ground=lowest + 3.5 * ALLOWANCE, **kw)
 
 
 @pytest.mark.parametrize("contact_model", ["coulomb", "reference"])
