@@ -313,7 +313,7 @@ def _pulled_to_ground(gravity, ground, up: int) -> None:
 
 
 def _clear_of_ground(mesh, ground, up: int, allowance: float = ALLOWANCE) -> None:
-    """Raise if the body starts deeper inside the ground than the contact's allowance (of its size).
+    """Raise if the body starts deeper inside the ground than the contact's allowance (of its size, or thickness).
 
     A contact that finds a body deep in the ground pushes it out within a step or two, with
     the energy of a spring compressed that far: the body is flung into the air (a ghost
@@ -328,11 +328,14 @@ def _clear_of_ground(mesh, ground, up: int, allowance: float = ALLOWANCE) -> Non
     deepest = int(np.argmax(depths / lengths))
     if depths[deepest] > allowance * lengths[deepest]:
         lowest, depth = float(mesh.p[up, deepest]), float(depths[deepest])
-        which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of a smaller part)"
-        thin = f" (a part this thin: {THIN:g} times its thickness)" if lengths[deepest] < sizes[deepest] else ""
+        which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of another part)"
+        allowed = f"{100 * allowance:.3g} % of its size"
+        if lengths[deepest] < sizes[deepest]:
+            thickness = f"{THIN:g} times a part this thin's thickness"
+            allowed = f"{100 * allowance:.3g} % of {thickness} ({allowance * lengths[deepest]:.3g})"
         raise ValueError(
             f"the body starts inside the ground: {which} ({'xyz'[up]} = {lowest:.6g}) is {depth:.4g} "
             f"({100 * depth / sizes[deepest]:.3g} % of its size) below the ground at {ground:.6g}, more than "
-            f"{100 * allowance:.3g} % of its size{thin}; the contact would fling it out. Put the ground at or below "
+            f"{allowed}; the contact would fling it out. Put the ground at or below "
             "the body's lowest point (a scene's [ground] offset >= 0)"
         )

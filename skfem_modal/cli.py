@@ -5,8 +5,10 @@ file, an output folder holding an earlier run, a missing extra); 3 numerical
 failure (a simulation that went non-finite, a modal analysis whose eigen solve
 stalled or lost its precision); 4 the workers were lost (a
 worker process killed, the dask scheduler gone: a search keeps its
-checkpoint and says how to resume); 130 interrupted (Ctrl-C, or SIGTERM: the
-same clean stop); 141 the reader of the output went away (e.g. ``| head``).
+checkpoint and says how to resume); 5 a run's outputs could not be written
+as it went (a disk full: the message names the file and the step); 130
+interrupted (Ctrl-C, or SIGTERM: the same clean stop); 141 the reader of the
+output went away (e.g. ``| head``).
 """
 
 from __future__ import annotations
@@ -22,13 +24,14 @@ import numpy as np
 
 from .checks import nothing_free
 from .interrupts import EXIT_INTERRUPTED, Terminated, terminate_as_interrupt
-from .outputs import check_output_file
+from .outputs import OutputError, check_output_file
 from .study import WorkersLost
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
 EXIT_NUMERICAL = 3
 EXIT_WORKERS_LOST = 4
+EXIT_OUTPUTS = 5
 EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
 
 #: Elastic modes ``modes`` finds besides the rigid motions, unless -k says otherwise.
@@ -238,7 +241,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_info(args) -> int:
-    from .contact import ALLOWANCE
+    from .contact import ALLOWANCE, THIN
     from .mesh import mesh_summary
     from .scene import schema_markdown
 
@@ -284,6 +287,7 @@ def cmd_info(args) -> int:
             rule = (
                 f"friction {0.5 if g['friction'] is None else g['friction']:g}, "
                 f"allowance {100 * (ALLOWANCE if g['allowance'] is None else g['allowance']):.2g} % of the size"
+                + (f", or of {THIN:g} times the thickness of a thin part" if _thin(scene) else "")
                 if g["model"] == "coulomb"
                 else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
                 f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"
@@ -318,6 +322,14 @@ def _drive(muscles: dict) -> str:
         f"sine gait, amplitudes {[float(a) for a in gait['amplitude']]} of the ceilings, periods "
         f"{[float(t) for t in gait['period']]}, phases {[float(p) for p in phase]}{ramp}"
     )
+
+
+def _thin(scene) -> bool:
+    """Whether a part of the scene's mesh is thin enough that its allowance is a share of its thickness."""
+    from .contact import allowance_lengths
+    from .mesh import part_sizes
+
+    return bool(np.any(allowance_lengths(scene.mesh) < part_sizes(scene.mesh)))
 
 
 def _contact_points(scene) -> str:
@@ -690,7 +702,7 @@ def _modes_options(p) -> None:
     p.add_argument("--mu", type=_positive_float, help="Lame shear modulus (default 1)")
     p.add_argument("--lam", type=_finite_float, help="Lame first parameter (default 1)")
     p.add_argument("--young", type=float, help="Young's modulus (with --poisson, instead of --mu/--lam)")
-    p.add_argument("--poisson", type=float, help="Poisson's ratio")
+    p.add_argument("--poisson", type=float, help="Poisson's ratio (2D meshes: plane strain)")
     p.add_argument("--rho", type=_positive_float, default=1.0, help="density")
     p.add_argument("--element", choices=["P1", "P2"], default="P1", help="linear or quadratic elements")
     p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped", help="mass matrix")
@@ -963,6 +975,9 @@ def main(argv=None) -> int:
     except WorkersLost as lost:  # a study's; a search's says how to resume (cmd_optimize)
         print(f"skfem-modal {args.command}: {lost}", file=sys.stderr)
         return EXIT_WORKERS_LOST
+    except OutputError as err:  # (an OSError) a file a run writes as it goes: a disk full
+        print(f"skfem-modal {args.command}: outputs failed: {err}", file=sys.stderr)
+        return EXIT_OUTPUTS
     except (ValueError, TypeError, OSError, _RenderUnavailable) as err:
         # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)

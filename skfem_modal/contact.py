@@ -186,13 +186,17 @@ class _Ground(Effect):
     replaced_for = None
     _end = None  # where the last step ended (the Coulomb model keeps it)
 
-    def _plane(self, space, ground, up):
+    def _plane(self, space, ground, up, thin=False):
+        """The plane, and each vertex's part and lengths (``thin``: a thin part's allowance is of its thickness)."""
         self.dim, self.up, self.ground = space.dim, up, float(ground)
         boundary = boundary_vertices(space.mesh)
         self.boundary = space.heights(boundary, up)
         self.parts = connected_labels(space.mesh)  # (n,): the connected part each vertex is in
         self.sizes = part_sizes(space.mesh, self.parts)  # (n,): what each vertex's depth is relative to
         self.boundary_sizes = self.sizes[boundary]
+        # (n,): what the depth a vertex is allowed (or let sink, by the reference) is a share of
+        self.lengths = allowance_lengths(space.mesh, self.parts) if thin else self.sizes
+        self.boundary_lengths = self.lengths[boundary]
 
     def depths(self, z) -> np.ndarray:
         """How deep each boundary vertex is below the ground (negative above it), for a state ``z``, shape (nb,).
@@ -561,7 +565,7 @@ class CoulombContact(_Ground):
     watch = None  # the candidates change from step to step: nothing a backend could compute ahead
 
     def __init__(self, space, vertices, ground, up, friction=0.5, allowance=ALLOWANCE):
-        self._plane(space, ground, up)
+        self._plane(space, ground, up, thin=True)
         self.space, self.vertices = space, np.asarray(vertices)
         self.friction = float(friction)
         self.relative_allowance = checked_allowance(allowance)
@@ -572,7 +576,7 @@ class CoulombContact(_Ground):
         self.size = self.sizes[self.vertices]  # (p,)
         self.part = self.parts[self.vertices]  # (p,)
         self.tol = 1e-9 * float(self.size.min())
-        self.allowance = self.relative_allowance * allowance_lengths(space.mesh, self.parts)[self.vertices]
+        self.allowance = self.relative_allowance * self.lengths[self.vertices]
         # per candidate, made once (the ground of a contact does not move): the lowest height a step may
         # leave it at, and below which it counts as near the ground
         self._lowest = self.ground - self.allowance

@@ -28,6 +28,7 @@ import numpy as np
 
 from .fem import scalar_basis
 from .mesh import _signed_measures, check_mesh
+from .outputs import named
 from .values import is_real, is_whole
 
 __all__ = [
@@ -456,12 +457,20 @@ class FrameWriter:
         filename = f"frame_{self.count:05d}.vtu"
         path = os.path.join(self.frame_dir, filename)
         fields = {"time": float(time), **(field_data or {})}
-        self.piece.write(path, positions, data, fields)
-        self._pvd.seek(self._body_end)
-        self._pvd.write(f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n')
-        self._body_end = self._pvd.tell()
-        self._pvd.write(_PVD_FOOT)
-        self._pvd.flush()
+        try:
+            self.piece.write(path, positions, data, fields)
+        except OSError as err:
+            raise named(err, path) from None
+        try:
+            self._pvd.seek(self._body_end)
+            self._pvd.write(
+                f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{self.name}/{filename}"/>\n'
+            )
+            self._body_end = self._pvd.tell()
+            self._pvd.write(_PVD_FOOT)
+            self._pvd.flush()
+        except OSError as err:
+            raise named(err, self.pvd_path) from None
         self.times.append(float(time))
         self.count += 1
         return path

@@ -516,10 +516,13 @@ def part_sizes(mesh, labels=None) -> np.ndarray:
 
 
 def part_thicknesses(mesh, labels=None) -> np.ndarray:
-    """Each vertex's part thickness: the smallest extent of the connected part it is in, along its principal axes.
+    """Each vertex's part thickness: the least width of the connected part it is in, across its convex hull.
 
-    The axes are the eigenvectors of the part's vertex covariance, so a thin part is as thin turned
-    any way. ``labels`` (n,): the parts (:func:`connected_labels`), if already known.
+    The width across each face of the hull (the farthest hull vertex from its plane), least over
+    the faces: a box's or a plank's thickness however it is turned or moved (in 3D the least
+    width can fall between two edges instead, and is then up to the least face's). A thin body
+    that bends (an L, a ring) is as thick as its hull. ``labels`` (n,): the parts
+    (:func:`connected_labels`), if already known.
 
     Returns
     -------
@@ -529,17 +532,27 @@ def part_thicknesses(mesh, labels=None) -> np.ndarray:
     --------
     >>> plank = beam2d(10.0, 1.0, 20, 2)
     >>> turn = np.array([[1.0, -1.0], [1.0, 1.0]]) / np.sqrt(2.0)
-    >>> round(float(part_thicknesses(MeshTri(turn @ plank.p, plank.t)).max()), 12)
+    >>> round(float(part_thicknesses(MeshTri(turn @ plank.p + 0.1, plank.t)).max()), 12)
     1.0
     """
     labels = connected_labels(mesh) if labels is None else labels
-    thicknesses = np.empty(labels.max() + 1)
-    for part in range(thicknesses.size):
-        points = mesh.p[:, labels == part]
-        centred = points - points.mean(axis=1, keepdims=True)
-        axes = np.linalg.eigh(centred @ centred.T)[1]
-        thicknesses[part] = np.ptp(axes.T @ centred, axis=1).min()
+    thicknesses = np.array([_hull_width(mesh.p[:, labels == part].T) for part in range(labels.max() + 1)])
     return thicknesses[labels]
+
+
+def _hull_width(points) -> float:
+    """The least width of the convex hull of ``points`` (n, dim) across one of its faces."""
+    from scipy.spatial import ConvexHull
+
+    points = points - points.mean(axis=0)  # (qhull's planes are exact to the coordinates' size)
+    hull = ConvexHull(points)
+    corners, normals, offsets = points[hull.vertices], hull.equations[:, :-1], hull.equations[:, -1]
+    # the hull lies below each face's plane: its width across a face is its deepest corner's depth there
+    # (512 faces at a time: a seal's hull has thousands of corners and faces)
+    return min(
+        float((-(corners @ normals[k : k + 512].T + offsets[k : k + 512])).max(axis=0).min())
+        for k in range(0, len(normals), 512)
+    )
 
 
 def make_mesh(points, elements, *, what: str = "mesh"):
@@ -693,12 +706,15 @@ def coincident_vertices(points, tolerance: float = MERGE_TOLERANCE) -> np.ndarra
 def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     """Read a triangle (2D) or tetrahedron (3D) mesh from any file meshio reads.
 
-    Tetrahedra make a 3D ``MeshTet``. Otherwise triangles make a 2D ``MeshTri``;
-    a z column is dropped when it is constant (a flat mesh, e.g. an OBJ
-    outline with z = 0), and refused otherwise (a curved surface is not a
-    planar body). Quadratic cells (``triangle6``, ``tetra10``) keep their
-    corner vertices, with a ``UserWarning`` that their mid-edge nodes are
-    dropped (curved edges become straight). Other cells of the body's
+    Tetrahedra make a 3D ``MeshTet``. Otherwise triangles make a 2D ``MeshTri``
+    from a flat mesh: its constant coordinate is dropped (z for an OBJ outline
+    with z = 0; in a plane y = c, the (x, z) of a side view become (x, y), so
+    up stays up; in x = c, (y, z) do), and a mesh in no such plane is refused
+    (a curved surface is not a planar body). What the 2D body writes (frames,
+    modes) lies in the x-y plane at z = 0, whatever plane it was read from.
+    Quadratic cells (``triangle6``, ``tetra10``) keep their corner vertices,
+    with a ``UserWarning`` that their mid-edge nodes are dropped (curved edges
+    become straight). Other cells of the body's
     dimension (quads, hexahedra, prisms, cubic triangles) are refused: left
     out, they would leave holes; lower-dimensional ones (a solid's boundary
     faces, lines) are dropped. Vertices no element uses (e.g. gmsh's geometry points)
@@ -870,7 +886,11 @@ def _read_meshio(path: str, role: str = "mesh"):
             ) from None
         raise MeshError(f"cannot read {role} {path!r}: ReadError: {err}") from None
     except Exception as err:  # meshio raises many kinds for broken files
-        raise MeshError(f"cannot read {role} {path!r}: {type(err).__name__}: {err}") from None
+        kind = os.path.splitext(path)[1] or "mesh"
+        raise MeshError(
+            f"cannot read {role} {path!r}: it is empty, cut short or not a valid {kind} file "
+            f"(meshio's reader failed with {type(err).__name__}: {err})"
+        ) from None
 
 
 def normalize_and_center(mesh):

@@ -73,6 +73,7 @@ import warnings
 
 import numpy as np
 
+from .contact import THIN
 from .mesh import _signed_measures
 from .units import FAR
 
@@ -232,10 +233,12 @@ class MotionMonitor:
         contact = sim.model.contact
         self._plane = contact  # the contact effect: its plane and each vertex's part size
         self._contact_terms = None  # with a ground: its model, allowance, candidates and boundary vertices
-        self._deepest_allowed = math.inf
+        self._sink_limit = math.inf  # of what each vertex's allowance is a share of (contact.boundary_lengths)
         if contact is not None:
+            thin = bool(np.any(contact.boundary_lengths < contact.boundary_sizes))
             self._contact_terms = (sim.contact_model, sim.allowance, contact.vertices.size, contact.boundary_sizes.size)
-            self._deepest_allowed = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
+            self._contact_terms += (thin,)
+            self._sink_limit = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
     def _spread(self, z) -> float:
         return float(self._spreads(z[None])[0])
@@ -250,7 +253,7 @@ class MotionMonitor:
         squared = np.einsum("ij,ij->i", states @ self._gram, states) - np.einsum("ij,ij->i", mean, mean)
         return np.sqrt(np.maximum(squared, 0.0))
 
-    def update(self, step: int, z, a=None, clearance=None, depth=None) -> None:
+    def update(self, step: int, z, a=None, clearance=None, depth=None, sunk=None) -> None:
         """Take the state after ``step`` steps.
 
         Parameters
@@ -264,7 +267,11 @@ class MotionMonitor:
             ground: to tell a body held in the air.
         depth : float, optional
             How far the deepest boundary vertex is below the ground, of its body's size (0 if
-            none is), with a ground: to tell a body sinking into it.
+            none is), with a ground.
+        sunk : float, optional
+            The same, of what each vertex's allowance is a share of (the contact's
+            ``boundary_lengths``: its part's size, or a thin part's thickness times 3), with
+            a ground: to tell a body sinking into it (``depth`` if not given).
         """
         self._commanded(step, a)
         com = self._com_rows @ z
@@ -286,8 +293,9 @@ class MotionMonitor:
             self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
         if depth is not None and depth > self.deepest:
             self.deepest = depth
-            if depth > self._deepest_allowed:
-                self.first_problem_step.setdefault("sink", step)
+        sunk = depth if sunk is None else sunk
+        if sunk is not None and sunk > self._sink_limit:
+            self.first_problem_step.setdefault("sink", step)
 
     def check_elements(self, step: int, positions) -> int:
         """Count the elements inside out (signed measure against its rest sign) in the state after ``step`` steps;
@@ -388,7 +396,7 @@ class MotionMonitor:
     def _sinking(self) -> str:
         """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""
         step = self.first_problem_step["sink"]
-        model, allowance, candidates, boundary = self._contact_terms
+        model, allowance, candidates, boundary, thin = self._contact_terms
         went = f"from step {step} (t = {step * self.h:g}) vertices went into the ground, up to {self.deepest:.3g} "
         went += "of the body's size"
         if model == "reference":
@@ -396,14 +404,17 @@ class MotionMonitor:
                 f"{went}: the reference contact holds only its sampled points, and only their velocity; the Coulomb "
                 'contact (ground.model = "coulomb") holds every vertex'
             )
+        allowed = f"{allowance:.3g}"
+        if thin:  # (a thin part's allowance is less than that share of its size)
+            allowed += f" of its size, or of {THIN:g} times a thin part's thickness"
         if candidates < boundary:
             return (
-                f"{went}, deeper than the Coulomb contact's allowance ({allowance:.3g}): it holds only its "
+                f"{went}, deeper than the Coulomb contact's allowance ({allowed}): it holds only its "
                 f"contact candidates ({candidates} of the {boundary} boundary vertices: ground.contacts, "
                 "ground.contacts_where), and "
                 'the others sank; take them all (ground.contacts = "all", the default)'
             )
-        return f"{went}, deeper than the Coulomb contact's allowance ({allowance:.3g}): the contact did not hold it"
+        return f"{went}, deeper than the Coulomb contact's allowance ({allowed}): the contact did not hold it"
 
     def _commanded(self, step: int, a) -> None:
         """The step's activations against the ceilings."""

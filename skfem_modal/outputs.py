@@ -18,6 +18,7 @@ import re
 import tempfile
 
 __all__ = [
+    "OutputError",
     "RUN_FILES",
     "PICTURES",
     "FRAMES_DIR",
@@ -48,6 +49,15 @@ STUDY_FILES = ("study.csv", "modal.csv", "study.json", "study.md", "pareto.png")
 TRANSFER_FILE = "transfer.csv"
 #: The files of a gait search (``skfem-modal optimize``), and ``skfem-modal transfer``'s beside them.
 SEARCH_FILES = ("checkpoint.pkl", "history.csv", "best_gait.toml", "fitness.png", TRANSFER_FILE)
+
+
+class OutputError(OSError):
+    """An output could not be written while a command ran (a disk full, a folder removed): the message names it."""
+
+
+def named(err: OSError, path) -> OSError:
+    """``err`` naming ``path`` if it names no file (a write that fails names none)."""
+    return err if err.filename is not None else type(err)(err.errno, err.strerror, os.fspath(path))
 
 
 def _names(files) -> re.Pattern:
@@ -225,7 +235,8 @@ def check_output_folder(directory, kind: str) -> list[str]:
     ------
     FileExistsError
         ``directory`` (or a folder on its path) is a file, or it holds
-        another kind's output: a run, a study and a search never share a folder.
+        another kind's output: a run, a study and a search never share a folder;
+        or (a run) it holds a file named ``frames``, where a run writes its frames.
     PermissionError
         Nothing can be written there (a folder made in it, or in the nearest
         folder of its path that exists, is refused).
@@ -239,6 +250,11 @@ def check_output_folder(directory, kind: str) -> list[str]:
         )
     _check_writable(directory)
     frames = os.path.join(directory, FRAMES_DIR)
+    if kind == "run" and os.path.exists(frames) and not os.path.isdir(frames):  # (a run writes its frames there)
+        raise FileExistsError(
+            f"the output folder {directory!r} holds a file named {FRAMES_DIR!r}, where a run writes its frames: "
+            "move it, or choose another output folder"
+        )
     if kind == "run" and os.path.isdir(frames):  # before anything is removed or run: a frames/ made read-only
         _check_writable(frames, "the output folder's frames")
     for other, earlier in _KINDS.items():

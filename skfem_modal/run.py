@@ -30,7 +30,7 @@ from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
 from .mesh import mesh_summary
 from .monitor import MotionMonitor
-from .outputs import clear_earlier_run
+from .outputs import OutputError, clear_earlier_run
 from .scene import Scene
 from .sim import SimulationError, live_settings, simulate
 from .units import material_length_scales
@@ -354,13 +354,14 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     An error while writing the files leaves the log, and so the summary, at the step before.
     """
     com = sim.com(z)
-    relative = depth = 0.0
+    relative = depth = sunk = 0.0
     clearance = None
     contact = sim.model.contact
     if done is not None and contact is not None:
-        depths = contact.depths(z)  # every boundary vertex: one pass for all three
+        depths = contact.depths(z)  # every boundary vertex: one pass for all four
         depth, clearance = max(0.0, float(depths.max())), -float(depths.max())
         relative = max(0.0, float((depths / contact.boundary_sizes).max()))  # of each vertex's own part
+        sunk = max(0.0, float((depths / contact.boundary_lengths).max()))  # of what its allowance is a share of
     if files is not None:
         files.write(step, z, a, com)
     log["com"].append(com)
@@ -372,7 +373,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         # every boundary vertex, every step: the deepest any went below the ground
         log["penetration"] = max(log["penetration"], depth)
         log["relative"] = max(log["relative"], relative)
-        log["monitor"].update(step, z, a, clearance, relative if contact is not None else None)
+        log["monitor"].update(step, z, a, clearance, *((relative, sunk) if contact is not None else ()))
 
 
 def _measured(sim, log: dict) -> dict:
@@ -427,20 +428,36 @@ class _RunFiles:
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
         self._framed = None  # the step of the last frame written
+        self.failed = False  # a write failed (a disk full): nothing more is written but the summary, if it can be
 
     def write(self, step: int, z, a, com) -> None:
-        """One step's frame (every ``every`` steps), then its rows."""
+        """One step's frame (every ``every`` steps), then its rows.
+
+        Raises
+        ------
+        OutputError
+            A file could not be written (a disk full): it names the file and the step.
+        """
         sim = self.sim
-        if step % self.every == 0:
-            self._frame(step, z, a)
-        t = step * sim.h
-        self.com.writerow([repr(t)] + [repr(float(c)) for c in com])
-        # (a row a step without muscles too: the table's times are the run's, as render reads them)
-        realised = sim.muscle_amplitudes(z) if sim.n_muscles else ()
-        self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
-        if step % self.every == 0:
-            for f in self._files:  # the tables on disk reach at least the last frame
-                f.flush()
+        try:
+            if step % self.every == 0:
+                self._frame(step, z, a)
+            t = step * sim.h
+            self.com.writerow([repr(t)] + [repr(float(c)) for c in com])
+            # (a row a step without muscles too: the table's times are the run's, as render reads them)
+            realised = sim.muscle_amplitudes(z) if sim.n_muscles else ()
+            self.amplitudes.writerow([repr(t)] + [repr(float(v)) for v in a] + [repr(float(v)) for v in realised])
+            if step % self.every == 0:
+                for f in self._files:  # the tables on disk reach at least the last frame
+                    f.flush()
+        except OSError as err:
+            self.failed = True
+            where = err.filename if err.filename is not None else "com.csv and amplitudes.csv"
+            framed = f"t = {self.frames.times[-1]:g}" if self.frames.times else "none written"
+            raise OutputError(
+                f"could not write {where}: {err.strerror or err}; the run stopped at step {step} "
+                f"(t = {step * sim.h:g}): its tables end at the step before, its frames at {framed}"
+            ) from None
         self._last = (step, z, a)
 
     def _frame(self, step: int, z, a) -> None:
@@ -453,7 +470,7 @@ class _RunFiles:
 
     def frame_last(self) -> None:
         """The last step's frame, if ``every`` skipped it: the frames then end at the last step done."""
-        if self._last is not None and self._last[0] != self._framed:
+        if self._last is not None and self._last[0] != self._framed and not self.failed:
             self._frame(*self._last)
 
     def close(self, summary: dict) -> None:
@@ -464,14 +481,19 @@ class _RunFiles:
         self.frame_last()
         frames = self.frames
         pinned = {"worst_drift_written_frames": self.monitor.pin_drift} if self.sim.pinned.size else None
-        times = [frames.times[0], frames.times[-1]]
+        times = [frames.times[0], frames.times[-1]] if frames.times else None
         summary.update(
             pinned=pinned, frames={"count": frames.count, "every": self.every, "pvd": "frames.pvd", "times": times}
         )
-        frames.close()
-        for f in self._files:
-            f.close()
-        _write_json(os.path.join(self.out_dir, "summary.json"), summary)
+        closing = [frames.close, *(f.close for f in self._files)]
+        closing.append(lambda: _write_json(os.path.join(self.out_dir, "summary.json"), summary))
+        for close in closing:
+            try:
+                close()
+            except OSError:
+                if not self.failed:
+                    raise
+                # after a failed write each is tried still (the summary is small); the first error says why
 
 
 def _version() -> str:

@@ -363,7 +363,8 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             "Height of the ground plane along the up axis (at most the contact's allowance, 2e-4 of the body's size "
-            "by default, above its lowest point: a body starting deeper would be flung out).",
+            "by default, or of 3 times a thin body's thickness, above its lowest point: a body starting deeper "
+            "would be flung out).",
             "length",
         ),
         "offset": Key(

@@ -517,7 +517,8 @@ class ModalMuscle:
         ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
     allowance : float, optional
         ``coulomb`` only: how far below the ground a vertex may end a step, a
-        share of the body's size in (0, 0.001] (default 2e-4); larger is cheaper.
+        share of the body's size in (0, 0.001] (default 2e-4; a part thinner than a
+        third of its size: a share of 3 times its thickness); larger is cheaper.
     stickiness : float, optional
         ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
         velocity of contacting points, 0 lets them slide freely.
@@ -900,8 +901,8 @@ class ModalMuscle:
         "allowance",
         "coulomb",
         checked_allowance,
-        "How far below the ground a vertex may end a step, of the body's size (``contact_model='coulomb'``; None "
-        "otherwise).",
+        "How far below the ground a vertex may end a step, of the body's size, or of 3 times a thin part's thickness "
+        "(``contact_model='coulomb'``; None otherwise).",
     )
     stickiness = _contact_setting(
         "stickiness",

@@ -461,9 +461,28 @@ def test_a_thin_part_has_a_share_of_its_thickness_as_its_allowance_turned_any_wa
     assert lengths == pytest.approx(np.full(plank.p.shape[1], 3.0))
     square = skfem.MeshTri.init_symmetric()
     assert allowance_lengths(square) == pytest.approx(np.ones(square.p.shape[1]))  # its size: thicker than a third
+    # a square rod turned and moved any way: its thickness, not a principal axis's extent (up to 1.41 of it)
+    rod = sm.box3d(30, 2, 2, (30.0, 1.0, 1.0))
+    c, s = np.cos(0.3), np.sin(0.3)
+    rolled = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0, 0, 1]])
+    assert allowance_lengths(skfem.MeshTet(rolled @ rod.p + 0.1, rod.t)) == pytest.approx(np.full(rod.p.shape[1], 3.0))
     # a plank and a square apart in one mesh: each by its own shape
     both = skfem.MeshTri(np.hstack([plank.p, square.p + 40.0]), np.hstack([plank.t, square.t + plank.p.shape[1]]))
     assert allowance_lengths(both) == pytest.approx(np.r_[np.full(plank.p.shape[1], 3.0), np.ones(5)])
+
+
+def test_info_says_a_thin_bodys_allowance_is_of_its_thickness(tmp_path, capsys):
+    from skfem_modal.cli import main
+
+    for length, said in ((30.0, True), (2.0, False)):
+        path = tmp_path / "strip.toml"
+        path.write_text(
+            f'[mesh]\nshape = "beam2d"\nparams = {{ length = {length}, height = 1.0, nx = 8, ny = 2 }}\n'
+            "[muscles]\ncount = 0\n[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.01\n"
+        )
+        assert main(["info", str(path)]) == 0
+        ground = [line for line in capsys.readouterr().out.splitlines() if line.startswith("ground:")]
+        assert ("allowance 0.02 % of the size, or of 3 times the thickness of a thin part" in ground[0]) is said
 
 
 def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickness():
@@ -472,7 +491,7 @@ def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickn
     kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -G])
     sm.ModalMuscle.from_mesh(mesh, ground=lowest + 2.9 * ALLOWANCE, **kw)  # within 2e-4 of 3 times the thickness
     with pytest.raises(ValueError, match=r"\(0.00233 % of its size\) below the ground at .*, more than 0.02 % "
-                       r"of its size \(a part this thin: 3 times its thickness\)"):  # fmt: skip
+                       r"of 3 times a part this thin's thickness \(0.0006\)"):  # fmt: skip
         sm.ModalMuscle.from_mesh(mesh, ground=lowest + 3.5 * ALLOWANCE, **kw)
 
 

@@ -271,6 +271,12 @@ def test_unreadable_files_are_mesh_errors_naming_the_file(tmp_path, capsys):
         MeshError, match=r"cannot read mesh '.*nocells.vtu': Inconsistent data! \(not a file meshio reads as vtu\)$"
     ):
         load_mesh(empty)
+    # a reader failing with an error of its own: what the file may be, then what meshio said
+    hollow = tmp_path / "empty.msh"
+    hollow.write_text("")
+    with pytest.raises(MeshError, match=r"cannot read mesh '.*empty.msh': it is empty, cut short or not a valid \.msh "
+                       r"file \(meshio's reader failed with ValueError: "):  # fmt: skip
+        load_mesh(hollow)
     # meshio's own printing does not reach the terminal
     assert capsys.readouterr() == ("", "")
 

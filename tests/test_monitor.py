@@ -292,6 +292,27 @@ def test_a_body_sinking_through_the_ground_between_its_contact_candidates_is_rep
     assert held["physical"] and 0.0 < held["deepest_body_sizes"] <= 2e-4
 
 
+def test_a_thin_body_sinking_deeper_than_its_thickness_allows_is_reported():
+    # a 30:1 strip held at its ends only sags between them: its allowance is 2e-4 of 3 times its thickness (6e-4),
+    # but the motion check compared the depth with 2e-4 of its length (6e-3): 0.011 deep was "physical"
+    scene = {
+        "mesh": {"shape": "beam2d", "params": {"length": 30.0, "height": 1.0, "nx": 60, "ny": 2}},
+        "material": {"mu": 1e10, "rho": 1e3},
+        "subspace": {"weights": 8, "clusters": 16},
+        "muscles": {"count": 0},
+        "gravity": {"acceleration": [0.0, -9.81]},
+        "time": {"step": 0.01, "steps": 200},
+        "ground": {"offset": 0.0, "contacts_where": ["x <= 0.5", "x >= 29.5"]},
+    }
+    with pytest.warns(MotionWarning) as caught:
+        summary = run_scene(Scene.from_dict(scene), None)
+    motion = summary["motion"]
+    assert not motion["physical"] and set(motion["first_problem_step"]) == {"sink"}
+    assert 2 * 6e-4 < summary["ground"]["worst_penetration"] < 2 * 6e-3  # between the two limits
+    (text,) = [str(w.message) for w in caught if "into the ground" in str(w.message)]
+    assert "deeper than the Coulomb contact's allowance (0.0002 of its size, or of 3 times a thin part's " in text
+
+
 def test_the_reference_contacts_feet_may_sink_a_little_but_not_a_quarter_of_the_body():
     monitor_of = lambda summary: summary["motion"]  # noqa: E731
     # its 30 points at h = 0.01: the feet sink a few percent by design, not reported

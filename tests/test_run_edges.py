@@ -1,7 +1,10 @@
-"""Edges of a run's inputs: an output path that is a file, a duration that is not a whole number of steps."""
+"""Edges of a run's inputs and outputs: an output path that is a file, a duration that is not a whole number of
+steps, a disk filling up."""
 
+import json
 import warnings
 
+import numpy as np
 import pytest
 
 from skfem_modal.cli import main
@@ -27,6 +30,15 @@ def test_an_output_path_that_is_a_file_is_named(tmp_path, capsys):
     assert taken.read_text() == "mine"  # never removed, even with --overwrite
     with pytest.raises(FileExistsError, match="is a file, not a folder"):
         run_scene(Scene.from_toml(scene), taken)
+    # a file where the run writes its frames: named, before any work (it said "[Errno 17] File exists")
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "frames").write_text("mine")
+    for flags in ([], ["--overwrite"]):
+        assert main(["run", str(scene), "--out", str(folder), "-q", *flags]) == 2
+        err = capsys.readouterr().err
+        assert f"the output folder {str(folder)!r} holds a file named 'frames', where a run writes" in err
+        assert sorted(p.name for p in folder.iterdir()) == ["frames"]
 
 
 @pytest.mark.parametrize(
@@ -94,3 +106,31 @@ def test_the_summary_says_the_material_simulated():
     assert summary["scene"]["material"]["mu"] is None
     assert summary["material"]["mu"] == summary["material"]["gamma"] == 2e5 and summary["material"]["rho"] == 900.0
     assert summary["material"]["lam"] == pytest.approx(2e5)  # Lame (8e4, 8e4), lambda scaled as mu
+
+
+def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_path, capsys, monkeypatch):
+    # a full disk said "error: [Errno 28] No space left on device" (exit 2, "bad input") and left no summary.json:
+    # the last frame was tried again as the run closed, and that failure replaced the first
+    from skfem_modal import export
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + "steps = 30\n")
+    write = export.VtuPiece.write
+
+    def fills_up(self, path, *args):
+        if path.endswith("frame_00003.vtu"):
+            raise OSError(28, "No space left on device")
+        return write(self, path, *args)
+
+    monkeypatch.setattr(export.VtuPiece, "write", fills_up)
+    out = tmp_path / "run"
+    assert main(["run", str(scene), "--out", str(out), "-q", "--every", "5"]) == 5
+    err = capsys.readouterr().err
+    frame = str(out / "frames" / "frame_00003.vtu")
+    said = f"could not write {frame}: No space left on device; the run stopped at step 15 (t = 0.15): its tables"
+    assert f"skfem-modal run: outputs failed: {said}" in err and "Errno" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and said in summary["error"]["message"]
+    assert summary["steps_completed"] == 14 and summary["frames"]["times"] == [0.0, 0.1]
+    assert np.loadtxt(out / "com.csv", delimiter=",", skiprows=1)[-1, 0] == pytest.approx(0.14)
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"frame_0000{k}.vtu" for k in range(3)]
