@@ -946,10 +946,6 @@ class CoulombContact(_Ground):
                 op = self._operator(active, stick, sliding, direction)
                 found = op.evaluate(self.sets, x_t, self._refine, self._quiet)
             normal, ways, release, below, slips, stops, depth = op.diagnose(*found, picked.size, self.tol)
-            if mu and attempt >= _PASSES // 2:
-                # going round: from here a vertex only starts sliding, never stops again, so that
-                # the passes end; one its friction drives back stops in the step's next projection
-                stops[:] = False
             n_below = np.count_nonzero(below)
             if not (np.count_nonzero(release) or n_below) and not (
                 mu and (np.count_nonzero(slips) or np.count_nonzero(stops))
@@ -960,7 +956,7 @@ class CoulombContact(_Ground):
                 return True
             if attempt == _PASSES - 1:
                 break
-            key = active.tobytes() + sliding.tobytes()
+            key = active.tobytes() + sliding.tobytes() + direction[sliding].tobytes()
             friction_changes = bool(mu)
             if attempt < _PASSES // 2 and key not in seen:
                 seen.add(key)
@@ -978,7 +974,12 @@ class CoulombContact(_Ground):
                 active[np.flatnonzero(release)[np.argmin(normal[release])]] = False
                 sliding &= active
                 friction_changes = False
-            # (else friction alone goes round: in the second half only slips are left, stops cleared above)
+            else:
+                # friction alone goes round: a vertex slips when it sticks and slides back when it slides.
+                # Taking the slide back (once only slips were heeded, in the second half) let friction push
+                # a vertex the way it moved: a thin ring dropped with friction 2 gained 16.5 % of its fall
+                # in one step. The exact solve below has no such choice to make
+                break
             if friction_changes:
                 if ways is not None:
                     direction[slips] = ways[slips]

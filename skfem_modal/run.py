@@ -213,6 +213,7 @@ def run_scene(
     summary = _summary_start(scene, sim, precompute=time.perf_counter() - started)
     gravity = scene.config["gravity"]
     log = {"com": [], "seconds": [], "iterations": [], "residuals": [], "penetration": 0.0, "relative": 0.0}
+    log["sunk"] = 0.0  # the deepest of what each vertex's allowance is a share of (contact.boundary_lengths)
     log["last"] = None  # (step, z) of the last state recorded
     g = None if gravity is None else gravity["acceleration"]
     material = scene.material()
@@ -373,6 +374,7 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         # every boundary vertex, every step: the deepest any went below the ground
         log["penetration"] = max(log["penetration"], depth)
         log["relative"] = max(log["relative"], relative)
+        log["sunk"] = max(log["sunk"], sunk)
         log["monitor"].update(step, z, a, clearance, *((relative, sunk) if contact is not None else ()))
 
 
@@ -389,6 +391,8 @@ def _measured(sim, log: dict) -> dict:
             "allowance": sim.allowance,  # None under the reference contact
             "worst_penetration": max(log["penetration"], monitor.deepest_vertex),
             "worst_penetration_relative": max(log["relative"], monitor.deepest_vertex_relative),  # of its own part
+            # how much of its own allowance the deepest boundary vertex used (a thin part's is of its thickness)
+            "worst_penetration_of_allowance": None if sim.allowance is None else log["sunk"] / sim.allowance,
         }
     return {
         "iterations": {

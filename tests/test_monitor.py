@@ -309,6 +309,8 @@ def test_a_thin_body_sinking_deeper_than_its_thickness_allows_is_reported():
     motion = summary["motion"]
     assert not motion["physical"] and set(motion["first_problem_step"]) == {"sink"}
     assert 2 * 6e-4 < summary["ground"]["worst_penetration"] < 2 * 6e-3  # between the two limits
+    of_allowance = summary["ground"]["worst_penetration"] / 6e-4  # (its boundary: the deepest is on it)
+    assert summary["ground"]["worst_penetration_of_allowance"] == pytest.approx(of_allowance, rel=1e-9)
     (text,) = [str(w.message) for w in caught if "into the ground" in str(w.message)]
     assert "deeper than the Coulomb contact's allowance (0.0002 of its size, or of 3 times a thin part's " in text
 
