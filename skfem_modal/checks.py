@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from .acceleration import ACCELERATIONS
-from .contact import ALLOWANCE, MODELS, THIN, allowance_lengths, checked_allowance
+from .contact import ALLOWANCE, MODELS, THIN_WORDS, allowance_lengths, checked_allowance, thin
 from .fem import _positive
 from .mesh import connected_labels, part_sizes
 from .solver import BACKENDS
@@ -330,9 +330,8 @@ def _clear_of_ground(mesh, ground, up: int, allowance: float = ALLOWANCE) -> Non
         lowest, depth = float(mesh.p[up, deepest]), float(depths[deepest])
         which = "its lowest vertex" if lowest == mesh.p[up].min() else f"vertex {deepest} (of another part)"
         allowed = f"{100 * allowance:.3g} % of its size"
-        if lengths[deepest] < sizes[deepest]:
-            thickness = f"{THIN:g} times a part this thin's thickness"
-            allowed = f"{100 * allowance:.3g} % of {thickness} ({allowance * lengths[deepest]:.3g})"
+        if thin(lengths[deepest], sizes[deepest]):
+            allowed = f"{100 * allowance:.3g} % of {THIN_WORDS} ({allowance * lengths[deepest]:.3g})"
         raise ValueError(
             f"the body starts inside the ground: {which} ({'xyz'[up]} = {lowest:.6g}) is {depth:.4g} "
             f"({100 * depth / sizes[deepest]:.3g} % of its size) below the ground at {ground:.6g}, more than "

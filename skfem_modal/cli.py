@@ -243,7 +243,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_info(args) -> int:
-    from .contact import ALLOWANCE, THIN
+    from .contact import ALLOWANCE, THIN_WORDS
     from .mesh import mesh_summary
     from .scene import schema_markdown
 
@@ -289,7 +289,7 @@ def cmd_info(args) -> int:
             rule = (
                 f"friction {0.5 if g['friction'] is None else g['friction']:g}, "
                 f"allowance {100 * (ALLOWANCE if g['allowance'] is None else g['allowance']):.2g} % of the size"
-                + (f", or of {THIN:g} times the thickness of a thin part" if _thin(scene) else "")
+                + (f", or of {THIN_WORDS}" if _thin(scene) else "")
                 if g["model"] == "coulomb"
                 else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
                 f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"
@@ -328,10 +328,10 @@ def _drive(muscles: dict) -> str:
 
 def _thin(scene) -> bool:
     """Whether a part of the scene's mesh is thin enough that its allowance is a share of its thickness."""
-    from .contact import allowance_lengths
+    from .contact import allowance_lengths, thin
     from .mesh import part_sizes
 
-    return bool(np.any(allowance_lengths(scene.mesh) < part_sizes(scene.mesh)))
+    return bool(np.any(thin(allowance_lengths(scene.mesh), part_sizes(scene.mesh))))
 
 
 def _contact_points(scene) -> str:

@@ -62,7 +62,9 @@ __all__ = [
     "MOST_ALLOWANCE",
     "checked_allowance",
     "allowance_lengths",
+    "thin",
     "THIN",
+    "THIN_WORDS",
 ]
 
 #: Contact models by name (a scene's ``ground.model``).
@@ -81,6 +83,8 @@ MOST_ALLOWANCE = 1e-3
 #: the energy a sunk vertex regains by climbing out is the depth's, and a 100:1:1 beam's allowance of its size,
 #: 2 % of its thickness, let it gain 3 % of what a short drop released in single steps (30:1:1 0.6 %)
 THIN = 3.0
+#: What a thin part's allowance is a share of, in words (messages and docs)
+THIN_WORDS = f"{THIN:g} times a thin part's thickness"
 
 _CACHE_SIZE = 512
 # layouts whose corrections the reference contact keeps (a simulator's backends, rebuilt when settings change)
@@ -129,6 +133,14 @@ def allowance_lengths(mesh, labels=None) -> np.ndarray:
     """
     labels = connected_labels(mesh) if labels is None else labels
     return np.minimum(part_sizes(mesh, labels), THIN * part_thicknesses(mesh, labels))
+
+
+def thin(lengths, sizes) -> np.ndarray:
+    """Which vertices are in a thin part: their allowance's length (:func:`allowance_lengths`) below their part's size.
+
+    ``lengths``, ``sizes``: arrays of one shape (or numbers); returns booleans of that shape.
+    """
+    return np.less(lengths, sizes)
 
 
 def checked_allowance(value, name: str = "allowance") -> float:
@@ -712,8 +724,7 @@ class CoulombContact(_Ground):
         depth = float(depths[deepest])
         if depth > self.allowance[deepest]:
             share = 100 * depth / self.size[deepest]
-            thin = self.allowance[deepest] < self.relative_allowance * self.size[deepest]
-            of = f" of {THIN:g} times the thickness of a part this thin" if thin else ""
+            of = f" of {THIN_WORDS}" if thin(self.lengths[self.vertices[deepest]], self.size[deepest]) else ""
             raise ValueError(
                 f"the state starts inside the ground: a boundary vertex is {depth:.4g} ({share:.3g} % "
                 f"of the body's size) below the ground at {self.ground:.6g}, more than the contact's allowance "
@@ -975,10 +986,11 @@ class CoulombContact(_Ground):
                 sliding &= active
                 friction_changes = False
             else:
-                # friction alone goes round: a vertex slips when it sticks and slides back when it slides.
-                # Taking the slide back (once only slips were heeded, in the second half) let friction push
-                # a vertex the way it moved: a thin ring dropped with friction 2 gained 16.5 % of its fall
-                # in one step. The exact solve below has no such choice to make
+                # only friction changes, and the sets repeat or half the passes are spent (it goes round: a
+                # vertex slips when it sticks and slides back when it slides). Taking the slide back, as the
+                # second half once did, let friction push a vertex the way it moved: a thin bowl (a half
+                # ring) rocking with friction 2 gained 16.5 % of its fall in one step. The exact solve below
+                # has no such choice to make
                 break
             if friction_changes:
                 if ways is not None:

@@ -73,7 +73,7 @@ import warnings
 
 import numpy as np
 
-from .contact import THIN
+from .contact import THIN_WORDS, thin
 from .mesh import _signed_measures
 from .units import FAR
 
@@ -235,9 +235,9 @@ class MotionMonitor:
         self._contact_terms = None  # with a ground: its model, allowance, candidates and boundary vertices
         self._sink_limit = math.inf  # of what each vertex's allowance is a share of (contact.boundary_lengths)
         if contact is not None:
-            thin = bool(np.any(contact.boundary_lengths < contact.boundary_sizes))
+            thin_part = bool(np.any(thin(contact.boundary_lengths, contact.boundary_sizes)))
             self._contact_terms = (sim.contact_model, sim.allowance, contact.vertices.size, contact.boundary_sizes.size)
-            self._contact_terms += (thin,)
+            self._contact_terms += (thin_part,)
             self._sink_limit = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
     def _spread(self, z) -> float:
@@ -270,8 +270,9 @@ class MotionMonitor:
             none is), with a ground.
         sunk : float, optional
             The same, of what each vertex's allowance is a share of (the contact's
-            ``boundary_lengths``: its part's size, or a thin part's thickness times 3), with
-            a ground: to tell a body sinking into it (``depth`` if not given).
+            ``boundary_lengths``: its part's size, or :data:`~skfem_modal.contact.THIN`
+            times a thin part's thickness), with a ground: to tell a body sinking into
+            it (``depth`` if not given).
         """
         self._commanded(step, a)
         com = self._com_rows @ z
@@ -396,7 +397,7 @@ class MotionMonitor:
     def _sinking(self) -> str:
         """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""
         step = self.first_problem_step["sink"]
-        model, allowance, candidates, boundary, thin = self._contact_terms
+        model, allowance, candidates, boundary, thin_part = self._contact_terms
         went = f"from step {step} (t = {step * self.h:g}) vertices went into the ground, up to {self.deepest:.3g} "
         went += "of the body's size"
         if model == "reference":
@@ -405,8 +406,8 @@ class MotionMonitor:
                 'contact (ground.model = "coulomb") holds every vertex'
             )
         allowed = f"{allowance:.3g}"
-        if thin:  # (a thin part's allowance is less than that share of its size)
-            allowed += f" of its size, or of {THIN:g} times a thin part's thickness"
+        if thin_part:  # (a thin part's allowance is less than that share of its size)
+            allowed += f" of its size, or of {THIN_WORDS}"
         if candidates < boundary:
             return (
                 f"{went}, deeper than the Coulomb contact's allowance ({allowed}): it holds only its "

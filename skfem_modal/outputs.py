@@ -19,6 +19,7 @@ import tempfile
 
 __all__ = [
     "OutputError",
+    "named",
     "RUN_FILES",
     "PICTURES",
     "FRAMES_DIR",
@@ -56,7 +57,24 @@ class OutputError(OSError):
 
 
 def named(err: OSError, path) -> OSError:
-    """``err`` naming ``path`` if it names no file (a write that fails names none)."""
+    """``err`` naming ``path`` if it names no file (a write that fails names none).
+
+    Parameters
+    ----------
+    err : OSError
+    path : str or path-like
+        The file the failed operation was for.
+
+    Returns
+    -------
+    OSError
+        ``err`` itself if it names a file, else one of its type, errno and message naming ``path``.
+
+    Examples
+    --------
+    >>> str(named(OSError(28, "No space left on device"), "frames/frame_00003.vtu"))
+    "[Errno 28] No space left on device: 'frames/frame_00003.vtu'"
+    """
     return err if err.filename is not None else type(err)(err.errno, err.strerror, os.fspath(path))
 
 

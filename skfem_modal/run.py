@@ -17,6 +17,7 @@ Output directory::
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -30,7 +31,7 @@ from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
 from .mesh import mesh_summary
 from .monitor import MotionMonitor
-from .outputs import OutputError, clear_earlier_run
+from .outputs import FRAMES_DIR, OutputError, clear_earlier_run
 from .scene import Scene
 from .sim import SimulationError, live_settings, simulate
 from .units import material_length_scales
@@ -188,6 +189,9 @@ def run_scene(
         says ``interrupted`` and every file ends at the last step done.
     FileExistsError
         ``out_dir`` holds an earlier run and ``overwrite`` is false (before any work).
+    OutputError
+        A file could not be written as the run went (a disk full): the message names it and the
+        step; ``summary.json`` says ``failed`` with that message, if there was room for it.
 
     Warns
     -----
@@ -241,7 +245,13 @@ def run_scene(
         finally:
             with held.hold():  # the summary is written whole, whatever arrives meanwhile
                 bar.close()
-                _check_last_state(sim, log, files)
+                try:
+                    _check_last_state(sim, log, files)
+                except OutputError as err:  # the last frame: the run's failure, unless it failed already
+                    if status == "completed":
+                        done = len(log["seconds"])
+                        status, failure = "failed", err
+                        error = {"step": done, "time": done * sim.h, "message": f"OutputError: {err}"}
                 motion = log["monitor"].finish(warn=status != "failed")
                 if "non_finite" in motion["first_problem_step"]:
                     # the error names the cause the monitor sees (the non-finite state it says already)
@@ -417,31 +427,62 @@ def _measured(sim, log: dict) -> dict:
 
 
 class _RunFiles:
-    """The files a run streams to as it goes: frames, ``com.csv``, ``amplitudes.csv``; ``summary.json`` at close."""
+    """The files a run streams to as it goes: frames, ``com.csv``, ``amplitudes.csv``; ``summary.json`` at close.
+
+    A write that fails (a disk full) raises :class:`~skfem_modal.outputs.OutputError` naming the file; after it
+    nothing more is written but ``summary.json``, if there is room for it.
+    """
 
     def __init__(self, out_dir: str, sim, every: int, monitor):
         os.makedirs(out_dir, exist_ok=True)
         self.out_dir, self.sim, self.every = out_dir, sim, every
-        cell_data = {"cluster": sim.labels, "muscle_cluster": sim.active_labels}
-        self.frames = FrameWriter(out_dir, sim.mesh, name="frames", cell_data=cell_data)
-        self._files = [open(os.path.join(out_dir, name), "w", newline="") for name in ("com.csv", "amplitudes.csv")]
-        self.com, self.amplitudes = (csv.writer(f) for f in self._files)
-        m = sim.n_muscles
-        self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
-        self.amplitudes.writerow(["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)])
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
         self._framed = None  # the step of the last frame written
-        self.failed = False  # a write failed (a disk full): nothing more is written but the summary, if it can be
+        self.failed = False
+        self.frames, self._files = None, []
+        try:
+            cell_data = {"cluster": sim.labels, "muscle_cluster": sim.active_labels}
+            self.frames = FrameWriter(out_dir, sim.mesh, name="frames", cell_data=cell_data)
+            for name in ("com.csv", "amplitudes.csv"):
+                self._files.append(open(os.path.join(out_dir, name), "w", newline=""))
+            self.com, self.amplitudes = (csv.writer(f) for f in self._files)
+            m = sim.n_muscles
+            self.com.writerow(["time"] + ["xyz"[k] for k in range(sim.dim)])
+            self.amplitudes.writerow(
+                ["time"] + [f"commanded_{k}" for k in range(m)] + [f"realised_{k}" for k in range(m)]
+            )
+            for f in self._files:
+                f.flush()
+        except OSError as err:
+            self._remove_started()
+            raise OutputError(
+                f"could not write {err.filename or out_dir}: {err.strerror or err}; nothing was run"
+            ) from None
+
+    def _remove_started(self) -> None:
+        """Close and remove what a run that could not start had written (nothing half-written is left)."""
+        for handle in [self.frames, *self._files]:
+            if handle is not None:
+                with contextlib.suppress(OSError):
+                    handle.close()
+        names = [os.path.join(self.out_dir, name) for name in ("frames.pvd", "com.csv", "amplitudes.csv")]
+        for path in names + [os.path.join(self.out_dir, FRAMES_DIR)]:
+            with contextlib.suppress(OSError):
+                os.rmdir(path) if os.path.isdir(path) else os.remove(path)
+
+    def _failure(self, err: OSError, step: int, where: str) -> OutputError:
+        """The error a failed write raises: the file, why, the step, and where the frames end."""
+        self.failed = True
+        framed = f"t = {self.frames.times[-1]:g}" if self.frames.times else "none written"
+        return OutputError(
+            f"could not write {err.filename or where}: {err.strerror or err} (at step {step}, "
+            f"t = {step * self.sim.h:g}); the frames end at {framed}, and com.csv and amplitudes.csv may end "
+            "within a row"
+        )
 
     def write(self, step: int, z, a, com) -> None:
-        """One step's frame (every ``every`` steps), then its rows.
-
-        Raises
-        ------
-        OutputError
-            A file could not be written (a disk full): it names the file and the step.
-        """
+        """One step's frame (every ``every`` steps), then its rows."""
         sim = self.sim
         try:
             if step % self.every == 0:
@@ -455,13 +496,7 @@ class _RunFiles:
                 for f in self._files:  # the tables on disk reach at least the last frame
                     f.flush()
         except OSError as err:
-            self.failed = True
-            where = err.filename if err.filename is not None else "com.csv and amplitudes.csv"
-            framed = f"t = {self.frames.times[-1]:g}" if self.frames.times else "none written"
-            raise OutputError(
-                f"could not write {where}: {err.strerror or err}; the run stopped at step {step} "
-                f"(t = {step * sim.h:g}): its tables end at the step before, its frames at {framed}"
-            ) from None
+            raise self._failure(err, step, "com.csv or amplitudes.csv") from None
         self._last = (step, z, a)
 
     def _frame(self, step: int, z, a) -> None:
@@ -475,12 +510,16 @@ class _RunFiles:
     def frame_last(self) -> None:
         """The last step's frame, if ``every`` skipped it: the frames then end at the last step done."""
         if self._last is not None and self._last[0] != self._framed and not self.failed:
-            self._frame(*self._last)
+            try:
+                self._frame(*self._last)
+            except OSError as err:
+                raise self._failure(err, self._last[0], "the last frame") from None
 
     def close(self, summary: dict) -> None:
         """Close the files (the last step's frame written if it was not); write ``summary.json``.
 
-        The frames, the tables and the summary then all end at the last step done.
+        The frames, the tables and the summary then all end at the last step done. Closing a table
+        that cannot be written whole (its last rows) fails the run: the summary says so, if it can.
         """
         self.frame_last()
         frames = self.frames
@@ -489,15 +528,24 @@ class _RunFiles:
         summary.update(
             pinned=pinned, frames={"count": frames.count, "every": self.every, "pvd": "frames.pvd", "times": times}
         )
-        closing = [frames.close, *(f.close for f in self._files)]
-        closing.append(lambda: _write_json(os.path.join(self.out_dir, "summary.json"), summary))
-        for close in closing:
+        failure = None
+        for handle, name in [(frames, "frames.pvd"), *zip(self._files, ("com.csv", "amplitudes.csv"))]:
             try:
-                close()
-            except OSError:
+                handle.close()
+            except OSError as err:
                 if not self.failed:
-                    raise
-                # after a failed write each is tried still (the summary is small); the first error says why
+                    step = self._last[0] if self._last is not None else 0
+                    failure = self._failure(err, step, os.path.join(self.out_dir, name))
+                    summary.update(status="failed", error={"step": step, "time": step * self.sim.h,
+                                                           "message": f"OutputError: {failure}"})  # fmt: skip
+        try:
+            _write_json(os.path.join(self.out_dir, "summary.json"), summary)
+        except OSError as err:
+            if not self.failed:
+                raise self._failure(err, summary["steps_completed"], "summary.json") from None
+            # (after a failed write the summary is tried still, it is small; the first error says why)
+        if failure is not None:
+            raise failure
 
 
 def _version() -> str:

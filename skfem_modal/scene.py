@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground, nothing_free
-from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE, checked_allowance
+from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE, THIN_WORDS, checked_allowance
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -363,7 +363,7 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             "Height of the ground plane along the up axis (at most the contact's allowance, 2e-4 of the body's size "
-            "by default, or of 3 times a thin body's thickness, above its lowest point: a body starting deeper "
+            f"by default, or of {THIN_WORDS}, above its lowest point: a body starting deeper "
             "would be flung out).",
             "length",
         ),
@@ -401,7 +401,7 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             'How far below the ground a vertex may end a step, a share of the body\'s size (model "coulomb"; '
-            "default 2e-4, at most 0.001), or of 3 times its thickness if less (a thin body). Larger is cheaper: "
+            f"default 2e-4, at most 0.001), or of {THIN_WORDS} if less. Larger is cheaper: "
             "fewer steps run their iterations again for a vertex they missed (docs/contact.md, what the allowance "
             "costs).",
             "",

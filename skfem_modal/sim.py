@@ -64,6 +64,7 @@ from .contact import (
     ALLOWANCE,
     DEFAULT_CONTACTS,
     GROUND_DURING_A_RUN,
+    THIN_WORDS,
     CoulombContact,
     ReferenceContact,
     checked_allowance,
@@ -517,8 +518,9 @@ class ModalMuscle:
         ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
     allowance : float, optional
         ``coulomb`` only: how far below the ground a vertex may end a step, a
-        share of the body's size in (0, 0.001] (default 2e-4; a part thinner than a
-        third of its size: a share of 3 times its thickness); larger is cheaper.
+        share of the body's size in (0, 0.001] (default 2e-4), or of
+        :data:`~skfem_modal.contact.THIN` times a thin part's thickness if less
+        (:func:`~skfem_modal.contact.allowance_lengths`); larger is cheaper.
     stickiness : float, optional
         ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
         velocity of contacting points, 0 lets them slide freely.
@@ -901,7 +903,7 @@ class ModalMuscle:
         "allowance",
         "coulomb",
         checked_allowance,
-        "How far below the ground a vertex may end a step, of the body's size, or of 3 times a thin part's thickness "
+        f"How far below the ground a vertex may end a step, of the body's size, or of {THIN_WORDS} "
         "(``contact_model='coulomb'``; None otherwise).",
     )
     stickiness = _contact_setting(

@@ -500,7 +500,7 @@ def test_info_says_a_thin_bodys_allowance_is_of_its_thickness(tmp_path, capsys):
         )
         assert main(["info", str(path)]) == 0
         ground = [line for line in capsys.readouterr().out.splitlines() if line.startswith("ground:")]
-        assert ("allowance 0.02 % of the size, or of 3 times the thickness of a thin part" in ground[0]) is said
+        assert ("allowance 0.02 % of the size, or of 3 times a thin part's thickness" in ground[0]) is said
 
 
 def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickness():
@@ -509,7 +509,7 @@ def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickn
     kw = dict(n_muscles=0, n_weights=4, n_clusters=4, gravity=[0.0, -G])
     sm.ModalMuscle.from_mesh(mesh, ground=lowest + 2.9 * ALLOWANCE, **kw)  # within 2e-4 of 3 times the thickness
     with pytest.raises(ValueError, match=r"\(0.00233 % of its size\) below the ground at .*, more than 0.02 % "
-                       r"of 3 times a part this thin's thickness \(0.0006\)"):  # fmt: skip
+                       r"of 3 times a thin part's thickness \(0.0006\)"):  # fmt: skip
         sm.ModalMuscle.from_mesh(mesh, ground=lowest + 3.5 * ALLOWANCE, **kw)
 
 

@@ -127,10 +127,46 @@ def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_pat
     assert main(["run", str(scene), "--out", str(out), "-q", "--every", "5"]) == 5
     err = capsys.readouterr().err
     frame = str(out / "frames" / "frame_00003.vtu")
-    said = f"could not write {frame}: No space left on device; the run stopped at step 15 (t = 0.15): its tables"
+    said = f"could not write {frame}: No space left on device (at step 15, t = 0.15); the frames end at t = 0.1, and"
     assert f"skfem-modal run: outputs failed: {said}" in err and "Errno" not in err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and said in summary["error"]["message"]
     assert summary["steps_completed"] == 14 and summary["frames"]["times"] == [0.0, 0.1]
     assert np.loadtxt(out / "com.csv", delimiter=",", skiprows=1)[-1, 0] == pytest.approx(0.14)
     assert sorted(p.name for p in (out / "frames").iterdir()) == [f"frame_0000{k}.vtu" for k in range(3)]
+
+
+def test_a_disk_full_at_the_last_frame_or_before_the_first_fails_the_run_plainly(tmp_path, capsys, monkeypatch):
+    # the last frame (written as the run closes) raised a plain OSError: exit 2, no summary.json
+    from skfem_modal import export, run
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(SCENE + "steps = 30\n")
+    write = export.VtuPiece.write
+
+    def last_fills_up(self, path, *args):
+        if path.endswith("frame_00002.vtu"):
+            raise OSError(28, "No space left on device")
+        return write(self, path, *args)
+
+    monkeypatch.setattr(export.VtuPiece, "write", last_fills_up)
+    out = tmp_path / "last"
+    assert main(["run", str(scene), "--out", str(out), "-q", "--every", "20"]) == 5
+    assert "frame_00002.vtu: No space left on device (at step 30, t = 0.3); the frames end at t = 0.2" in (
+        capsys.readouterr().err
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["steps_completed"] == 30
+    # a table that cannot be made: nothing run, nothing left
+    opened = open
+
+    def no_room(path, *args, **kwargs):
+        if str(path).endswith("amplitudes.csv"):
+            raise OSError(28, "No space left on device", str(path))
+        return opened(path, *args, **kwargs)
+
+    monkeypatch.setattr(run, "open", no_room, raising=False)
+    out = tmp_path / "none"
+    assert main(["run", str(scene), "--out", str(out), "-q"]) == 5
+    assert "amplitudes.csv: No space left on device; nothing was run" in capsys.readouterr().err
+    assert list(out.iterdir()) == []
