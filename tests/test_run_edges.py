@@ -108,9 +108,8 @@ def test_the_summary_says_the_material_simulated():
     assert summary["material"]["lam"] == pytest.approx(2e5)  # Lame (8e4, 8e4), lambda scaled as mu
 
 
-def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_path, capsys, monkeypatch):
-    # a full disk said "error: [Errno 28] No space left on device" (exit 2, "bad input") and left no summary.json:
-    # the last frame was tried again as the run closed, and that failure replaced the first
+def _disk_full_at(frame: str, tmp_path, monkeypatch):
+    """A 30-step scene whose frame file ``frame`` cannot be written (no space left)."""
     from skfem_modal import export
 
     scene = tmp_path / "scene.toml"
@@ -118,11 +117,18 @@ def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_pat
     write = export.VtuPiece.write
 
     def fills_up(self, path, *args):
-        if path.endswith("frame_00003.vtu"):
+        if path.endswith(frame):
             raise OSError(28, "No space left on device")
         return write(self, path, *args)
 
     monkeypatch.setattr(export.VtuPiece, "write", fills_up)
+    return scene
+
+
+def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_path, capsys, monkeypatch):
+    # a full disk said "error: [Errno 28] No space left on device" (exit 2, "bad input") and left no summary.json:
+    # the last frame was tried again as the run closed, and that failure replaced the first
+    scene = _disk_full_at("frame_00003.vtu", tmp_path, monkeypatch)
     out = tmp_path / "run"
     assert main(["run", str(scene), "--out", str(out), "-q", "--every", "5"]) == 5
     err = capsys.readouterr().err
@@ -138,18 +144,9 @@ def test_a_disk_filling_up_during_a_run_is_named_and_the_summary_says_so(tmp_pat
 
 def test_a_disk_full_at_the_last_frame_or_before_the_first_fails_the_run_plainly(tmp_path, capsys, monkeypatch):
     # the last frame (written as the run closes) raised a plain OSError: exit 2, no summary.json
-    from skfem_modal import export, run
+    from skfem_modal import run
 
-    scene = tmp_path / "scene.toml"
-    scene.write_text(SCENE + "steps = 30\n")
-    write = export.VtuPiece.write
-
-    def last_fills_up(self, path, *args):
-        if path.endswith("frame_00002.vtu"):
-            raise OSError(28, "No space left on device")
-        return write(self, path, *args)
-
-    monkeypatch.setattr(export.VtuPiece, "write", last_fills_up)
+    scene = _disk_full_at("frame_00002.vtu", tmp_path, monkeypatch)
     out = tmp_path / "last"
     assert main(["run", str(scene), "--out", str(out), "-q", "--every", "20"]) == 5
     assert "frame_00002.vtu: No space left on device (at step 30, t = 0.3); the frames end at t = 0.2" in (
