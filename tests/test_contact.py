@@ -124,7 +124,7 @@ def test_one_iteration_a_step_slides_the_block_as_coulomb_says(dim):
     # with one iteration a step the projection is the step's answer, its fallback too: the active set
     # goes round once as the 3D block lands, and the least-distance fallback held every near vertex
     # with unbounded friction (48 times mu N seen): the block slid 1.9 % short after 1 s. It now keeps
-    # friction within a pyramid inside Coulomb's cone (0.45 % long: the pyramid is narrower diagonally)
+    # friction within a pyramid inside Coulomb's cone (0.49 % long: the pyramid is narrower diagonally)
     along = downhill(dim)
     moved, worst = slide(on_incline(block(dim), along, 0.2, max_iter=1))
     assert float(moved[: dim - 1] @ along) == pytest.approx(travel_expected(0.2)[0], rel=0.01)
@@ -148,6 +148,35 @@ def test_a_block_sliding_with_friction_above_tan_theta_stops_where_coulomb_says(
     assert travel[-1] == pytest.approx(stopped, rel=0.01)
     assert travel[2 * STEPS] - travel[STEPS] < 1e-4 * travel_expected(0.0)[1]  # stuck (measured: 2e-6 of it)
     assert np.abs(sideways).max() < 1e-3 * travel[-1]
+
+
+def test_a_stiff_block_sliding_diagonally_stays_on_the_ground_and_stops_straight():
+    # launched along the ground at 2 m/s, 34 degrees off its edges, friction 0.5: the rigid block slows down
+    # by friction g and stops after implicit Euler's v^2 / (2 friction g) - v h / 2 (each step moves h times
+    # its end speed), straight. The active set's friction going round ended in the least-distance solve,
+    # whose pyramid tied a sliding vertex's push up to its friction: the block hopped 13 mm (0.48 m/s up),
+    # and friction along the pyramid's edge turned it 10 % sideways; that solve's answer now gives sets of
+    # exact Coulomb friction (measured: the travel to 3e-5, 4.4e-5 m up at most, 1e-4 sideways)
+    h, speed, friction = 0.005, 2.0, 0.5
+    mesh = sm.box3d(6, 4, 3, (1.0, 0.6, 0.4))
+    with pytest.warns(sm.ScaleWarning):  # stiff for its step: the hard case
+        sim = sm.ModalMuscle.from_mesh(
+            mesh, n_muscles=0, n_weights=4, n_clusters=4, mu=1e7, rho=1e3, h=h,
+            gravity=[0.0, 0.0, -G], ground=float(mesh.p[2].min()), friction=friction,
+        )  # fmt: skip
+    along = np.array([np.cos(np.radians(34.0)), np.sin(np.radians(34.0)), 0.0])
+    z, _, _ = sim.rest_state()
+    z_dot = sim.coordinates(np.tile(speed * along, mesh.p.shape[1]))
+    start, heights, energy = sim.com(z), [], [sim.mechanical_energy(z, z_dot)]
+    for _ in range(int(0.6 / h)):
+        z, z_dot = sim.step(z, z_dot, None, velocity=True)
+        heights.append(sim.com(z)[2] - start[2])
+        energy.append(sim.mechanical_energy(z, z_dot))
+    moved = sim.com(z) - start
+    assert float(moved @ along) == pytest.approx(speed**2 / (2 * friction * G) - speed * h / 2, rel=1e-3)
+    assert np.linalg.norm(moved - (moved @ along) * along) < 1e-3 * float(moved @ along)
+    assert np.abs(heights).max() < 1e-4 * size_of(mesh)  # on the ground all the way (before: 13 mm, 1.3 %)
+    assert np.diff(energy).max() <= 1e-6 * energy[0]
 
 
 @pytest.mark.parametrize(
