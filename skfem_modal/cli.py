@@ -5,8 +5,9 @@ file, an output folder holding an earlier run, a missing extra); 3 numerical
 failure (a simulation that went non-finite, a modal analysis whose eigen solve
 stalled or lost its precision); 4 the workers were lost (a
 worker process killed, the dask scheduler gone: a search keeps its
-checkpoint and says how to resume); 5 a run's outputs could not be written
-as it went (a disk full: the message names the file and the step); 130
+checkpoint and says how to resume); 5 outputs could not be written (a
+run's as it went: the message names the file and the step; any command's
+file on a disk full or over its quota); 130
 interrupted (Ctrl-C, or SIGTERM: the same clean stop); 141 the reader of the
 output went away (e.g. ``| head``).
 """
@@ -14,6 +15,7 @@ output went away (e.g. ``| head``).
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import re
 import sys
@@ -33,6 +35,8 @@ EXIT_NUMERICAL = 3
 EXIT_WORKERS_LOST = 4
 EXIT_OUTPUTS = 5
 EXIT_PIPE_CLOSED = 141  # 128 + SIGPIPE, as for other command-line tools
+# what only writing meets: a command's output failed, whichever file it was (not its input)
+_NO_ROOM = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
 
 #: Elastic modes ``modes`` finds besides the rigid motions, unless -k says otherwise.
 ELASTIC_MODES = 6
@@ -982,6 +986,9 @@ def main(argv=None) -> int:
         return EXIT_OUTPUTS
     except (ValueError, TypeError, OSError, _RenderUnavailable) as err:
         # MeshError and SceneError are ValueErrors; OSError: missing files, an output folder in use
+        if isinstance(err, OSError) and err.errno in _NO_ROOM:  # a render's, a study's, a search's file
+            print(f"skfem-modal {args.command}: outputs failed: {_no_room(err)}", file=sys.stderr)
+            return EXIT_OUTPUTS
         print(f"skfem-modal {args.command}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except FloatingPointError as err:  # the modal analysis's: an eigen solve that stalled or lost its precision
@@ -992,6 +999,11 @@ def main(argv=None) -> int:
         said = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
         print(f"skfem-modal {args.command}: {said}", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _no_room(err: OSError) -> str:
+    """A write that found no room, in words: the file (when named) and why, without the errno."""
+    return f"could not write {err.filename}: {err.strerror}" if err.filename else str(err.strerror)
 
 
 def _warning_printer(command: str):

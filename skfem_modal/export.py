@@ -154,11 +154,13 @@ def written_whole(path):
     """
     tmp = atomic_path(path)
     try:
-        yield tmp
         try:
+            yield tmp
             os.replace(tmp, os.fspath(path))
-        except OSError as error:  # named as the caller knows it, not by the hidden name
-            raise type(error)(error.errno, error.strerror, os.fspath(path)) from None
+        except OSError as error:  # named as the caller knows it, not by the hidden name (a write names none)
+            if error.errno is not None and (error.filename is None or os.fspath(error.filename) == tmp):
+                raise type(error)(error.errno, error.strerror, os.fspath(path)) from None
+            raise
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -343,3 +343,19 @@ def test_the_centre_of_mass_plot_draws_the_ground_on_its_own_axis(tmp_path, monk
     plot.plot_com(run, tmp_path / "com.png")
     assert [("ground" in lines) for lines in panels] == [False, True, False]
     assert panels[1]["ground"] == run["summary"]["ground"]["height"]
+
+
+def test_a_disk_full_while_rendering_is_named_and_leaves_no_part_of_the_file(run_copy, capsys, monkeypatch):
+    # a full disk said "error: [Errno 28] No space left on device" (exit 2, "bad input") without the file
+    def fills_up(self, image):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(plot._GifStream, "append_data", fills_up)
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--backend", "matplotlib", "--max-frames", "2", "-q"]) == 5
+    err = capsys.readouterr().err
+    said = f"could not write {run_copy / 'animation.gif'}: No space left on device"
+    assert err == f"skfem-modal render: outputs failed: {said}\n"
+    made = set(os.listdir(run_copy)) - set(before)
+    assert made and all(name.endswith(".png") for name in made)  # the stills drawn before, whole
+    assert "animation.gif" not in made  # no part of the animation, no hidden temporary file

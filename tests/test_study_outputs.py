@@ -166,6 +166,23 @@ def test_the_study_command_refuses_replaces_and_keeps_apart(tmp_path, tiny, caps
     assert not any(n.startswith("study") for n in os.listdir(run_dir)) and not (out / "summary.json").exists()
 
 
+def test_a_disk_full_while_a_study_writes_its_tables_is_named(tmp_path, tiny, capsys, monkeypatch):
+    # a full disk said "error: [Errno 28] No space left on device" (exit 2, "bad input") without the file
+    opened = open
+
+    def no_room(path, *args, **kwargs):
+        if os.fspath(path).endswith(".csv"):  # the first table written: study.csv, by a hidden name
+            raise OSError(28, "No space left on device")
+        return opened(path, *args, **kwargs)
+
+    monkeypatch.setattr(study, "open", no_room, raising=False)
+    out = tmp_path / "study"
+    assert main(["study", "--quick", "--out", str(out), "-q"]) == 5
+    err = capsys.readouterr().err
+    assert err == f"skfem-modal study: outputs failed: could not write {out / 'study.csv'}: No space left on device\n"
+    assert not any(name.endswith(".csv") for name in os.listdir(out))  # no part of it, no temporary file
+
+
 def test_a_study_says_when_its_length_is_not_the_scenes(tmp_path, tiny, capsys):
     """An audit: a scene's [time] steps = 60 was studied over the preset's 100 steps without a word."""
     from skfem_modal.optimize import scene_to_toml
