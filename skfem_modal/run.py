@@ -434,6 +434,7 @@ class _RunFiles:
     """
 
     def __init__(self, out_dir: str, sim, every: int, monitor):
+        self._made_dir = not os.path.isdir(out_dir)  # removed again if the run cannot start
         os.makedirs(out_dir, exist_ok=True)
         self.out_dir, self.sim, self.every = out_dir, sim, every
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
@@ -467,8 +468,8 @@ class _RunFiles:
                 with contextlib.suppress(OSError):
                     handle.close()
         names = [os.path.join(self.out_dir, name) for name in ("frames.pvd", "com.csv", "amplitudes.csv")]
-        for path in names + [os.path.join(self.out_dir, FRAMES_DIR)]:
-            with contextlib.suppress(OSError):
+        for path in names + [os.path.join(self.out_dir, FRAMES_DIR)] + ([self.out_dir] if self._made_dir else []):
+            with contextlib.suppress(OSError):  # (a folder: only if empty)
                 os.rmdir(path) if os.path.isdir(path) else os.remove(path)
 
     def _failure(self, err: OSError, step: int, where: str) -> OutputError:

@@ -166,4 +166,7 @@ def test_a_disk_full_at_the_last_frame_or_before_the_first_fails_the_run_plainly
     out = tmp_path / "none"
     assert main(["run", str(scene), "--out", str(out), "-q"]) == 5
     assert "amplitudes.csv: No space left on device; nothing was run" in capsys.readouterr().err
-    assert list(out.iterdir()) == []
+    assert not out.exists()  # the folder the run made, too
+    out.mkdir()
+    assert main(["run", str(scene), "--out", str(out), "-q"]) == 5
+    assert out.is_dir() and list(out.iterdir()) == []  # a folder given, kept
