@@ -17,13 +17,16 @@ numbers, with no product of the size of the subspace but the projection.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse as sps
 from scipy.linalg import lapack
+from scipy.optimize import nnls
 
 from ._fast import dot
 
-__all__ = ["Picked", "SetOperator"]
+__all__ = ["Aims", "Picked", "SetOperator", "compliance_matrix", "coulomb_forces", "given_back", "pyramid_projection"]
 
 # a normal force this far below zero, relative to the largest, counts as zero (round-off)
 _PULL = 1e-9
@@ -288,3 +291,237 @@ class SetOperator:
     def nbytes(self) -> int:
         """Memory held by the operator's arrays."""
         return sum(a.nbytes for a in vars(self).values() if isinstance(a, np.ndarray))
+
+
+def coulomb_forces(W, free, dim, up, friction, tol, iterations=60, start=None):
+    """Exact Coulomb contact of a few vertices, by a semismooth Newton method on Alart and Curnier's function.
+
+    Forces ``lam`` on the vertices' rows leave the rows at ``y = free + W lam``,
+    relative to where they are held: each height over its target, each
+    tangent's motion over the step. A vertex's height ends at or above its
+    target, its normal force ``N >= 0``, and not both strictly; its tangential
+    force ``T`` is at most ``friction N``, and where it slides (``y_t != 0``)
+    exactly ``friction N`` straight against the slide. These are the zeros of
+    ``N - max(0, N - rho y_n)`` and ``T - P(T - rho y_t)``, ``P`` the
+    projection onto the disc of radius ``friction max(0, N - rho y_n)``,
+    ``rho`` a height row's ``1 / W_ii`` and the mean of its tangents' for those; each Newton step on them is one small
+    linear solve, backtracked until their sum of squares falls.
+
+    Parameters
+    ----------
+    W : ndarray, shape (q dim, q dim)
+        How far a unit force on each row moves each row (symmetric positive definite).
+    free : ndarray, shape (q dim,)
+        Each row's place with no force, relative to where it is held.
+    dim, up : int
+        Rows are vertex-major: vertex ``k``'s coordinate ``a`` is row ``k dim + a``; ``up`` the height's.
+    friction : float
+    tol : float
+        How far from the conditions a row may end, in its length units.
+    iterations : int
+        Newton steps at most.
+    start : ndarray, shape (q dim,), optional
+        Forces to start from (zero by default).
+
+    Returns
+    -------
+    lam : ndarray, shape (q dim,), or None
+        The forces, or None where the method did not converge.
+
+    Examples
+    --------
+    One vertex in 2D, pressed 1 into the ground and moving 1 along it, each
+    row moved 1 by a unit force: the ground pushes it back out (1), and
+    friction 0.5 takes half its slide (-0.5).
+
+    >>> import numpy as np
+    >>> coulomb_forces(np.eye(2), np.array([1.0, -1.0]), 2, 1, 0.5, 1e-12)
+    array([-0.5,  1. ])
+    """
+    # each vertex's rows with its height first: the method works in that order and puts the forces back
+    q = free.size // dim
+    order = (np.arange(q)[:, None] * dim + np.array([up] + [a for a in range(dim) if a != up])).ravel()
+    evaluate = _AlartCurnier(W[np.ix_(order, order)], free[order], dim, friction)
+    lam = np.zeros(free.size) if start is None else np.asarray(start, dtype=float)[order]
+    value, jacobian = evaluate(lam)
+    scale = evaluate.rho.ravel()
+    for _ in range(iterations):
+        if np.abs(value / scale).max(initial=0.0) <= tol:
+            found = np.empty_like(lam)
+            found[order] = lam
+            return found
+        try:
+            step = np.linalg.solve(jacobian, -value)
+        except np.linalg.LinAlgError:
+            return None
+        merit, length = value @ value, 1.0
+        while length > 1e-9:
+            trial = lam + length * step
+            trial_value, trial_jacobian = evaluate(trial)
+            if trial_value @ trial_value <= (1.0 - 1e-4 * length) * merit:
+                break
+            length /= 2.0
+        else:
+            return None
+        lam, value, jacobian = trial, trial_value, trial_jacobian
+    return None
+
+
+class _AlartCurnier:
+    """Alart and Curnier's function of the forces (:func:`coulomb_forces`) and a generalised Jacobian.
+
+    The rows come vertex by vertex, each vertex's height first; what does not change with the
+    forces is made once: each vertex's rows of ``W`` and of the identity, (q, dim, q dim), and the ``rho``.
+    """
+
+    def __init__(self, W, free, dim, friction):
+        q, size = free.size // dim, free.size
+        self.W = W.reshape(q, dim, size)
+        self.E = np.eye(size).reshape(q, dim, size)
+        self.free, self.friction = free.reshape(q, dim), friction
+        diagonal = W.diagonal().reshape(q, dim)
+        # one rho for a vertex's tangents (with one per row, T - rho y_t would not point along the slide)
+        self.rho = np.empty((q, dim))
+        self.rho[:, 0] = 1.0 / diagonal[:, 0]
+        self.rho[:, 1:] = 1.0 / diagonal[:, 1:].mean(axis=1, keepdims=True)
+        self.pushed = self.rho[:, :, None] * self.W  # the rows of rho W
+        self.across = np.eye(dim - 1)
+
+    def __call__(self, lam):
+        q, dim = self.rho.shape
+        forces = lam.reshape(q, dim)
+        y = self.free + self.W @ lam  # (q, dim): where the rows end
+        sigma = forces - self.rho * y  # the normal's, then the tangents'
+        touching = sigma[:, 0] > 0.0
+        radius = self.friction * np.maximum(sigma[:, 0], 0.0)
+        slid = sigma[:, 1:]
+        length = np.sqrt(np.einsum("ij,ij->i", slid, slid))
+        stick = touching & (length <= radius) & (radius > 0.0)  # (frictionless: T = 0 always)
+        value = forces.copy()  # as for a vertex let go: N = 0, T = 0
+        value[:, 0] = np.where(touching, self.rho[:, 0] * y[:, 0], forces[:, 0])
+        jacobian = np.where(touching[:, None, None], self.pushed, self.E)
+        # sliding (or let go: radius 0): T - radius way; stuck: rho y_t
+        way = slid / np.maximum(length, 1e-300)[:, None]
+        value[:, 1:] = np.where(stick[:, None], self.rho[:, 1:] * y[:, 1:], forces[:, 1:] - radius[:, None] * way)
+        # d radius = friction (e_n - rho_n W_n) while touching; d slid = e_t - rho_t W_t
+        d_radius = (self.friction * touching)[:, None] * (self.E[:, 0] - self.pushed[:, 0])  # (q, size)
+        d_slid = self.E[:, 1:] - self.pushed[:, 1:]  # (q, dim - 1, size)
+        across = self.across - way[:, :, None] * way[:, None, :]
+        across *= (radius / np.maximum(length, 1e-300))[:, None, None]
+        sliding = self.E[:, 1:] - way[:, :, None] * d_radius[:, None, :] - across @ d_slid
+        jacobian[:, 1:] = np.where(stick[:, None, None], self.pushed[:, 1:], sliding)
+        return value.ravel(), jacobian.reshape(q * dim, -1)
+
+
+class Aims(NamedTuple):
+    """Where a whole-problem solve aims the picked rows (``target`` (p dim,)), and how it takes back the give.
+
+    ``refine``: solves that may aim further by the way the compliance let the ground give, while it
+    gives more than ``enough`` (see :meth:`SetOperator.refined`).
+    """
+
+    target: np.ndarray
+    refine: int
+    enough: float
+
+
+def compliance_matrix(picked, rows, compliance) -> np.ndarray:
+    """How far a unit force on each of ``rows`` moves each, with the compliance on the diagonal, symmetric (k, k)."""
+    K = picked.reach[np.ix_(rows, rows)]
+    return (K + K.T) / 2 + compliance * np.eye(rows.size)
+
+
+def given_back(solve, rows, heights, aims: Aims):
+    """``solve(goal)`` -> (forces on ``rows``, picked coordinates after), or None; aimed further by the give.
+
+    ``heights``: the positions of the height rows among ``rows``. The compliance lets a pushed
+    height end below its target by its give; each further solve aims that much higher.
+    """
+    goal = aims.target[rows].copy()
+    for _ in range(aims.refine + 1):
+        found = solve(goal)
+        if found is None:
+            return None
+        forces, x = found
+        give = np.where(forces[heights] > 0.0, aims.target[rows[heights]] - x[rows[heights]], 0.0)
+        if np.abs(give).max(initial=0.0) <= aims.enough:
+            break
+        goal[heights] += give
+    return found
+
+
+def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, compliance, aims: Aims) -> np.ndarray:
+    """The projection over the near vertices as a least-distance problem, solved by NNLS (Lawson and Hanson).
+
+    Each force is a non-negative combination of *generators*: a height's push, or for a
+    vertex that may stick (``stick``) the pushes ``n +- friction t_a`` along each tangent
+    ``t_a``, the edges of a pyramid inside Coulomb's cone (so its friction stays within
+    ``friction`` times its normal force along each tangent, and it slides where that is not
+    enough; but its push up is tied to its friction, so what slides is lifted). The dual,
+    ``min 1/2 b^T A K A^T b - (A d)^T b`` over ``b >= 0`` (``A`` the generators over the rows,
+    ``K`` the rows' compliance matrix, positive definite by its compliance, ``d`` the gaps),
+    is ``|L^T A^T b|^2 / 2 - (A d)^T b`` with ``L L^T = K``.
+
+    Parameters
+    ----------
+    picked : Picked
+    near, stick : ndarray of bool, shape (p,)
+    x_t : ndarray, shape (p dim,)
+        The picked coordinates of the global solution ``z_t`` (r,).
+    z : ndarray, shape (r,)
+        Set to the projection.
+    friction, compliance : float
+    aims : Aims
+
+    Returns
+    -------
+    ndarray, shape (p,)
+        The normal forces.
+    """
+    dim, up, tangents = picked.dim, picked.up, picked.tangents
+    p = near.size
+    normal_only, sticking = np.flatnonzero(near & ~stick), np.flatnonzero(near & stick)
+    # the rows involved (heights of the near vertices, tangents of those that may stick) ...
+    rows = np.concatenate([np.flatnonzero(near) * dim + up, (sticking[:, None] * dim + tangents).ravel()])
+    column = np.full(p * dim, -1)
+    column[rows] = np.arange(rows.size)
+    # ... and the generators over them: a push, or a pyramid's edges n +- friction t_a
+    edges = (sticking[:, None, None] * dim + tangents[None, :, None]).repeat(2, axis=2)  # (s, t, 2)
+    generators = np.zeros((normal_only.size + edges.size, rows.size))
+    generators[np.arange(normal_only.size), column[normal_only * dim + up]] = 1.0
+    at = normal_only.size + np.arange(edges.size)
+    generators[at, column[np.repeat(sticking * dim + up, 2 * (dim - 1))]] = 1.0
+    generators[at, column[edges.ravel()]] = friction * np.tile([1.0, -1.0], edges.size // 2)
+    # NNLS decides by comparing its rows: K is brought near 1 by an even power of two before the
+    # factoring (exact, the square root too), so that the forces are the same in any units
+    K = compliance_matrix(picked, rows, compliance)
+    half = np.frexp(K.diagonal().max())[1] // 2
+    factor = generators @ np.linalg.cholesky(np.ldexp(K, -2 * half))  # times 2^-half
+    pushes = generators @ picked.pushes[rows]  # (g, r): each generator's push on z
+
+    def solve(goal):
+        b = _least_distance(factor, half, generators @ (goal - x_t[rows]))
+        np.add(z_t, pushes.T @ b, out=z)
+        return generators.T @ b, picked.positions(z)
+
+    forces, _ = given_back(solve, rows, np.arange(np.count_nonzero(near)), aims)  # (the height rows first)
+    on_rows = np.zeros(p * dim)
+    on_rows[rows] = forces
+    return on_rows[up::dim].copy()
+
+
+def _least_distance(factor, half, gap) -> np.ndarray:
+    """The generators' non-negative forces (g,) of one least-distance solve for their gaps ``gap`` (g,).
+
+    ``factor`` (g, k) times its transpose is the generators' compliance matrix times ``2^-half``.
+    """
+    # the gaps brought to [0.5, 1) by a power of two b (exact): the forces of (2^-half factor,
+    # b gap) are b 4^half times those of (factor, gap)
+    b = np.ldexp(1.0, -np.frexp(np.abs(gap).max(initial=1.0))[1])
+    gap = b * gap
+    E = np.vstack([factor.T, gap])
+    f = np.zeros(E.shape[0])
+    f[-1] = 1.0
+    u, _ = nnls(E, f, maxiter=50 * E.shape[1])
+    scale = 1.0 - float(gap @ u)
+    return np.ldexp(u / (b * scale), -2 * half) if scale > 0.0 else np.zeros_like(u)
