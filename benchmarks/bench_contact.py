@@ -44,7 +44,9 @@ little slower). Per step: the projections (one per global solution), the
 active-set passes (small solves), the operators made for them (the rest
 found in the step's cache), the time of one projection, the step's
 iterations run again (a vertex missed deep below, or a backend refusing the
-step), the step and the contact's share of it. A fourth its memory: the
+step), the step and the contact's share of it, and of that the exact Coulomb solve at
+the end of a step (``exact ms``: the last projection made again with exact
+friction where a slide's friction was not straight against its motion). A fourth its memory: the
 pushes ``H^-1 B_row^T`` it keeps (``_pushes``: boundary vertices x dim x
 subspace doubles, allocated when the system is bound, a row filled when
 first needed: "rows made" is what is filled) and the most its cache of
@@ -95,6 +97,7 @@ TIME_COLUMNS = [
     ("redone", 3),
     ("step ms", 3),
     ("contact ms", 3),
+    ("exact ms", 3),
 ]
 
 
@@ -272,6 +275,7 @@ def where_the_time_goes(name, scene, sim, steps):
     # a pass of the active set is one check of a set's solve, saying who breaks it
     passes = _Timer(SetOperator, ["diagnose"])
     top = _Timer(contact, ["start_step", "project", "missed", "finish_step"])
+    exact = _Timer(contact, ["_polish"])  # (within finish_step)
     made = [0]
     operator = contact._operator
 
@@ -301,6 +305,7 @@ def where_the_time_goes(name, scene, sim, steps):
         (top.calls["start_step"] - steps) / steps,  # start_step: once per attempt at a step
         1e3 * total / steps,
         1e3 * in_contact / steps,
+        1e3 * exact.seconds["_polish"] / steps,
     ]
     print(f"{name:16s} " + " ".join(f"{v:>{len(c)}.{d}f}" for v, (c, d) in zip(per_step, TIME_COLUMNS)), end="")
     print(f" {100 * in_contact / total:6.1f}%")
