@@ -1038,10 +1038,10 @@ class CoulombContact(_Ground):
 
         The active set fixes a sliding vertex's friction as the vertex starts to slide and keeps
         it while the vertex does not move back along it; with many vertices pushing each other
-        through the body, it need not point against the motion (the seal's crawl: 8.5 degrees
-        off by the median, 43 in a tenth of its slides), and a creature crawled half as far
-        sideways as with Coulomb's friction. Started from the sets' forces, the exact solve
-        takes two or three Newton steps. Returns whether it changed ``z``.
+        through the body, it need not point against the motion (the creature's crawl: 4.4
+        degrees off at the end of a step by the median, 88 at most), and the 3D crawls went 15 %
+        less far than with Coulomb's friction. Started from the sets' forces, the exact solve
+        takes two to four Newton steps. Returns whether it changed ``z``.
         """
         # (the driver's iterations run in batches: the step's result may be an iterate before the last)
         sources, self._sources = self._sources, []
