@@ -385,6 +385,7 @@ class _AlartCurnier:
         self.rho[:, 0] = 1.0 / diagonal[:, 0]
         self.rho[:, 1:] = 1.0 / diagonal[:, 1:].mean(axis=1, keepdims=True)
         self.pushed = self.rho[:, :, None] * self.W  # the rows of rho W
+        self.given = self.E - self.pushed  # the rows of d sigma = d lam - rho d y (the same for every force)
         self.across = np.eye(dim - 1)
 
     def __call__(self, lam):
@@ -404,8 +405,8 @@ class _AlartCurnier:
         way = slid / np.maximum(length, 1e-300)[:, None]
         value[:, 1:] = np.where(stick[:, None], self.rho[:, 1:] * y[:, 1:], forces[:, 1:] - radius[:, None] * way)
         # d radius = friction (e_n - rho_n W_n) while touching; d slid = e_t - rho_t W_t
-        d_radius = (self.friction * touching)[:, None] * (self.E[:, 0] - self.pushed[:, 0])  # (q, size)
-        d_slid = self.E[:, 1:] - self.pushed[:, 1:]  # (q, dim - 1, size)
+        d_radius = (self.friction * touching)[:, None] * self.given[:, 0]  # (q, size)
+        d_slid = self.given[:, 1:]  # (q, dim - 1, size)
         across = self.across - way[:, :, None] * way[:, None, :]
         across *= (radius / np.maximum(length, 1e-300))[:, None, None]
         sliding = self.E[:, 1:] - way[:, :, None] * d_radius[:, None, :] - across @ d_slid
