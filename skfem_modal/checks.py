@@ -16,7 +16,7 @@ from .fem import _positive
 from .mesh import connected_labels, part_sizes
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
-from .values import is_whole
+from .values import checked_flag, is_whole
 
 
 def _array(value, shape, name):
@@ -115,7 +115,7 @@ def _backend_name(value):
     return value
 
 
-def _contact_settings(model, friction, stickiness, push_out, allowance=None) -> dict:
+def _contact_settings(model, friction, stickiness, push_out, allowance=None, exact_friction=None) -> dict:
     """A contact model's settings, checked: each model takes only its own."""
     if model not in MODELS:
         raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
@@ -128,8 +128,10 @@ def _contact_settings(model, friction, stickiness, push_out, allowance=None) -> 
             )
         friction = 0.5 if friction is None else _positive_scalar(friction, "friction", allow_zero=True)
         allowance = ALLOWANCE if allowance is None else checked_allowance(allowance)
-        return {"model": model, "friction": friction, "allowance": allowance}
-    foreign = [name for name, value in (("friction", friction), ("allowance", allowance)) if value is not None]
+        exact = True if exact_friction is None else checked_flag(exact_friction, "exact_friction")
+        return {"model": model, "friction": friction, "allowance": allowance, "exact_friction": exact}
+    own = (("friction", friction), ("allowance", allowance), ("exact_friction", exact_friction))
+    foreign = [name for name, value in own if value is not None]
     if foreign:
         raise ValueError(
             f"{' and '.join(foreign)}: {'a setting' if len(foreign) == 1 else 'settings'} of contact_model='coulomb', "

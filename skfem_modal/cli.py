@@ -294,6 +294,7 @@ def cmd_info(args) -> int:
                 f"friction {0.5 if g['friction'] is None else g['friction']:g}, "
                 f"allowance {100 * (ALLOWANCE if g['allowance'] is None else g['allowance']):.2g} % of the size"
                 + (f", or of {THIN_WORDS}" if _thin(scene) else "")
+                + (", the active set's friction (exact_friction = false)" if g["exact_friction"] is False else "")
                 if g["model"] == "coulomb"
                 else f"stickiness {1.0 if g['stickiness'] is None else g['stickiness']:g}, "
                 f"push_out {0.0 if g['push_out'] is None else g['push_out']:g}"

@@ -398,7 +398,9 @@ def _measured(sim, log: dict) -> dict:
         ground = {
             "height": sim.ground,
             "model": sim.contact_model,
-            "allowance": sim.allowance,  # None under the reference contact
+            "allowance": sim.allowance,  # None under the reference contact, as friction and exact_friction
+            "friction": sim.friction,
+            "exact_friction": sim.exact_friction,
             "worst_penetration": max(log["penetration"], monitor.deepest_vertex),
             "worst_penetration_relative": max(log["relative"], monitor.deepest_vertex_relative),  # of its own part
             # how much of its own allowance the deepest boundary vertex used (a thin part's is of its thickness)

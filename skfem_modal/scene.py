@@ -407,6 +407,14 @@ SCHEMA: dict[str, Any] = {
             "",
             _allowance,
         ),
+        "exact_friction": Key(
+            "bool",
+            None,
+            'Model "coulomb" only (default true): each step\'s sliding vertices end with exact Coulomb friction, '
+            "straight against their slides. false keeps the friction the active set fixed as each vertex started "
+            "to slide (degrees off the slide, at most 90), for a cheaper step with friction (docs/contact.md, what "
+            "it costs).",
+        ),
         "contacts": Key(
             "int|all",
             None,
@@ -984,6 +992,7 @@ class Scene:
             contact_model="coulomb" if ground is None else ground["model"],
             friction=None if ground is None else ground["friction"],
             allowance=None if ground is None else ground["allowance"],
+            exact_friction=None if ground is None else ground["exact_friction"],
             stickiness=None if ground is None else ground["stickiness"],
             push_out=None if ground is None else ground["push_out"],
             pinned=self.pinned_vertices(),
@@ -1293,7 +1302,8 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         errors.append("ground: give height or offset, not both")
     if ground is not None and valid("ground.model"):
         # each contact model takes only its own settings: none is silently ignored
-        others = {"coulomb": ("stickiness", "push_out"), "reference": ("friction", "allowance")}[ground["model"]]
+        coulomb_only = ("friction", "allowance", "exact_friction")
+        others = {"coulomb": ("stickiness", "push_out"), "reference": coulomb_only}[ground["model"]]
         for key in others:
             if ground[key] is not None:
                 errors.append(

@@ -21,8 +21,8 @@ projecting each global solution. The pieces:
 
 :class:`ModalMuscle` holds them and its settings: assigning ``h``,
 ``max_iter``, ``tol``, ``rtol``, ``etol``, ``warm_start``, ``acceleration``, ``backend``, ``gravity``, ``ground``,
-``up``, ``contact_model``, ``friction``, ``allowance``, ``stickiness``, ``push_out``, ``pin_stiffness``,
-``damping_mass``, ``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
+``up``, ``contact_model``, ``friction``, ``allowance``, ``exact_friction``, ``stickiness``, ``push_out``,
+``pin_stiffness``, ``damping_mass``, ``damping_stiffness`` or ``max_s`` takes effect at the next step, rebuilding
 only what depends on it; ``mesh``, ``B``, ``D``, ``labels``,
 ``active_labels``, ``mu``, ``gamma``, ``rho``, ``pinned`` and
 ``contact_vertices`` shape the precomputed operators and are read-only.
@@ -279,6 +279,7 @@ def _from_mesh(
     contact_model="coulomb",
     friction=None,
     allowance=None,
+    exact_friction=None,
     stickiness=None,
     push_out=None,
     pinned=None,
@@ -344,9 +345,9 @@ def _from_mesh(
     _acceleration_name(acceleration)
     checked_flag(warm_start, "warm_start")
     checked_flag(parallel, "parallel")
-    settings = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
-    contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, stickiness=stickiness,
-                   push_out=push_out)  # fmt: skip
+    settings = _contact_settings(contact_model, friction, stickiness, push_out, allowance, exact_friction)
+    contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, exact_friction=exact_friction,
+                   stickiness=stickiness, push_out=push_out)  # fmt: skip
     _ground(ground, 0, n_contacts=n_contacts, contact_candidates=contact_candidates, **contact)
     say = _stage_reporter(progress)
     damping = _nonnegative(damping_mass, "damping_mass"), _nonnegative(damping_stiffness, "damping_stiffness")
@@ -521,6 +522,12 @@ class ModalMuscle:
         share of the body's size in (0, 0.001] (default 2e-4), or of
         :data:`~skfem_modal.contact.THIN` times a thin part's thickness if less
         (:func:`~skfem_modal.contact.allowance_lengths`); larger is cheaper.
+    exact_friction : bool, optional
+        ``coulomb`` only (default True): each step's last projection is made
+        again with exact Coulomb friction where a slide's friction is not
+        straight against its motion. False keeps the active set's friction,
+        fixed as each vertex starts to slide (degrees off the slide), for a
+        cheaper step with friction (docs/contact.md, what it costs).
     stickiness : float, optional
         ``reference`` only, in [0, 1]: 1 (the default) removes the tangential
         velocity of contacting points, 0 lets them slide freely.
@@ -637,6 +644,7 @@ class ModalMuscle:
         contact_model="coulomb",
         friction=None,
         allowance=None,
+        exact_friction=None,
         stickiness=None,
         push_out=None,
         pinned=None,
@@ -666,11 +674,11 @@ class ModalMuscle:
         self._solver = _driver(max_iter, tol, rtol, etol, warm_start, acceleration, full_space=B is None)
         self._backend = _backend_name(backend)
         gravity, self._up = _gravity_and_up(gravity, up, dim, ground is not None)
-        self._contact = _contact_settings(contact_model, friction, stickiness, push_out, allowance)
+        self._contact = _contact_settings(contact_model, friction, stickiness, push_out, allowance, exact_friction)
         max_s = _positive_scalar(max_s, "max_s")
         pinned, pin_stiffness = _pins(pinned, pin_stiffness, n)
-        contact = dict(contact_model=contact_model, friction=friction, allowance=allowance, stickiness=stickiness,
-                       push_out=push_out)  # fmt: skip
+        contact = dict(contact_model=contact_model, friction=friction, allowance=allowance,
+                       exact_friction=exact_friction, stickiness=stickiness, push_out=push_out)  # fmt: skip
         ground, contact_vertices = _ground(ground, n, contact_vertices, **contact)
         _pulled_to_ground(gravity, ground, self._up)
         _clear_of_ground(mesh, ground, self._up, _allowance(self._contact))
@@ -904,6 +912,13 @@ class ModalMuscle:
         "coulomb",
         checked_allowance,
         f"How far below the ground a vertex may end a step, of the body's size, or of {THIN_WORDS} "
+        "(``contact_model='coulomb'``; None otherwise).",
+    )
+    exact_friction = _contact_setting(
+        "exact_friction",
+        "coulomb",
+        checked_flag,
+        "Whether a step's sliding vertices end with exact Coulomb friction, straight against their slides "
         "(``contact_model='coulomb'``; None otherwise).",
     )
     stickiness = _contact_setting(

@@ -23,17 +23,19 @@ def test_bench_contact_runs_and_its_rows_hold_the_ground():
     out = bench(
         "bench_contact.py", "--only", "caterpillar", "creature", "--steps", "20", "--settle", "10", "--repeat", "1"
     )
-    tables = [[line.split() for line in part.splitlines()[2:]] for part in out.split("\n\n")]
+    # (the set-up "coulomb 0.5 sets", exact_friction = false, read as one "coulomb" row of friction "0.5sets")
+    tables = [[line.replace(" sets", "sets").split() for line in part.splitlines()[2:]] for part in out.split("\n\n")]
     table = tables[0]  # scene, motion, contact, ...
     by_contact = {name: [r for r in table if r[2] == name] for name in ("floating", "coulomb", "reference")}
-    # scenes x motions; coulomb with friction 0.5 and 0
-    assert [len(by_contact[name]) for name in ("floating", "coulomb", "reference")] == [4, 8, 4]
+    # scenes x motions; coulomb with friction 0.5 (exact and not) and 0
+    assert [len(by_contact[name]) for name in ("floating", "coulomb", "reference")] == [4, 12, 4]
+    assert sorted({r[3] for r in by_contact["coulomb"]}) == ["0.0", "0.5", "0.5sets"]
     assert all(r[5] == "1.0x" for r in by_contact["floating"])
     for r in by_contact["coulomb"]:
         assert float(r[-1]) <= 100 * ALLOWANCE  # depth %: every vertex, the whole run
     # the Coulomb set-ups' steps without an active-set pass and the others: shares of all the timed steps
     without = tables[1]
-    assert "steps without an active-set pass" in out.split("\n\n")[1] and len(without) == 8
+    assert "steps without an active-set pass" in out.split("\n\n")[1] and len(without) == 12
     for r in without:
         assert float(r[4].rstrip("%")) + float(r[7].rstrip("%")) == pytest.approx(100.0, abs=0.11)
     # crawling with friction, the passes are counted (the creature's gait changes its sets in most steps)

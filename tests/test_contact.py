@@ -666,17 +666,19 @@ def test_the_example_scenes_crawl_with_every_vertex_above_the_ground(example):
     assert np.abs(travel[: len(travel) - 1]).max() > 0.02  # it moves along the ground
 
 
-def test_a_3d_crawls_sliding_vertices_end_each_step_with_friction_straight_against_their_slide():
+@pytest.mark.parametrize("exact", [True, False])
+def test_a_3d_crawls_sliding_vertices_end_each_step_with_friction_straight_against_their_slide(exact):
     # the active set fixes a sliding vertex's friction as it starts to slide and keeps it while the vertex does
     # not move back along it: with many vertices pushing each other through the body, it ended these steps 4.4
     # degrees off the slide by the median, 22 in a tenth of them, 88 at most. The step's last projection is now
-    # made again with exact Coulomb friction
+    # made again with exact Coulomb friction, unless exact_friction = false chooses the cheaper step
     import pathlib
 
     scene = Scene.from_toml(pathlib.Path(__file__).resolve().parents[1] / "examples" / "creature_crawl.toml")
+    scene.config["ground"]["exact_friction"] = exact
     sim = scene.build()
     contact, size = sim.model.contact, size_of(sim.mesh)
-    assert contact.friction == 0.5
+    assert contact.friction == 0.5 and contact.exact_friction is exact
     tangents = [a for a in range(3) if a != contact.up]
     z, z_dot, _ = sim.rest_state()
     angles = []
@@ -689,7 +691,10 @@ def test_a_3d_crawls_sliding_vertices_end_each_step_with_friction_straight_again
         against = -np.einsum("ij,ij->i", moved[sliding], contact.direction[sliding][:, tangents]) / length[sliding]
         angles.extend(np.degrees(np.arccos(np.clip(against, -1.0, 1.0))))
     assert len(angles) > 100  # it slides
-    assert max(angles) < 0.01  # measured: 2.5e-4 degrees at most
+    if exact:
+        assert max(angles) < 0.01  # measured: 2.5e-4 degrees at most
+    else:
+        assert np.median(angles) > 1.0 and max(angles) > 45.0  # what the cheaper step gives up
 
 
 def test_a_crawl_with_a_larger_allowance_keeps_every_vertex_within_it():

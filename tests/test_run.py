@@ -52,6 +52,7 @@ def test_default_run_writes_every_file(default_run, reference):
     assert summary["iterations"]["max"] <= 10 and sum(summary["iterations"]["histogram"].values()) == 450
     # the tutorial's reference contact lets feet sink: the report covers every vertex, every step
     assert summary["ground"]["model"] == "reference" and summary["ground"]["allowance"] is None
+    assert summary["ground"]["friction"] is None and summary["ground"]["exact_friction"] is None
     assert 0.01 < summary["ground"]["worst_penetration_relative"] < 0.05
     assert summary["scene"]["name"] == DEFAULT_SCENE["name"]
 

@@ -52,6 +52,11 @@ def test_default_scene_is_the_tutorial_crawl():
             dict(ground__model="reference", ground__allowance=1e-3),
             r"ground.allowance: a setting of the other contact model, not of model = 'reference'",
         ),
+        (
+            dict(ground__model="reference", ground__exact_friction=False),
+            r"ground.exact_friction: a setting of the other contact model, not of model = 'reference'",
+        ),
+        (dict(ground__exact_friction="no"), r"ground.exact_friction: expected true or false"),
         (dict(subspace__weights=2.5), r"subspace.weights: expected an integer, got 2.5"),
         (
             dict(mesh__shape=None, mesh__params=None, mesh__file="nowhere.msh"),

@@ -126,6 +126,22 @@ def test_live_settings_on_every_3d_backend(solid, backend):
     np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
 
 
+def test_exact_friction_can_be_switched_off_after_construction(solid):
+    # (in 3D: in 2D a slide that does not turn back already moves against its friction, nothing to make exact)
+    sim = build(solid, friction=0.3)
+    before = trajectory(sim, steps=40)
+    sim.exact_friction = False
+    assert sim.exact_friction is False and sim.model.contact.exact_friction is False
+    fresh = build(solid, friction=0.3, exact_friction=False)
+    after, expected = trajectory(sim, steps=40), trajectory(fresh, steps=40)
+    np.testing.assert_allclose(after, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert np.abs(after - before).max() > 1e-6 * np.abs(before).max()  # the slides' friction differs
+    with pytest.raises(TypeError, match=r"exact_friction must be True or False, got 0"):
+        sim.exact_friction = 0
+    with pytest.raises(AttributeError, match=r"exact_friction is a setting of contact_model='coulomb'"):
+        build(solid, contact_model="reference").exact_friction = True
+
+
 @pytest.mark.parametrize("model, other", [("coulomb", "reference"), ("reference", "coulomb")])
 def test_switching_the_contact_model_takes_its_default_vertices(model, other):
     # from_mesh picks each model's default contact vertices (coulomb: every boundary vertex, reference: 30
