@@ -1037,10 +1037,12 @@ class CoulombContact(_Ground):
 
     def _accept(self, op, z, lam) -> None:
         """Project ``z`` (r,) by sets that hold, in place, remembering them, where they started and what they gave."""
-        z_t = z.copy() if self.friction and self.exact_friction else None
+        # what _polish may make again: not without friction (nothing slides) nor in 2D (a slide that does not
+        # turn back by more than tol moves against its friction: the sets' own test, SetOperator.holds)
+        z_t = z.copy() if self.friction and self.exact_friction and self.dim == 3 else None
         op.apply(z, lam)
         self._last = op
-        if z_t is not None:  # what _polish may make again (frictionless, nothing slides)
+        if z_t is not None:
             self._sources.append((op, z_t, lam, z.copy(), self._refine))
 
     def _polish(self, z) -> bool:
@@ -1064,7 +1066,7 @@ class CoulombContact(_Ground):
         moved /= np.maximum(np.linalg.norm(moved, axis=1), 1e-300)[:, None]
         way = self.direction[np.ix_(self.picked[op.slid], self.tangents)]
         if np.einsum("ij,ij->i", moved, way).max() <= _STRAIGHT - 1.0:  # every slide's friction against it already
-            return False  # (in 2D always: a slide that does not turn back moves against its friction)
+            return False
         forces = np.zeros((self.picked.size, dim))
         forces[op.pushed, up] = lam[:n]
         forces[np.ix_(op.sticking, self.tangents)] = lam[n:].reshape(-1, dim - 1)

@@ -126,8 +126,14 @@ def test_live_settings_on_every_3d_backend(solid, backend):
     np.testing.assert_allclose(trajectory(sim), trajectory(fresh), rtol=0, atol=1e-12)
 
 
+def test_exact_friction_changes_nothing_in_2d(flat):
+    # a 2D slide that does not turn back already moves against its friction: nothing to make exact
+    exact, not_exact = build(flat, friction=0.3), build(flat, friction=0.3, exact_friction=False)
+    np.testing.assert_array_equal(trajectory(exact, steps=40), trajectory(not_exact, steps=40))
+    assert not_exact.model.contact.exact_friction is False
+
+
 def test_exact_friction_can_be_switched_off_after_construction(solid):
-    # (in 3D: in 2D a slide that does not turn back already moves against its friction, nothing to make exact)
     sim = build(solid, friction=0.3)
     before = trajectory(sim, steps=40)
     sim.exact_friction = False
