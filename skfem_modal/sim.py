@@ -471,7 +471,127 @@ def _warn_if_idle(solver, contact, *settings) -> None:
         )
 
 
-class ModalMuscle:
+class _GroundSettings:
+    """A simulator's ground and its contact: the settings of them, live (see :class:`ModalMuscle`).
+
+    They replace the contact effect (a fresh one of the new settings, which goes on with a run) and
+    check first what they would make of the body's place against the ground.
+    """
+
+    @property
+    def contact_model(self) -> str:
+        """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's).
+
+        A model switched back to takes the settings it had (``friction``, ``allowance``, ...).
+        """
+        return self._contact["model"]
+
+    @contact_model.setter
+    def contact_model(self, value) -> None:
+        settings = _contact_settings(value, None, None, None)
+        if settings["model"] == self._contact["model"]:
+            return  # the model it has: its settings (friction, allowance, ...) stay
+        earlier = getattr(self, "_contact_earlier", {})
+        self._contact_earlier = {**earlier, self._contact["model"]: self._contact}
+        settings = earlier.get(settings["model"], settings)
+        if self._model.contact is None:
+            self._contact = settings
+            return
+        vertices = _model_contact_vertices(self._mesh, value, self._default_contacts)
+        _new_contact(self, "contact_model", vertices, settings)
+        _warn_if_idle(self._solver, self._model.contact, "warm_start")
+
+    friction = _contact_setting(
+        "friction",
+        "coulomb",
+        _nonnegative,
+        "Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise).",
+    )
+    allowance = _contact_setting(
+        "allowance",
+        "coulomb",
+        checked_allowance,
+        f"How far below the ground a vertex may end a step, of the body's size, or of {THIN_WORDS} "
+        "(``contact_model='coulomb'``; None otherwise).",
+    )
+    exact_friction = _contact_setting(
+        "exact_friction",
+        "coulomb",
+        checked_flag,
+        "Whether a step's sliding vertices end with exact Coulomb friction, straight against their slides "
+        "(``contact_model='coulomb'``; None otherwise).",
+    )
+    stickiness = _contact_setting(
+        "stickiness",
+        "reference",
+        _fraction,
+        "Fraction of a contact point's tangential velocity removed (``contact_model='reference'``; None otherwise).",
+    )
+    push_out = _contact_setting(
+        "push_out",
+        "reference",
+        _fraction,
+        "Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise).",
+    )
+
+    def penetration(self, z, relative: bool = False) -> float:
+        """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground).
+
+        ``relative``: the deepest relative to the size of the vertex's own connected part (in a mesh of
+        several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
+        """
+        z = self._state(z)
+        contact = self._model.contact
+        return 0.0 if contact is None else contact.penetration(z, relative)
+
+    @property
+    def ground(self):
+        """Height of the ground along ``up``, or None (assigning moves it; None removes it)."""
+        contact = self._model.contact
+        return None if contact is None else contact.ground
+
+    @ground.setter
+    def ground(self, value) -> None:
+        if value is None:
+            self._model.remove("contact")
+            self._contact_vertices = np.zeros(0, np.int64)
+            self._rebuild()
+            return
+        value = float(_array(value, (), "ground"))
+        _pulled_to_ground(self.gravity, value, self._up)  # (a floating body's gravity may pull any way)
+        # during a run under the Coulomb contact, the state the next step starts from is checked by that step
+        # (its start); the rest shape says nothing of a body that has moved (one risen 5 sizes was refused a
+        # ground just below it). Before a run, and under the reference contact (its feet sink anyway): at rest
+        running = self._stepped and self._contact["model"] == "coulomb"
+        if not running:
+            _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
+        contact = self._model.contact
+        if contact is None:
+            default = _model_contact_vertices(self._mesh, self._contact["model"], self._default_contacts)
+            self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
+        _put_contact(self, self._contact_vertices if contact is None else contact.vertices, value, "ground")
+        if running and contact is None:  # (one replaced says so itself: follow)
+            self._model.contact.replaced_for = GROUND_DURING_A_RUN.format(setting="ground")
+        if contact is None:
+            _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
+
+    @property
+    def up(self) -> int:
+        """Index of the up axis."""
+        return self._up
+
+    @up.setter
+    def up(self, value) -> None:
+        value = _axis(value, self.dim)
+        if self.gravity is not None:
+            up_axis(self.gravity, self.dim, value, self.ground is not None)  # gravity must pull down along it
+        _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
+        self._up = value
+        if self._model.contact is not None:
+            _new_contact(self, "up")
+
+
+class ModalMuscle(_GroundSettings):
     """Reduced modal-muscle dynamics in a subspace (or on every DOF), in 2D or 3D.
 
     Parameters
@@ -877,118 +997,6 @@ class ModalMuscle:
             _pulled_to_ground(value, self.ground, self._up)
             self._model.replace(Gravity(self._space, self.mass, value))
         self._rebuild()
-
-    @property
-    def contact_model(self) -> str:
-        """``coulomb`` (every vertex above the ground, Coulomb friction) or ``reference`` (the tutorial's).
-
-        A model switched back to takes the settings it had (``friction``, ``allowance``, ...).
-        """
-        return self._contact["model"]
-
-    @contact_model.setter
-    def contact_model(self, value) -> None:
-        settings = _contact_settings(value, None, None, None)
-        if settings["model"] == self._contact["model"]:
-            return  # the model it has: its settings (friction, allowance, ...) stay
-        earlier = getattr(self, "_contact_earlier", {})
-        self._contact_earlier = {**earlier, self._contact["model"]: self._contact}
-        settings = earlier.get(settings["model"], settings)
-        if self._model.contact is None:
-            self._contact = settings
-            return
-        vertices = _model_contact_vertices(self._mesh, value, self._default_contacts)
-        _new_contact(self, "contact_model", vertices, settings)
-        _warn_if_idle(self._solver, self._model.contact, "warm_start")
-
-    friction = _contact_setting(
-        "friction",
-        "coulomb",
-        _nonnegative,
-        "Coulomb coefficient of the ground (``contact_model='coulomb'``; None otherwise).",
-    )
-    allowance = _contact_setting(
-        "allowance",
-        "coulomb",
-        checked_allowance,
-        f"How far below the ground a vertex may end a step, of the body's size, or of {THIN_WORDS} "
-        "(``contact_model='coulomb'``; None otherwise).",
-    )
-    exact_friction = _contact_setting(
-        "exact_friction",
-        "coulomb",
-        checked_flag,
-        "Whether a step's sliding vertices end with exact Coulomb friction, straight against their slides "
-        "(``contact_model='coulomb'``; None otherwise).",
-    )
-    stickiness = _contact_setting(
-        "stickiness",
-        "reference",
-        _fraction,
-        "Fraction of a contact point's tangential velocity removed (``contact_model='reference'``; None otherwise).",
-    )
-    push_out = _contact_setting(
-        "push_out",
-        "reference",
-        _fraction,
-        "Fraction of a contact point's penetration undone per step (``contact_model='reference'``; None otherwise).",
-    )
-
-    def penetration(self, z, relative: bool = False) -> float:
-        """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground).
-
-        ``relative``: the deepest relative to the size of the vertex's own connected part (in a mesh of
-        several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
-        """
-        z = self._state(z)
-        contact = self._model.contact
-        return 0.0 if contact is None else contact.penetration(z, relative)
-
-    @property
-    def ground(self):
-        """Height of the ground along ``up``, or None (assigning moves it; None removes it)."""
-        contact = self._model.contact
-        return None if contact is None else contact.ground
-
-    @ground.setter
-    def ground(self, value) -> None:
-        if value is None:
-            self._model.remove("contact")
-            self._contact_vertices = np.zeros(0, np.int64)
-            self._rebuild()
-            return
-        value = float(_array(value, (), "ground"))
-        _pulled_to_ground(self.gravity, value, self._up)  # (a floating body's gravity may pull any way)
-        # during a run under the Coulomb contact, the state the next step starts from is checked by that step
-        # (its start); the rest shape says nothing of a body that has moved (one risen 5 sizes was refused a
-        # ground just below it). Before a run, and under the reference contact (its feet sink anyway): at rest
-        running = self._stepped and self._contact["model"] == "coulomb"
-        if not running:
-            _clear_of_ground(self._mesh, value, self._up, _allowance(self._contact))
-        contact = self._model.contact
-        if contact is None:
-            default = _model_contact_vertices(self._mesh, self._contact["model"], self._default_contacts)
-            self._contact_vertices = boundary_vertices(self._mesh) if default is None else default
-        _put_contact(self, self._contact_vertices if contact is None else contact.vertices, value, "ground")
-        if running and contact is None:  # (one replaced says so itself: follow)
-            self._model.contact.replaced_for = GROUND_DURING_A_RUN.format(setting="ground")
-        if contact is None:
-            _warn_if_idle(self._solver, self._model.contact, "acceleration", "warm_start")
-
-    @property
-    def up(self) -> int:
-        """Index of the up axis."""
-        return self._up
-
-    @up.setter
-    def up(self, value) -> None:
-        value = _axis(value, self.dim)
-        if self.gravity is not None:
-            up_axis(self.gravity, self.dim, value, self.ground is not None)  # gravity must pull down along it
-        _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
-        self._up = value
-        if self._model.contact is not None:
-            _new_contact(self, "up")
 
     @property
     def pin_stiffness(self):
