@@ -532,6 +532,20 @@ def test_info_says_a_thin_bodys_allowance_is_of_its_thickness(tmp_path, capsys):
         assert ("allowance 0.02 % of the size, or of 3 times a thin part's thickness" in ground[0]) is said
 
 
+def test_info_says_when_friction_is_not_made_exact(tmp_path, capsys):
+    from skfem_modal.cli import main
+
+    for exact, said in (("", False), ("exact_friction = true\n", False), ("exact_friction = false\n", True)):
+        path = tmp_path / "block.toml"
+        path.write_text(
+            '[mesh]\nshape = "box3d"\n[muscles]\ncount = 0\n[gravity]\nacceleration = [0.0, 0.0, -9.8]\n'
+            f"[ground]\noffset = 0.01\n{exact}"
+        )
+        assert main(["info", str(path)]) == 0
+        ground = [line for line in capsys.readouterr().out.splitlines() if line.startswith("ground:")]
+        assert ("the active set's friction (exact_friction = false)" in ground[0]) is said
+
+
 def test_a_thin_body_starting_deeper_than_its_allowance_is_refused_by_its_thickness():
     mesh = sm.beam2d(30.0, 1.0, 60, 2)
     lowest = float(mesh.p[1].min())
