@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from .acceleration import ACCELERATIONS
-from .contact import ALLOWANCE, MODELS, THIN_WORDS, allowance_lengths, checked_allowance, thin
+from .contact import ALLOWANCE, MODEL_SETTINGS, MODELS, THIN_WORDS, allowance_lengths, checked_allowance, thin
 from .fem import _positive
 from .mesh import connected_labels, part_sizes
 from .solver import BACKENDS
@@ -119,8 +119,12 @@ def _contact_settings(model, friction, stickiness, push_out, allowance=None, exa
     """A contact model's settings, checked: each model takes only its own."""
     if model not in MODELS:
         raise ValueError(f"contact_model must be one of {', '.join(map(repr, MODELS))}, got {model!r}")
+    given = dict(
+        friction=friction, allowance=allowance, exact_friction=exact_friction, stickiness=stickiness, push_out=push_out
+    )
+    other = "reference" if model == "coulomb" else "coulomb"
+    foreign = [name for name in MODEL_SETTINGS[other] if given[name] is not None]
     if model == "coulomb":
-        foreign = [name for name, value in (("stickiness", stickiness), ("push_out", push_out)) if value is not None]
         if foreign:
             raise ValueError(
                 f"{' and '.join(foreign)}: settings of contact_model='reference', not of 'coulomb' "
@@ -130,8 +134,6 @@ def _contact_settings(model, friction, stickiness, push_out, allowance=None, exa
         allowance = ALLOWANCE if allowance is None else checked_allowance(allowance)
         exact = True if exact_friction is None else checked_flag(exact_friction, "exact_friction")
         return {"model": model, "friction": friction, "allowance": allowance, "exact_friction": exact}
-    own = (("friction", friction), ("allowance", allowance), ("exact_friction", exact_friction))
-    foreign = [name for name, value in own if value is not None]
     if foreign:
         raise ValueError(
             f"{' and '.join(foreign)}: {'a setting' if len(foreign) == 1 else 'settings'} of contact_model='coulomb', "

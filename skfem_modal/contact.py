@@ -56,6 +56,7 @@ __all__ = [
     "CoulombContact",
     "ReferenceContact",
     "MODELS",
+    "MODEL_SETTINGS",
     "DEFAULT_CONTACTS",
     "ALLOWANCE",
     "MOST_ALLOWANCE",
@@ -68,6 +69,8 @@ __all__ = [
 
 #: Contact models by name (a scene's ``ground.model``).
 MODELS = ("coulomb", "reference")
+#: Each model's own settings (the simulator's and a scene's ``[ground]`` keys): the other model refuses them.
+MODEL_SETTINGS = {"coulomb": ("friction", "allowance", "exact_friction"), "reference": ("stickiness", "push_out")}
 #: How many boundary vertices each model takes as contacts unless told (None: all; the reference's tutorial: 30).
 DEFAULT_CONTACTS = {"coulomb": None, "reference": 30}
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground, nothing_free
-from .contact import ALLOWANCE, DEFAULT_CONTACTS, MOST_ALLOWANCE, THIN_WORDS, checked_allowance
+from .contact import ALLOWANCE, DEFAULT_CONTACTS, MODEL_SETTINGS, MOST_ALLOWANCE, THIN_WORDS, checked_allowance
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -1302,9 +1302,8 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         errors.append("ground: give height or offset, not both")
     if ground is not None and valid("ground.model"):
         # each contact model takes only its own settings: none is silently ignored
-        coulomb_only = ("friction", "allowance", "exact_friction")
-        others = {"coulomb": ("stickiness", "push_out"), "reference": coulomb_only}[ground["model"]]
-        for key in others:
+        other = "reference" if ground["model"] == "coulomb" else "coulomb"
+        for key in MODEL_SETTINGS[other]:
             if ground[key] is not None:
                 errors.append(
                     f"ground.{key}: a setting of the other contact model, not of model = {ground['model']!r} "
