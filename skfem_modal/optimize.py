@@ -453,22 +453,7 @@ def run_search(
     Every check of the arguments, the scene and ``out_dir``, and the precompute, come before anything is
     written.
     """
-    from .scene import Scene, resolve_paths
-
-    data = resolve_paths(data, base_dir)  # read the same by the workers and from best_gait.toml, from anywhere
-    scene = Scene.from_dict(data)  # every scene error first
-    if scene.config["ground"] is None and scene.config["pinned"] is None:
-        # nothing to push against: a gait moves the centre of mass no more than round-off (or as gravity
-        # does, the same for every gait); the search would rank noise
-        raise ValueError(
-            "the scene has no ground and no pins: no gait can carry the body anywhere (its centre of mass "
-            "keeps its momentum), so a search for travel has nothing to find; add a [ground] section (and "
-            "[gravity])"
-        )
-    m = scene.config["muscles"]["count"]
-    space = space or GaitSpace(m)
-    if space.m != m:
-        raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
+    data, scene, space = _checked_scene(data, base_dir, space)
     _check_search(generations, popsize, sigma0, seed, stop_after, samples, jitter, blas_threads)
     executor = checked_executor(executor)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
@@ -477,24 +462,9 @@ def run_search(
         raise ValueError("resume and overwrite exclude each other: continue the search, or start it again")
     out_dir = os.fspath(out_dir)
     paths = {name: os.path.join(out_dir, file) for name, file in zip(_PATH_NAMES, SEARCH_FILES)}
-    settings = {
-        "scene": hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16],
-        "seed": seed,
-        "popsize": popsize,
-        "samples": samples,
-        "jitter": jitter,
-        "sigma0": sigma0,
-        "space": [space.amplitude_max, space.period_min, space.period_max],
-        **trial_settings,
-    }
-    earlier = check_output_folder(out_dir, "search")  # a file, a run or a study there: refused
-    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations, fingerprint) if resume else None
-    if not resume and earlier and not overwrite:
-        again = "continue it with --resume (resume=True) or " if os.path.isfile(paths["checkpoint"]) else ""
-        raise FileExistsError(
-            f"{out_dir} holds a search ({listed(out_dir, earlier)}): {again}start again with --overwrite "
-            "(overwrite=True; only its files are replaced)"
-        )
+    own = {"seed": seed, "popsize": popsize, "samples": samples, "jitter": jitter, "sigma0": sigma0}
+    settings = _search_settings(fingerprint, space, own, trial_settings)
+    earlier, state = _earlier_search(out_dir, paths, settings, generations, fingerprint, resume, overwrite)
     if announce is not None:
         announce()
     bar, replacing, made = None, [], None
@@ -507,10 +477,7 @@ def run_search(
             trial, workers=workers, scheduler=scheduler, executor=executor, recipe=recipe, blas_threads=blas_threads
         ) as rollouts:  # a scheduler that does not answer: before the folder is made
             if state is None:
-                gait = scene.config["muscles"]["gait"]
-                start = space.point(gait) if gait is not None else np.full(3 * m, 0.5)
-                state = _new_state(settings, start, fingerprint)
-                state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, m)
+                state = _first_state(settings, space, scene.config["muscles"]["gait"], fingerprint)
                 made = made_folder(out_dir)
                 replacing = earlier  # until the new search's first checkpoint: a stop before it keeps them
             elif state["history"]:
@@ -527,21 +494,74 @@ def run_search(
         # (within the try: a stop while it draws says, as any other, what the checkpoint holds)
         _write_plot(paths["plot"], state["history"], objective)
     except KeyboardInterrupt:
-        if bar:
-            bar.close()
-        done, kept = _stopped(paths, data, objective, replacing)
-        remove_if_empty(out_dir, made)  # (the folder this search made stayed behind: an audit)
+        done, kept = _stop(bar, out_dir, paths, data, objective, replacing, made)
         raise SearchInterrupted(done, generations, out_dir, kept) from None
     except WorkersLost as lost:
-        if bar:
-            bar.close()
-        done, kept = _stopped(paths, data, objective, replacing)
-        remove_if_empty(out_dir, made)
+        done, kept = _stop(bar, out_dir, paths, data, objective, replacing, made)
         raise SearchWorkersLost(str(lost), done, generations, out_dir, kept) from lost
     except Exception:
         remove_if_empty(out_dir, made)
         raise
     return _result(state, paths, precompute)
+
+
+def _checked_scene(data: dict, base_dir, space):
+    """The scene of a search, its paths resolved, and the search space, checked: ``(data, scene, space)``."""
+    from .scene import Scene, resolve_paths
+
+    data = resolve_paths(data, base_dir)  # read the same by the workers and from best_gait.toml, from anywhere
+    scene = Scene.from_dict(data)  # every scene error first
+    if scene.config["ground"] is None and scene.config["pinned"] is None:
+        # nothing to push against: a gait moves the centre of mass no more than round-off (or as gravity
+        # does, the same for every gait); the search would rank noise
+        raise ValueError(
+            "the scene has no ground and no pins: no gait can carry the body anywhere (its centre of mass "
+            "keeps its momentum), so a search for travel has nothing to find; add a [ground] section (and "
+            "[gravity])"
+        )
+    m = scene.config["muscles"]["count"]
+    space = space or GaitSpace(m)
+    if space.m != m:
+        raise ValueError(f"the search space has {space.m} muscles, the scene {m}")
+    return data, scene, space
+
+
+def _earlier_search(out_dir: str, paths: dict, settings: dict, generations: int, fingerprint: dict, resume, overwrite):
+    """What ``out_dir`` holds, ``(earlier files, resumed state or None)``; refused if it may not be replaced."""
+    earlier = check_output_folder(out_dir, "search")  # a file, a run or a study there: refused
+    state = _resumed_state(out_dir, paths["checkpoint"], settings, generations, fingerprint) if resume else None
+    if not resume and earlier and not overwrite:
+        again = "continue it with --resume (resume=True) or " if os.path.isfile(paths["checkpoint"]) else ""
+        raise FileExistsError(
+            f"{out_dir} holds a search ({listed(out_dir, earlier)}): {again}start again with --overwrite "
+            "(overwrite=True; only its files are replaced)"
+        )
+    return earlier, state
+
+
+def _stop(bar, out_dir: str, paths: dict, data: dict, objective: str, replacing: list, made) -> tuple[int, bool]:
+    """A search stopped (Ctrl-C, workers lost): its bar closed, its files as the checkpoint says (:func:`_stopped`)."""
+    if bar:
+        bar.close()
+    done, kept = _stopped(paths, data, objective, replacing)
+    remove_if_empty(out_dir, made)  # (the folder this search made stayed behind: an audit)
+    return done, kept
+
+
+def _search_settings(fingerprint: dict, space: GaitSpace, own: dict, trial_settings: dict) -> dict:
+    """What a checkpoint is made with, and a resumed search must match: the scene's hash, the search's own
+    settings (``own``), its space and the rollouts' settings."""
+    scene_hash = hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16]
+    space_bounds = [space.amplitude_max, space.period_min, space.period_max]
+    return {"scene": scene_hash, **own, "space": space_bounds, **trial_settings}
+
+
+def _first_state(settings: dict, space: GaitSpace, gait, fingerprint: dict) -> dict:
+    """A new search's state, started from the scene's ``gait`` (None: the middle of the space)."""
+    start = space.point(gait) if gait is not None else np.full(3 * space.m, 0.5)
+    state = _new_state(settings, start, fingerprint)
+    state["start_gait"] = space.gait(start) if gait is None else _scene_gait(gait, space.m)
+    return state
 
 
 def _trial_settings(scene, steps, direction, objective: str, tip_limit_degrees: float, tip_weight: float) -> dict:
