@@ -871,19 +871,7 @@ def run_study(
     made = None
     try:
         made = made_folder(out_dir)
-        resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
-        scenes = {f: resolution_scene(data, f) for f in resolutions}
-        references = _run_references(executor, scenes, base_dir, cfg["steps"], say)
-        tasks = _tasks(cfg, data, scenes, base_dir, left_out)
-        rows = _run_reduced_all(executor, tasks, references, say)
-        # the step times, here and fairly against each other (the runs above
-        # may have shared the machine, or run on other machines)
-        for row, ms in zip(rows, time_steps(tasks, rounds=cfg["timing_rounds"])):
-            row["step_ms"] = ms
-        say("step times, each setting in turn in this process:")
-        for row in rows:
-            say(f"{row['label']:28s} {row['step_ms']:8.3f} ms")
-        modal_rows = modal_convergence(tuple(cfg["modal"]))
+        references, rows, modal_rows = _study_runs(executor, cfg, data, base_dir, left_out, say)
         stopped = False
     except BaseException as error:
         remove_if_empty(out_dir, made)  # nothing is written until the runs are done
@@ -905,6 +893,30 @@ def run_study(
         "references": {str(f): {k: v for k, v in r.items() if k != "x"} for f, r in references.items()},
         "left_out": left_out,
     }
+    return _report(out_dir, scene, references, rows, modal_rows, meta)
+
+
+def _study_runs(executor, cfg: dict, data: dict, base_dir, left_out: dict, say):
+    """A study's runs: ``(references by resolution, rows of the reduced runs, modal convergence rows)``.
+
+    The reduced runs' step times are taken again here, each setting in turn in this process: fairly
+    against each other (the runs may have shared the machine, or run on other machines).
+    """
+    resolutions = cfg["resolution"] if not data.get("mesh", {}).get("file") else [1.0]
+    scenes = {f: resolution_scene(data, f) for f in resolutions}
+    references = _run_references(executor, scenes, base_dir, cfg["steps"], say)
+    tasks = _tasks(cfg, data, scenes, base_dir, left_out)
+    rows = _run_reduced_all(executor, tasks, references, say)
+    for row, ms in zip(rows, time_steps(tasks, rounds=cfg["timing_rounds"])):
+        row["step_ms"] = ms
+    say("step times, each setting in turn in this process:")
+    for row in rows:
+        say(f"{row['label']:28s} {row['step_ms']:8.3f} ms")
+    return references, rows, modal_convergence(tuple(cfg["modal"]))
+
+
+def _report(out_dir: str, scene, references: dict, rows: list, modal_rows: list, meta: dict) -> dict:
+    """The study's Pareto front and recommendation, written with its tables and plots; :func:`run_study`'s result."""
     same = [i for i, r in enumerate(rows) if r["resolution"] == 1.0]
     front = [same[i] for i in pareto_front([rows[i] for i in same])]
     lines = recommend(rows)
@@ -922,7 +934,7 @@ def run_study(
         "modal": modal_rows,
         "pareto": front,
         "recommendation": lines,
-        "left_out": left_out,
+        "left_out": meta["left_out"],
         "meta": meta,
         **paths,
     }
