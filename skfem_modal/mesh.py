@@ -185,9 +185,7 @@ def _check_points(p: np.ndarray, t: np.ndarray, *, what: str = "mesh") -> None:
         raise TypeError(f"{what}: element indices must be integers, got dtype {t.dtype}")
     if n == 0 or t.shape[1] == 0:
         raise MeshError(f"{what}: needs at least one element, got {n} points and {t.shape[1]} elements")
-    bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
-    if bad.size:
-        raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
+    _refuse_non_finite(what, p)
     extent, farthest = float(np.ptp(p, axis=1).max()), float(np.abs(p).max())
     if extent > 0.0 and not (SIZE_RANGE[0] <= extent and farthest <= SIZE_RANGE[1]):
         raise MeshError(
@@ -1195,12 +1193,20 @@ def boundary_vertices(mesh) -> np.ndarray:
     return np.unique(once)
 
 
+def _refuse_non_finite(what: str, p: np.ndarray) -> None:
+    """Raise :class:`MeshError` naming the vertices of ``p`` (dim, n) with a non-finite coordinate."""
+    bad = np.nonzero(~np.isfinite(p).all(axis=0))[0]
+    if bad.size:
+        raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
+
+
 def _planar_points(path: str, points: np.ndarray) -> np.ndarray:
     """A flat triangle mesh's 3D points as 2D ones: x-y, or the other two axes of a plane x = c or y = c.
 
     A mesh drawn in the x-z plane (a side view, z up) becomes x-y with its z as y, so that
     its up stays up; one in y-z becomes x-y from (y, z).
     """
+    _refuse_non_finite(f"mesh file {path!r}", points.T)  # (a NaN spans NaN: no plane would be found)
     spans = np.ptp(points, axis=0) if len(points) else np.zeros(3)
     flat = [a for a in (2, 1, 0) if spans[a] <= 1e-12 * max(spans.max(), 1.0)]
     if not flat:

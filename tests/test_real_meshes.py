@@ -198,10 +198,12 @@ def test_cells_of_the_body_s_dimension_left_out_are_refused(ext, tmp_path):
     assert load_mesh(faces).t.shape == (4, 5)
 
 
-def test_an_infinite_coordinate_is_named_like_a_nan(tmp_path):
-    path = tmp_path / "inf.obj"
-    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv inf 1 0\nf 1 2 3\nf 2 4 3\n")
-    with pytest.raises(MeshError, match=r"inf.obj'?: 1 vertices have non-finite coordinates: \[3\]"):
+@pytest.mark.parametrize("value", ["inf", "nan"])
+def test_a_non_finite_coordinate_of_a_flat_mesh_is_named(tmp_path, value):
+    # a NaN in a triangle file was refused as "not in a plane ... (they span nan, 1 and 0)"
+    path = tmp_path / f"{value}.obj"
+    path.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nv {value} 1 0\nf 1 2 3\nf 2 4 3\n")
+    with pytest.raises(MeshError, match=rf"{value}.obj'?: 1 vertices have non-finite coordinates: \[3\]"):
         load_mesh(path)
 
 
