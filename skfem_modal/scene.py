@@ -167,7 +167,8 @@ SCHEMA: dict[str, Any] = {
             False,
             "Centre the mesh at its vertex mean and scale its largest extent to 2 (for meshes in other "
             "units, e.g. pixels: a warning says when the mesh's size and the material's length scale are far "
-            "apart).",
+            "apart; and for a mesh whose centre is over 1000 of its sizes from the origin, where the round-off "
+            "of its coordinates moves a body at rest).",
         ),
         "scale": Key(
             "float", 1.0, "Multiply every coordinate by this factor (after normalising).", "length", _positive

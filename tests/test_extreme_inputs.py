@@ -359,6 +359,26 @@ def test_a_body_far_from_the_origin_moves_as_it_does_there(offset, recwarn):
     assert np.abs(there - here).max() <= 5e-12 * offset
 
 
+def test_a_body_far_from_the_origin_is_warned_of():
+    # floating at rest 5e5 sizes away, the caterpillar drifted 1.2 % of its size in 10 s, ever faster,
+    # and its energy at rest read 4.6e5: the round-off of its coordinates, said as the scale is
+    mesh = sm.caterpillar(nx=20, ny=10)
+    size = sm.body_size(mesh)
+    far = type(mesh)(mesh.p + 2000.0 * size, mesh.t)  # 2000 sizes along x and y: 2830 from the origin
+    with pytest.warns(sm.ScaleWarning, match=r"centre is 2\.83e\+03 of its sizes \(2\) from the origin.*normalize"):
+        sim = ModalMuscle.from_mesh(far, n_muscles=4, h=0.01)
+    # and what it warns of: at rest, no load, yet a force, many times the one at the origin
+    def force_at_rest(sim):
+        z, z_dot, a = sim.rest_state()
+        return np.linalg.norm(sim.energy(z, z, z_dot, a, gradient=True)[1])
+
+    assert force_at_rest(sim) > 100 * force_at_rest(ModalMuscle.from_mesh(mesh, n_muscles=4, h=0.01))
+    near = type(mesh)(mesh.p + 500.0 * size, mesh.t)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sm.ScaleWarning)
+        ModalMuscle.from_mesh(near, n_muscles=4, h=0.01)
+
+
 @pytest.mark.parametrize(
     "candidates, message",
     [
