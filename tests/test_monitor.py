@@ -492,3 +492,20 @@ def test_a_rollout_whose_step_aliases_its_gait_is_not_physical():
     gait = {"amplitude": [0.2] * 4, "phase": [0.0] * 4}
     assert not trial.run({**gait, "period": [0.015] * 4})["physical"]  # 1.5 steps a period
     assert trial.run({**gait, "period": [0.5] * 4})["physical"]
+
+
+def test_the_run_line_says_whose_share_of_the_allowance_it_prints(tmp_path, capsys):
+    # "deepest any vertex went below the ground: 0.345 (17 % ...; 25.3 % of its allowance)" paired the depth of
+    # any vertex (one inside a body folded through itself) with the share of the deepest boundary vertex
+    path = tmp_path / "drop.toml"
+    path.write_text(
+        '[mesh]\nshape = "caterpillar"\nparams = { nx = 24, ny = 12 }\n[subspace]\nweights = 6\nclusters = 8\n'
+        "[muscles]\ncount = 0\n[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0.05\n"
+        "[time]\nstep = 0.01\nsteps = 40\n"
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    share = 100 * summary["ground"]["worst_penetration_of_allowance"]
+    assert 1.0 < share <= 100.0  # landed, held
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("deepest any vertex"))
+    assert f"; the deepest boundary vertex {share:.3g} % of its allowance)" in line
