@@ -211,7 +211,8 @@ def cmd_run(args) -> int:
         allowed = "" if ground.get("allowance") is None else f", allowance {100 * ground['allowance']:.2g} %"
         if ground.get("worst_penetration_of_allowance") is not None:
             # (of the boundary vertices: a vertex inside a body folded through itself can go deeper)
-            of += f"; the deepest boundary vertex {100 * ground['worst_penetration_of_allowance']:.3g} % of its allowance"
+            boundary = 100 * ground["worst_penetration_of_allowance"]
+            of += f"; the deepest boundary vertex {boundary:.3g} % of its allowance"
         say(f"deepest any vertex went below the ground ({ground['model']} contact{allowed}): {deepest:.3g} ({of})")
     say(f"wrote {args.out}/frames.pvd ({summary['frames']['count']} frames), com.csv, amplitudes.csv, summary.json")
     return _render(args.out, args, say) if args.render else EXIT_OK

@@ -367,6 +367,7 @@ def test_a_body_far_from_the_origin_is_warned_of():
     far = type(mesh)(mesh.p + 2000.0 * size, mesh.t)  # 2000 sizes along x and y: 2830 from the origin
     with pytest.warns(sm.ScaleWarning, match=r"centre is 2\.83e\+03 of its sizes \(2\) from the origin.*normalize"):
         sim = ModalMuscle.from_mesh(far, n_muscles=4, h=0.01)
+
     # and what it warns of: at rest, no load, yet a force, many times the one at the origin
     def force_at_rest(sim):
         z, z_dot, a = sim.rest_state()
