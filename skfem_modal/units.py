@@ -306,11 +306,10 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
 
     A step's deformation gradients and energies are differences of coordinates: their round-off
     grows with the distance from the origin, not with the body. Measured on the caterpillar
-    (size 2) floating at rest, without gravity: 1000 sizes away its mechanical energy at rest
-    read -1.6 instead of 0 and its centre drifted 2.1e-5 of its size in 10 s; 1e4 sizes away 63
-    and 8.4e-5; 5e5 sizes away 4.6e5 and 1.2 % (drifting ever faster).
+    (size 2) floating at rest, without gravity, moved along x and y by 1000 of its sizes: its
+    mechanical energy at rest read -1.6 instead of 0 and its centre drifted 2.1e-5 of its size
+    in 10 s; by 1e4 sizes 63 and 8.4e-5; by 5e5 sizes 4.6e5 and 1.2 % (drifting ever faster).
 
-    >>> import numpy as np
     >>> from skfem_modal.mesh import beam2d
     >>> beam = beam2d(2.0, 0.5, 4, 2)
     >>> far_from_origin(beam) is None
@@ -318,8 +317,8 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     >>> print(far_from_origin(type(beam)(beam.p + 1e5, beam.t)))  # doctest: +NORMALIZE_WHITESPACE
     mesh's centre is 7.07e+04 of its sizes (2) from the origin, more than 1000: a step's deformation
     gradients and energies are differences of coordinates that large, and their round-off grows with
-    the distance (a body 1e4 sizes away, floating at rest, read an energy of 63 instead of 0 and drifted
-    8.4e-5 of its size in 10 s). Move it near the origin (mesh.normalize = true in a scene,
+    the distance (a body moved by 1e4 sizes along x and y, floating at rest, read an energy of 63 instead
+    of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin (mesh.normalize = true in a scene,
     skfem_modal.normalize_and_center in Python, or subtract its centre).
     """
     size = body_size(mesh)
@@ -330,8 +329,8 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     return (
         f"{what}'s centre is {distance:.3g} of its sizes ({size:.4g}) from the origin, more than "
         f"{FAR_FROM_ORIGIN:g}: a step's deformation gradients and energies are differences of coordinates that "
-        "large, and their round-off grows with the distance (a body 1e4 sizes away, floating at rest, read an "
-        "energy of 63 instead of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin "
+        "large, and their round-off grows with the distance (a body moved by 1e4 sizes along x and y, floating at "
+        "rest, read an energy of 63 instead of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin "
         "(mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python, or subtract its centre)."
     )
 
