@@ -26,13 +26,112 @@ from scipy.optimize import nnls
 
 from ._fast import dot
 
-__all__ = ["Aims", "Picked", "SetOperator", "compliance_matrix", "coulomb_forces", "given_back", "pyramid_projection"]
+__all__ = [
+    "Aims",
+    "Picked",
+    "SetOperator",
+    "compliance_matrix",
+    "coulomb_forces",
+    "given_back",
+    "pyramid_projection",
+    "spread_few",
+]
 
 # a normal force this far below zero, relative to the largest, counts as zero (round-off)
 _PULL = 1e-9
 # a tangential force this much over friction times the normal force, relative, still sticks
 _CONE = 1e-9
 _min, _max = np.minimum.reduce, np.maximum.reduce  # without the ndarray methods' Python wrappers
+# vertices a step's projections look at, at most (the end of the step checks them all)
+_MOST = 32
+# heights that differ by less than this fraction of the size count as level when the lowest are picked
+_LEVEL = 1e-8
+
+
+def spread_few(near, low, rest, part, touching, ground, size, most: int = _MOST) -> np.ndarray:
+    """At most a few dozen of the ``near`` candidates of each body in the mesh, spread over it.
+
+    Bodies apart in one mesh are each looked at as one alone (spread over their common box, a
+    body had as few vertices as the gap left cells for, and sagged between them).
+
+    Parameters
+    ----------
+    near : ndarray of int, shape (n,)
+        Candidates to choose from (indices into the ``p`` candidates).
+    low : ndarray, shape (p,)
+        Each candidate's lowest height in view (the lowest of each patch is kept).
+    rest : ndarray, shape (dim, p)
+        The candidates' rest positions (where the picking spreads).
+    part : ndarray of int, shape (p,)
+        Which body of the mesh each candidate belongs to.
+    touching : ndarray of bool, shape (p,)
+        Candidates the ground pushes (kept first).
+    ground : float
+    size : ndarray, shape (p,)
+        The size of each candidate's body.
+    most : int
+        Candidates to choose from each body, at most.
+
+    Returns
+    -------
+    ndarray of int
+        The chosen candidates: the touching ones first, then the lowest of each cell.
+
+    Examples
+    --------
+    Ten vertices in a row, all near the ground: four cells, the lowest of each.
+
+    >>> rest = np.vstack([np.arange(10.0), np.zeros(10)])
+    >>> low = np.array([3, 1, 2, 0, 5, 4, 9, 8, 7, 6.0])
+    >>> none = np.zeros(10, bool)
+    >>> spread_few(np.arange(10), low, rest, np.zeros(10, int), none, 0.0, np.ones(10), most=4).tolist()
+    [3, 1, 5, 9]
+    """
+    parts = part[near]
+    if not parts.size or parts.min() == parts.max():
+        return _spread_body(near, low, rest, touching, ground, size, most)
+    order = np.argsort(parts, kind="stable")
+    groups = np.split(near[order], np.flatnonzero(np.diff(parts[order])) + 1)
+    return np.concatenate([_spread_body(group, low, rest, touching, ground, size, most) for group in groups])
+
+
+def _spread_body(near, low, rest, touching, ground, size, most) -> np.ndarray:
+    """:func:`spread_few` for the candidates of one body, the touching ones first.
+
+    The heights of neighbouring vertices nearly repeat each other (a subspace moves them
+    alike): a spread few hold a whole patch up, with far fewer, better separated rows to
+    solve for. The near vertices' box in the rest shape is cut into about as many cells as
+    there is room for, and the lowest vertex of each (by ``low``) is kept. The step's end
+    checks every candidate, so none is left below.
+    """
+    if near.size <= most:
+        return near
+    held = touching[near]
+    kept, others = near[held][:most], near[~held]
+    room = most - kept.size
+    if room <= 0 or not others.size:
+        return kept
+    where = np.take(rest, others, axis=1)  # (dim, n), its rows contiguous
+    low_corner, high_corner = where.min(axis=1), where.max(axis=1)
+    extent = high_corner - low_corner
+    # a flat patch is cut along its width only (the bound nudged off a round 0.05: a creature's feet,
+    # 0.1 high and 2 long, were cut in height or not by the round-off of where the scene stood)
+    wide = extent > 0.0500001 * extent.max()
+    side = (float(np.prod(extent[wide])) / room) ** (1.0 / np.count_nonzero(wide))
+    # cells centred on the box's middle, half a cell off it: a body mirrored, or turned a quarter
+    # about an axis, is cut alike, and a regular mesh's vertices keep off the cells' edges (from a
+    # corner, they fell either side of an edge by the round-off of where the scene stood)
+    middle = 0.5 * (low_corner + high_corner)
+    cells = np.floor((where - middle[:, None]) / side + 0.5).astype(np.int64)
+    cells -= cells.min(axis=1, keepdims=True)
+    cell = np.ravel_multi_index(cells, cells.max(axis=1) + 1)
+    # heights equal but for round-off are level: the lowest of a flat sole is the first numbered (by
+    # the last digits of its height, moving the whole scene changed the pick: 1e-3 of the size a step)
+    level = np.rint((low[others] - ground) / (_LEVEL * size[others]))
+    order = np.lexsort((level, cell))  # by cell, the lowest first in each (then the first numbered)
+    first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
+    first = first[np.lexsort((others[first], level[first]))][:room]  # the lowest cells', if too many
+    return np.concatenate([kept, others[first]])
 
 
 def _inverse(K) -> np.ndarray:

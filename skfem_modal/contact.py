@@ -46,7 +46,16 @@ import numpy as np
 import scipy.sparse as sps
 from scipy.linalg import lapack
 
-from ._contact_sets import Aims, Picked, SetOperator, compliance_matrix, coulomb_forces, given_back, pyramid_projection
+from ._contact_sets import (
+    Aims,
+    Picked,
+    SetOperator,
+    compliance_matrix,
+    coulomb_forces,
+    given_back,
+    pyramid_projection,
+    spread_few,
+)
 from ._fast import dot
 from .effects import Effect
 from .mesh import boundary_vertices, connected_labels, part_sizes, part_thicknesses
@@ -95,10 +104,6 @@ _LAYOUTS = 4
 _PASSES = 16
 # vertices below the ground joining the active set per pass, at most
 _JOIN = 4
-# vertices a step's projections look at, at most (the end of the step checks them all)
-_MOST = 32
-# heights that differ by less than this fraction of the size count as level when the lowest are picked
-_LEVEL = 1e-8
 # operators of sets of pushed and sticking vertices kept, the latest used
 _OPERATORS = 64
 # steps that keep the last step's picked vertices (while none is found below the ground at an end)
@@ -772,55 +777,8 @@ class CoulombContact(_Ground):
         return self._spread(near, low)
 
     def _spread(self, near, low) -> np.ndarray:
-        """At most a few dozen of the near vertices of each part of the mesh (:meth:`_spread_part`).
-
-        Bodies apart in one mesh are each looked at as one alone (spread over their common box, a
-        body had as few vertices as the gap left cells for, and sagged between them).
-        """
-        parts = self.part[near]
-        if not parts.size or parts.min() == parts.max():
-            return self._spread_part(near, low)
-        order = np.argsort(parts, kind="stable")
-        groups = np.split(near[order], np.flatnonzero(np.diff(parts[order])) + 1)
-        return np.concatenate([self._spread_part(group, low) for group in groups])
-
-    def _spread_part(self, near, low) -> np.ndarray:
-        """At most a few dozen of the near vertices, spread over the body, the touching ones first.
-
-        The heights of neighbouring vertices nearly repeat each other (a subspace moves them
-        alike): a spread few hold a whole patch up, with far fewer, better separated rows to
-        solve for. The near vertices' box in the rest shape is cut into about as many cells as
-        there is room for, and the lowest vertex of each (by ``low``, (p,)) is kept. The step's
-        end checks every candidate, so none is left below.
-        """
-        if near.size <= _MOST:
-            return near
-        touching = self.touching[near]
-        kept, rest = near[touching][:_MOST], near[~touching]
-        room = _MOST - kept.size
-        if room <= 0 or not rest.size:
-            return kept
-        where = np.take(self.rest, rest, axis=1)  # (dim, n), its rows contiguous
-        low_corner, high_corner = where.min(axis=1), where.max(axis=1)
-        extent = high_corner - low_corner
-        # a flat patch is cut along its width only (the bound nudged off a round 0.05: a creature's feet,
-        # 0.1 high and 2 long, were cut in height or not by the round-off of where the scene stood)
-        wide = extent > 0.0500001 * extent.max()
-        side = (float(np.prod(extent[wide])) / room) ** (1.0 / np.count_nonzero(wide))
-        # cells centred on the box's middle, half a cell off it: a body mirrored, or turned a quarter
-        # about an axis, is cut alike, and a regular mesh's vertices keep off the cells' edges (from a
-        # corner, they fell either side of an edge by the round-off of where the scene stood)
-        middle = 0.5 * (low_corner + high_corner)
-        cells = np.floor((where - middle[:, None]) / side + 0.5).astype(np.int64)
-        cells -= cells.min(axis=1, keepdims=True)
-        cell = np.ravel_multi_index(cells, cells.max(axis=1) + 1)
-        # heights equal but for round-off are level: the lowest of a flat sole is the first numbered (by
-        # the last digits of its height, moving the whole scene changed the pick: 1e-3 of the size a step)
-        level = np.rint((low[rest] - self.ground) / (_LEVEL * self.size[rest]))
-        order = np.lexsort((level, cell))  # by cell, the lowest first in each (then the first numbered)
-        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
-        first = first[np.lexsort((rest[first], level[first]))][:room]  # the lowest cells', if too many
-        return np.concatenate([kept, rest[first]])
+        """At most a few dozen of the ``near`` candidates, spread over each body (:func:`spread_few`)."""
+        return spread_few(near, low, self.rest, self.part, self.touching, self.ground, self.size)
 
     def _pick(self, picked, z_start, start=None) -> None:
         """Make ``picked`` (indices into the candidates) the vertices the projections look at.
