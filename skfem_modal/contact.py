@@ -68,6 +68,7 @@ __all__ = [
     "MODEL_SETTINGS",
     "DEFAULT_CONTACTS",
     "ALLOWANCE",
+    "LEAST_ALLOWANCE",
     "MOST_ALLOWANCE",
     "checked_allowance",
     "allowance_lengths",
@@ -85,6 +86,11 @@ DEFAULT_CONTACTS = {"coulomb": None, "reference": 30}
 
 #: How far below the ground (of the body's size) the Coulomb contact lets a vertex end a step, by default.
 ALLOWANCE = 2e-4
+#: The smallest allowance one may choose: double precision's round-off of the positions (1e-16 of their
+#: coordinates, of a body up to :data:`~skfem_modal.units.FAR_FROM_ORIGIN` sizes from the origin, with a margin)
+#: must stay within it (the caterpillar held 1e-12; with 1e-16 it ended 1.1 times it below, with 1e-17 no
+#: step could hold it)
+LEAST_ALLOWANCE = 1e-10
 #: The largest allowance one may choose, a tenth of a percent of the body's size: a vertex that sank that far
 #: climbs back out, and the body regains about the potential energy of the depth (a ghost dropped at h = 0.01
 #: with 5e-3 gained 0.5 % of what its fall released in single steps, 2.2 % in all, and bounced; the seal at
@@ -155,7 +161,7 @@ def thin(lengths, sizes) -> np.ndarray:
 
 
 def checked_allowance(value, name: str = "allowance") -> float:
-    """The Coulomb contact's allowance as a float, checked to be in (0, :data:`MOST_ALLOWANCE`].
+    """The Coulomb contact's allowance as a float, checked to be in [:data:`LEAST_ALLOWANCE`, :data:`MOST_ALLOWANCE`].
 
     Raises
     ------
@@ -166,10 +172,10 @@ def checked_allowance(value, name: str = "allowance") -> float:
         allowance = float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a number (a share of the body's size), got {value!r}") from None
-    if not 0.0 < allowance <= MOST_ALLOWANCE:
+    if not LEAST_ALLOWANCE <= allowance <= MOST_ALLOWANCE:
         raise ValueError(
-            f"{name} must be above 0 and at most {MOST_ALLOWANCE:g} (a tenth of a percent of the body's size), "
-            f"got {value!r}"
+            f"{name} must be at least {LEAST_ALLOWANCE:g} (less is lost in the round-off of the positions) and at "
+            f"most {MOST_ALLOWANCE:g} (a tenth of a percent of the body's size), got {value!r}"
         )
     return allowance
 
@@ -579,7 +585,7 @@ class CoulombContact(_Ground):
     allowance : float
         How far below the ground a vertex may end a step, a share of its part's
         size (or of :data:`THIN` times its thickness, if less: :func:`allowance_lengths`),
-        in (0, :data:`MOST_ALLOWANCE`] (default :data:`ALLOWANCE`). A larger
+        in [:data:`LEAST_ALLOWANCE`, :data:`MOST_ALLOWANCE`] (default :data:`ALLOWANCE`). A larger
         one is cheaper: fewer steps find a vertex their iterations missed and run
         them again (``benchmarks/bench_contact.py``'s last table).
     exact_friction : bool

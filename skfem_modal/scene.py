@@ -23,7 +23,15 @@ from typing import Any
 import numpy as np
 
 from .checks import _clear_of_ground, _pulled_to_ground, nothing_free
-from .contact import ALLOWANCE, DEFAULT_CONTACTS, MODEL_SETTINGS, MOST_ALLOWANCE, THIN_WORDS, checked_allowance
+from .contact import (
+    ALLOWANCE,
+    DEFAULT_CONTACTS,
+    LEAST_ALLOWANCE,
+    MODEL_SETTINGS,
+    MOST_ALLOWANCE,
+    THIN_WORDS,
+    checked_allowance,
+)
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
@@ -91,7 +99,7 @@ def _allowance(v):
     try:
         checked_allowance(v)  # the contact's own rule
     except ValueError:
-        return f"a number above 0 and at most {MOST_ALLOWANCE:g}"
+        return f"a number from {LEAST_ALLOWANCE:g} (less is lost in round-off) to {MOST_ALLOWANCE:g}"
     return None
 
 
@@ -402,9 +410,9 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             'How far below the ground a vertex may end a step, a share of the body\'s size (model "coulomb"; '
-            f"default 2e-4, at most 0.001), or of {THIN_WORDS} if less. Larger is cheaper: "
-            "fewer steps run their iterations again for a vertex they missed (docs/contact.md, what the allowance "
-            "costs).",
+            f"default {ALLOWANCE:g}, from {LEAST_ALLOWANCE:g} to {MOST_ALLOWANCE:g}), or of {THIN_WORDS} if less. "
+            "Larger is cheaper: fewer steps run their iterations again for a vertex they missed (docs/contact.md, "
+            "what the allowance costs).",
             "",
             _allowance,
         ),

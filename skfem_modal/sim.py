@@ -141,17 +141,41 @@ def _non_finite_as_given(**state) -> None:
             raise SimulationError(f"the state is non-finite as given: {name} holds NaN or infinity") from None
 
 
+def _real(value, name: str) -> np.ndarray:
+    """``value`` as a float array; a complex one is refused (casting would drop its imaginary part)."""
+    if np.iscomplexobj(value):
+        raise ValueError(f"{name} must be real, got complex values")
+    return np.asarray(value, dtype=np.float64)
+
+
+def _beyond_ceilings(a, ceilings) -> str:
+    """Words for an activation ``a`` (m,) beyond its muscles' ``ceilings`` (m,), a failed step's likely cause; or ''."""
+    if not a.size:
+        return ""
+    ratios = np.abs(a) / ceilings
+    muscle = int(np.argmax(ratios))
+    if not ratios[muscle] > 1.0:
+        return ""
+    return (
+        f"muscle {muscle}'s activation {a[muscle]:.6g} is {ratios[muscle]:.3g} times its ceiling "
+        f"{ceilings[muscle]:.6g} (sim.ceilings)"
+    )
+
+
 def _checked_activation(a, m: int) -> np.ndarray:
-    """Muscle activations checked: shape (m,), finite; None: zero (the muscles at rest)."""
+    """Muscle activations checked: shape (m,) (a number for one muscle), finite; None: zero (the muscles at rest)."""
     if a is None:
         return np.zeros(m)
     if m == 0:
         if np.size(a):
             raise ValueError(f"this simulator has no muscles; got {np.size(a)} activations")
         return np.zeros(0)
-    a = np.asarray(a, dtype=np.float64).ravel()
-    if a.shape != (m,):
+    a = _real(a, "activation")
+    if a.ndim > 1:  # (a column or a table flattened could be read in another order than meant)
+        raise ValueError(f"activation must have one value per muscle ({m}), shape ({m},), got shape {a.shape}")
+    if a.size != m:
         raise ValueError(f"activation must have one value per muscle ({m}), got {a.size}")
+    a = a.reshape(m)
     if not np.isfinite(a).all():  # the method: half the cost of np.all's dispatch, every step
         raise ValueError(f"activation must be finite, got {a.tolist()}")
     return a
@@ -1078,7 +1102,7 @@ class ModalMuscle(_GroundSettings):
 
     def _state(self, z, name: str = "z") -> np.ndarray:
         """A state or velocity as a float array, checked to have shape (r,)."""
-        z = np.asarray(z, dtype=np.float64)
+        z = _real(z, name)
         r = self._space.r
         if z.shape != (r,):
             raise ValueError(f"{name} must have shape ({r},), the subspace's coordinates, got {z.shape}")
@@ -1151,8 +1175,7 @@ class ModalMuscle(_GroundSettings):
         SimulationError
             If the state becomes non-finite.
         """
-        z = np.asarray(z, dtype=np.float64)
-        z_dot = np.asarray(z_dot, dtype=np.float64)
+        z, z_dot = _real(z, "z"), _real(z_dot, "z_dot")
         r = self._space.r
         if velocity is not True and velocity is not False:  # (a bool: "yes" would be true)
             checked_flag(velocity, "velocity")
@@ -1165,8 +1188,11 @@ class ModalMuscle(_GroundSettings):
                 z_next, self.iterations = self._solver.step(self._backends, z, z_dot, a, self._model.contact)
             except np.linalg.LinAlgError as err:  # (a contact's correction at a huge step, say): the step's trouble
                 raise SimulationError(f"the step's linear algebra failed: {err} (time step h = {self.h:g})") from err
-            except SimulationError:
+            except SimulationError as err:
                 _non_finite_as_given(z=z, z_dot=z_dot)  # the caller's, not the step's (checked only then)
+                beyond = _beyond_ceilings(a, self.ceilings)
+                if beyond:
+                    raise SimulationError(f"{err.message} ({beyond})", err.step) from err
                 raise
         self._stepped = True
         if velocity:

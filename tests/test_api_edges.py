@@ -192,6 +192,24 @@ def test_raw_errors_of_numbers_are_named():
             call()  # NaN positions
 
 
+def test_complex_and_table_shaped_inputs_are_refused():
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=12, ny=6), n_muscles=1, n_weights=3, n_clusters=3)
+    z, z_dot, a = sim.rest_state()
+    with pytest.raises(ValueError, match="z must be real, got complex values"):
+        sim.step(z + 0j, z_dot)  # its imaginary part dropped, with numpy's ComplexWarning only
+    with pytest.raises(ValueError, match="z_dot must be real"):
+        sim.step(z, z_dot + 1j)
+    with pytest.raises(ValueError, match="activation must be real"):
+        sim.step(z, z_dot, a + 0j)
+    with pytest.raises(ValueError, match=r"one value per muscle \(1\), shape \(1,\), got shape \(1, 1\)"):
+        sim.step(z, z_dot, a[:, None])  # flattened, whatever order a table was in
+    np.testing.assert_array_equal(sim.step(z, z_dot, 0.1), sim.step(z, z_dot, [0.1]))  # one muscle: a number will do
+    with pytest.raises(
+        sm.SimulationError, match=r"non-finite \(muscle 0's activation 1e\+300 is [0-9.e+]+ times its ceiling"
+    ):
+        sim.step(z, z_dot, [1e300])  # finite, but it blows the state up: the cause named
+
+
 def test_the_full_space_simulator_names_itself_for_a_misspelt_argument():
     mesh = sm.caterpillar(nx=8, ny=4)
     with pytest.raises(TypeError, match=r"^FullSpaceSimulator\(\) got an unexpected keyword argument 'gama'"):

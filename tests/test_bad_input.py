@@ -103,9 +103,17 @@ def test_k_larger_than_possible():
         (dict(contact_model="sticky"), r"contact_model must be one of 'coulomb', 'reference', got 'sticky'"),
         (dict(friction=-1.0), r"friction must be non-negative"),
         (dict(friction="0.5"), r"friction must be a number, got '0.5'"),  # float() took it
-        (dict(allowance=0.0), r"allowance must be above 0 and at most 0.001 \(a tenth of a percent of the body's"),
-        (dict(allowance=0.005), r"allowance must be above 0 and at most 0.001 \(a tenth .*\), got 0.005"),
-        (dict(allowance=np.nan), r"allowance must be above 0 and at most 0.001"),
+        (
+            dict(allowance=0.0),
+            r"allowance must be at least 1e-10 \(less is lost in the round-off of the positions\) and at most 0.001 "
+            r"\(a tenth of a percent of the body's",
+        ),
+        (dict(allowance=0.005), r"allowance must be at least 1e-10 .* and at most 0.001 \(a tenth .*\), got 0.005"),
+        (dict(allowance=np.nan), r"allowance must be at least 1e-10 .* and at most 0.001"),
+        (
+            dict(allowance=1e-16),
+            r"allowance must be at least 1e-10 \(less is lost in the round-off of the positions\).*got 1e-16",
+        ),
         (dict(allowance="a lot"), r"allowance must be a number \(a share of the body's size\), got 'a lot'"),
         (dict(contact_model="reference", allowance=1e-3), r"allowance: a setting of contact_model='coulomb'"),
         (dict(h=True), r"h must be a number, got True"),

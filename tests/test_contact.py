@@ -16,7 +16,7 @@ import skfem
 from conftest import COULOMB_CRAWL
 
 import skfem_modal as sm
-from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE, allowance_lengths
+from skfem_modal.contact import ALLOWANCE, LEAST_ALLOWANCE, MOST_ALLOWANCE, allowance_lengths
 from skfem_modal.reference import FullSpaceSimulator
 from skfem_modal.run import run_scene
 from skfem_modal.scene import DEFAULT_SCENE, Scene
@@ -352,6 +352,15 @@ def test_a_drop_with_the_largest_allowance_lands_and_rests_within_it(dim, h):
     assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()
     assert -MOST_ALLOWANCE <= lowest[-1] < 1e-3
     assert kinetic[-1] <= 2e-3 * kinetic.max()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_drop_with_the_least_allowance_holds_it(dim):
+    # 1e-10 of the size, a million times below the default: still above the positions' round-off
+    energy, kinetic, lowest = fall(dropped(dim, 0.01, allowance=LEAST_ALLOWANCE), 1.5)
+    assert lowest.min() >= -LEAST_ALLOWANCE
+    assert np.flatnonzero(lowest < 1e-3).size, "it never reached the ground"
+    assert np.diff(energy).max() <= 1e-6 * np.abs(energy).max()
 
 
 @pytest.mark.parametrize("dim", [2, 3])

@@ -46,8 +46,12 @@ def test_default_scene_is_the_tutorial_crawl():
         (dict(time__step="fast"), r"time.step: expected a finite number, got 'fast' \(str\)"),
         (dict(time__step=-0.01), r"time.step: expected a positive number, got -0.01"),
         (dict(ground__stickiness=1.5), r"ground.stickiness: expected a number in \[0, 1\], got 1.5"),
-        (dict(ground__allowance=0.005), r"ground.allowance: expected a number above 0 and at most 0.001, got 0.005"),
-        (dict(ground__allowance=0.0), r"ground.allowance: expected a number above 0 and at most 0.001, got 0.0"),
+        (
+            dict(ground__allowance=0.005),
+            r"ground.allowance: expected a number from 1e-10 \(less is lost in round-off\) to 0.001, got 0.005",
+        ),
+        (dict(ground__allowance=0.0), r"ground.allowance: expected a number from 1e-10 .* to 0.001, got 0.0"),
+        (dict(ground__allowance=1e-16), r"ground.allowance: expected a number from 1e-10 .* to 0.001, got 1e-16"),
         (
             dict(ground__model="reference", ground__allowance=1e-3),
             r"ground.allowance: a setting of the other contact model, not of model = 'reference'",
