@@ -227,8 +227,8 @@ class Trial:
             ``fitness``, ``travel``, ``alignment``, ``max_tilt`` (radians),
             ``penalty``, ``finite`` (False: the run went non-finite, the
             measures are NaN), ``physical`` (False: it went non-finite, or
-            its body spread or was pushed beyond what the motion monitor
-            allows, :meth:`MotionMonitor.run_problems`) and
+            its body spread, was pushed or folded through itself beyond what
+            the motion monitor allows, :meth:`MotionMonitor.run_problems`) and
             ``mean_iterations`` (local/global, a step). A run that is not
             physical scores ``fitness`` -1000 body sizes, whatever it
             travelled: a gait that flings a body apart must not win.
@@ -272,7 +272,7 @@ class Trial:
                     "mean_iterations": nan,
                 }
         score = self.score(sim.com(states[-1]) - start, frames)
-        score["physical"] = not self.monitor.run_problems(states, shortest_period(amplitudes, periods))
+        score["physical"] = not self.monitor.run_problems(states, shortest_period(amplitudes, periods), sim.positions)
         if not score["physical"]:
             score["fitness"] = fail
         return {**score, "mean_iterations": iterations / self.steps}

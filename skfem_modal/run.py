@@ -385,7 +385,8 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
         log["penetration"] = max(log["penetration"], depth)
         log["relative"] = max(log["relative"], relative)
         log["sunk"] = max(log["sunk"], sunk)
-        log["monitor"].update(step, z, a, clearance, *((relative, sunk) if contact is not None else ()))
+        if log["monitor"].update(step, z, a, clearance, *((relative, sunk) if contact is not None else ())):
+            log["monitor"].check_elements(step, sim.positions(z))  # a state after a jolt (a frame: checked already)
 
 
 def _measured(sim, log: dict) -> dict:

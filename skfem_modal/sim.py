@@ -148,20 +148,6 @@ def _real(value, name: str) -> np.ndarray:
     return np.asarray(value, dtype=np.float64)
 
 
-def _beyond_ceilings(a, ceilings) -> str:
-    """Words for an activation ``a`` (m,) beyond its muscles' ``ceilings`` (m,), a failed step's likely cause; or ''."""
-    if not a.size:
-        return ""
-    ratios = np.abs(a) / ceilings
-    muscle = int(np.argmax(ratios))
-    if not ratios[muscle] > 1.0:
-        return ""
-    return (
-        f"muscle {muscle}'s activation {a[muscle]:.6g} is {ratios[muscle]:.3g} times its ceiling "
-        f"{ceilings[muscle]:.6g} (sim.ceilings)"
-    )
-
-
 def _checked_activation(a, m: int) -> np.ndarray:
     """Muscle activations checked: shape (m,) (a number for one muscle), finite; None: zero (the muscles at rest)."""
     if a is None:
@@ -1188,11 +1174,8 @@ class ModalMuscle(_GroundSettings):
                 z_next, self.iterations = self._solver.step(self._backends, z, z_dot, a, self._model.contact)
             except np.linalg.LinAlgError as err:  # (a contact's correction at a huge step, say): the step's trouble
                 raise SimulationError(f"the step's linear algebra failed: {err} (time step h = {self.h:g})") from err
-            except SimulationError as err:
+            except SimulationError:
                 _non_finite_as_given(z=z, z_dot=z_dot)  # the caller's, not the step's (checked only then)
-                beyond = _beyond_ceilings(a, self.ceilings)
-                if beyond:
-                    raise SimulationError(f"{err.message} ({beyond})", err.step) from err
                 raise
         self._stepped = True
         if velocity:

@@ -204,10 +204,6 @@ def test_complex_and_table_shaped_inputs_are_refused():
     with pytest.raises(ValueError, match=r"one value per muscle \(1\), shape \(1,\), got shape \(1, 1\)"):
         sim.step(z, z_dot, a[:, None])  # flattened, whatever order a table was in
     np.testing.assert_array_equal(sim.step(z, z_dot, 0.1), sim.step(z, z_dot, [0.1]))  # one muscle: a number will do
-    with pytest.raises(
-        sm.SimulationError, match=r"non-finite \(muscle 0's activation 1e\+300 is [0-9.e+]+ times its ceiling"
-    ):
-        sim.step(z, z_dot, [1e300])  # finite, but it blows the state up: the cause named
 
 
 def test_the_full_space_simulator_names_itself_for_a_misspelt_argument():

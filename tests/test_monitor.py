@@ -400,6 +400,55 @@ def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_grou
         assert run_scene(Scene.from_dict(_soft_box(3e3, 60)), None)["motion"]["inverted_elements"] > 300
 
 
+def _hard_landing(steps=240):
+    """A unit square dropped from 100 sizes at h = 0.02: at 44 m/s it folds through itself for a few steps."""
+    return {
+        "mesh": {"shape": "beam2d", "params": {"length": 1.0, "height": 1.0, "nx": 8, "ny": 8}},
+        "material": {"mu": 1e5},
+        "muscles": {"count": 0},
+        "gravity": {"acceleration": [0.0, -9.8]},
+        "ground": {"offset": 100.0},
+        "time": {"steps": steps, "step": 0.02},
+    }
+
+
+@pytest.mark.parametrize("every", [None, 5])
+def test_a_body_folded_between_the_frames_by_a_hard_landing_is_reported(tmp_path, every):
+    """An audit: 48 % of the square's triangles inside out for a few steps after it landed, between the frames
+    written (every 5 steps, or none), and the run said physical: the states after a jolt are checked too."""
+    out = None if every is None else tmp_path / "run"
+    with pytest.warns(MotionWarning, match="of the elements were inside out"):
+        summary = run_scene(Scene.from_dict(_hard_landing()), out, every=every or 1)
+    motion = summary["motion"]
+    assert not motion["physical"] and motion["inverted_elements"] > 0.3 * 128
+    assert motion["first_problem_step"]["inverted"] == 226  # the landing, t = 4.52 (not a frame written)
+    assert summary["ground"]["worst_penetration_relative"] > 0.5  # an inner vertex, through the folded elements
+    # a rollout (states kept, no frames) finds it too, given the positions; its last state is unfolded
+    sim = Scene.from_dict(_hard_landing()).build()
+    z, z_dot, _ = sim.rest_state()
+    states = [z]
+    for _ in range(240):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+        states.append(z)
+    monitor = MotionMonitor(sim, [0.0, -9.8])
+    assert monitor.run_problems(np.array(states), None, sim.positions) == {"inverted": 226}
+    assert monitor._inverted(sim.positions(states[-1])) == 0
+
+
+def test_the_examples_crawls_are_not_jolted():
+    """The states after a jolt cost a check of every element: a crawl's steps are not jolts (0.002 of JOLT's 0.01)."""
+    scene = Scene.from_dict(copy.deepcopy(DEFAULT_SCENE))
+    sim = scene.build()
+    monitor = MotionMonitor(sim, scene.config["gravity"]["acceleration"])
+    z, z_dot, _ = sim.rest_state()
+    jolted = []
+    for step in range(1, 201):
+        a = scene.activation(step * sim.h, sim.ceilings)
+        z, z_dot = sim.step(z, z_dot, a, velocity=True)
+        jolted.append(monitor.update(step, z, a))
+    assert not any(jolted)
+
+
 def test_a_floating_body_turned_inside_out_is_not_told_of_a_ground():
     """An audit: the warning of a floating body folded through itself spoke of vertices below the ground."""
     scene = _soft_box(3e3, 30)
