@@ -113,8 +113,8 @@ INVERTED_LIMIT = 0.01
 PIN_LIMIT = 0.01
 #: A step that changes the centre of mass's motion by more than this share of the body's size (beyond what
 #: gravity and its support explain) is a jolt: a hard landing or a blow, after which a body can fold through
-#: itself for a few steps between the frames written (a unit square dropped from 100 sizes at h = 0.02: 66 %
-#: of its elements for four steps). The examples' crawls stay below 0.002.
+#: itself for a few steps between the frames written (a symmetric unit square dropped from 100 sizes at
+#: h = 0.02: 66 % of its triangles for four steps). The examples' crawls stay below 0.002.
 JOLT = 0.01
 #: Steps after a jolt whose states are checked for elements inside out.
 JOLT_STEPS = 10
@@ -299,7 +299,7 @@ class MotionMonitor:
         com = self._com_rows @ z
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step
-        if math.sqrt(float(excess @ excess)) - self._fall > JOLT * self.size:
+        if self._jolted(excess):
             self._watched_until = step + JOLT_STEPS
         # the pushes are measured in batches (what holds the weight, for all steps at once: :meth:`_pushes`)
         self._steps.append((step, clearance is not None and clearance < HOVER_CLEARANCE * self.size, excess))
@@ -359,6 +359,10 @@ class MotionMonitor:
                 self.first_problem_step.setdefault("pins", step)
         return inverted
 
+    def _jolted(self, excess):
+        """Whether steps of these excesses over free fall (..., dim) are jolts (:data:`JOLT`)."""
+        return np.sqrt(np.einsum("...i,...i->...", excess, excess)) - self._fall > JOLT * self.size
+
     def _inverted(self, positions) -> int:
         """Elements inside out in positions (n, dim)."""
         measures = _signed_measures(np.asarray(positions).T, self._elements)
@@ -401,7 +405,7 @@ class MotionMonitor:
         found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(_spread_beyond(ratio))}
         found = {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
         if positions is not None:
-            jolts = np.flatnonzero(np.sqrt(np.einsum("ij,ij->i", excess, excess)) - self._fall > JOLT * self.size)
+            jolts = np.flatnonzero(self._jolted(excess))
             watched = {min(int(j) + 1 + k, len(excess)) for j in jolts for k in range(JOLT_STEPS + 1)}
             limit = INVERTED_LIMIT * self._elements.shape[1]
             inverted = [
