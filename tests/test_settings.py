@@ -214,8 +214,10 @@ def test_settings_are_checked_when_assigned(flat):
         sim.stickiness = 3.0
     with pytest.raises(AttributeError, match=r"stickiness is a setting of contact_model='reference'"):
         build(flat).stickiness = 0.5
-    with pytest.raises(ValueError, match=r"allowance must be above 0 and at most 0.001"):
+    with pytest.raises(ValueError, match=r"allowance must be at least 1e-10 .* and at most 0.001"):
         sim.allowance = 0.05
+    with pytest.raises(ValueError, match=r"allowance must be at least 1e-10 \(less is lost in the round-off"):
+        sim.allowance = 1e-300  # (it failed in 'stay below the ground after 8 tries')
     with pytest.raises(AttributeError, match=r"allowance is a setting of contact_model='coulomb'"):
         build(flat, contact_model="reference").allowance = 1e-3
     with pytest.raises(AttributeError, match="no pinned vertices"):
