@@ -400,7 +400,7 @@ def test_a_body_turned_inside_out_is_reported_though_its_boundary_holds_the_grou
         assert run_scene(Scene.from_dict(_soft_box(3e3, 60)), None)["motion"]["inverted_elements"] > 300
 
 
-def _hard_landing(steps=240):
+def _hard_landing():
     """A unit square dropped from 100 sizes at h = 0.02: at 44 m/s it folds through itself for a few steps."""
     return {
         "mesh": {"shape": "beam2d", "params": {"length": 1.0, "height": 1.0, "nx": 8, "ny": 8}},
@@ -408,7 +408,7 @@ def _hard_landing(steps=240):
         "muscles": {"count": 0},
         "gravity": {"acceleration": [0.0, -9.8]},
         "ground": {"offset": 100.0},
-        "time": {"steps": steps, "step": 0.02},
+        "time": {"steps": 240, "step": 0.02},
     }
 
 
