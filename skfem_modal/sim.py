@@ -649,7 +649,7 @@ class ModalMuscle(_GroundSettings):
         ``coulomb`` only: the Coulomb coefficient, >= 0 (default 0.5).
     allowance : float, optional
         ``coulomb`` only: how far below the ground a vertex may end a step, a
-        share of the body's size in (0, 0.001] (default 2e-4), or of
+        share of the body's size in [1e-10, 0.001] (default 2e-4), or of
         :data:`~skfem_modal.contact.THIN` times a thin part's thickness if less
         (:func:`~skfem_modal.contact.allowance_lengths`); larger is cheaper.
     exact_friction : bool, optional
