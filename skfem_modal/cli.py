@@ -486,10 +486,16 @@ def _single_value_options(parser) -> set[str]:
     }
 
 
+def _commands(parser) -> dict:
+    """The parsers of ``parser``'s commands, by name."""
+    return {
+        name: p for a in parser._actions if isinstance(a, argparse._SubParsersAction) for name, p in a.choices.items()
+    }
+
+
 def _all_parsers(parser) -> list:
     """``parser`` and the parsers of its commands."""
-    commands = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return [parser] + [p for a in commands for p in a.choices.values()]
+    return [parser, *_commands(parser).values()]
 
 
 def cmd_optimize(args) -> int:
@@ -578,6 +584,13 @@ def cmd_transfer(args) -> int:
             )
         print(f"wrote {result['csv']}")
     return EXIT_OK
+
+
+class _OneLineErrors(argparse.ArgumentParser):
+    """A parser whose errors are one line, as the command line's other bad input (argparse's add a usage block)."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (options: {self.prog} --help)\n")
 
 
 class _HelpWithDefaults(argparse.HelpFormatter):
@@ -948,7 +961,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``skfem-modal`` argument parser, one subparser a subcommand (:data:`_COMMANDS`)."""
     from . import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrors(
         prog="skfem-modal",
         description="Linear modal analysis and modal-muscle soft-body simulation on scikit-fem.",
         formatter_class=_HelpWithDefaults,
@@ -971,7 +984,9 @@ def main(argv=None) -> int:
     """Entry point of the ``skfem-modal`` console script."""
     parser = build_parser()
     given = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(_joined_signed_values(given, _single_value_options(parser)))
+    args, unknown = parser.parse_known_args(_joined_signed_values(given, _single_value_options(parser)))
+    if unknown:  # said by the command's parser, which names the command and its help
+        _commands(parser)[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     args.argv = given
     try:
         with warnings.catch_warnings(), terminate_as_interrupt():

@@ -268,3 +268,22 @@ def test_modes_names_a_bad_material_option_before_reading_the_mesh(option, said,
     with pytest.raises(SystemExit):
         main(["modes", "no_such_mesh.msh", "--lam", "inf"])
     assert "argument --lam: expected a finite number, got 'inf'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, said",
+    [
+        (["run", "--every", "0"], "skfem-modal run: error: argument --every: expected a positive integer, got '0'"),
+        (["modes", "-k", "0"], "skfem-modal modes: error: argument -k: expected a positive integer, got '0'"),
+        (["run", "--bogus"], "skfem-modal run: error: unrecognized arguments: --bogus"),
+        (["bogus"], "skfem-modal: error: argument command: invalid choice: 'bogus'"),
+    ],
+)
+def test_option_errors_are_one_line_naming_the_command(argv, said, capsys):
+    """An option argparse refuses is said in one line, as other bad input (not after a usage block)."""
+    with pytest.raises(SystemExit) as refused:
+        main(argv)
+    err = capsys.readouterr().err
+    assert refused.value.code == 2
+    assert err.count("\n") == 1 and err.startswith(said)
+    assert err.rstrip().endswith(f"(options: {said.split(':')[0]} --help)")
