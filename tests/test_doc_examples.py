@@ -65,6 +65,18 @@ def test_getting_started_python_example(tmp_path, monkeypatch, capsys):
     assert z.shape == z_dot.shape == (namespace["sim"].B.shape[1],) and a.shape == (4,)
 
 
+def test_play_md_python_example_without_its_windows_prints_what_it_quotes(monkeypatch, capsys):
+    """docs/play.md's controller (no window: the lines that open one are left out) prints the amplitudes quoted."""
+    (code,) = python_blocks("docs/play.md")
+    windowless = "\n".join(line for line in code.splitlines() if not line.startswith("play("))
+    assert "player = Player(sim)" in windowless
+    monkeypatch.chdir(ROOT)
+    run_block(windowless, "play.md")
+    quoted = [float(v) for v in re.search(r"# \[([-0-9. ]+)\]", code).group(1).split()]
+    shown = [float(v) for v in capsys.readouterr().out.strip().strip("[]").split()]
+    np.testing.assert_allclose(shown, quoted, atol=1e-4)
+
+
 def test_outputs_python_example(tmp_path, monkeypatch):
     (code,) = python_blocks("docs/outputs.md")
     monkeypatch.chdir(tmp_path)
