@@ -253,3 +253,28 @@ def test_kronecker_step_checks_the_sign_itself_when_the_shift_proves_nothing(mon
         z_dot, z = (z_next - z) / 0.01, z_next
     assert len(unproven) == 30 and all(unproven)  # every step took the explicit check, and passed it
     np.testing.assert_array_equal(z, z_ref)
+
+
+def test_kronecker_step_is_redone_when_the_sign_check_fails(monkeypatch):
+    # the explicit check decides: a negative tr(P P^(2^s)) (the powers found another eigenvector than
+    # the top one's) refuses the step's rotations, and the exact backend redoes the step
+    from skfem_modal import _kron3
+
+    sims = simulators(backends=("numpy", "plain"))
+    certify, einsum = _kron3.certify_levels, np.einsum
+
+    def without_shift_proof(levels, **options):
+        ok, top, rho = certify(levels, **options)
+        return ok, False, rho
+
+    def sign_fails(subscripts, *operands, **options):
+        found = einsum(subscripts, *operands, **options)
+        return -np.abs(found) if subscripts == "knab,knab->kn" else found
+
+    before = sims[0].solver.redone
+    with monkeypatch.context() as patch:
+        patch.setattr(_kron3, "certify_levels", without_shift_proof)
+        patch.setattr(_kron3.np, "einsum", sign_fails)
+        fast, checked, _ = run_pair(sims, 10, 0.6)
+    assert sims[0].solver.redone - before == 10  # every step refused, and redone
+    assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()
