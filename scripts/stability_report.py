@@ -27,7 +27,7 @@ def fmt(value):
 def main():
     print(f"Measured {time.strftime('%Y-%m-%d')} on {os.cpu_count()} cores.\n")
     print(
-        "| case | finite | energy growth (no input) | COM drift (floating) | worst contact penetration "
+        "| case | finite | energy gained in a step (no input) | COM drift (floating) | worst contact penetration "
         "| after contact resolves | identical rerun | notes |"
     )
     print("|---|---|---|---|---|---|---|---|")

@@ -54,11 +54,19 @@ def motion_scale(space, mass, mass_matrix) -> float:
 
 
 def _full_rank(space, mass_matrix) -> None:
-    """Refuse a subspace whose columns depend on each other (its mass matrix ``B^T M B`` is singular)."""
+    """Refuse a subspace whose columns depend on each other (its mass matrix ``B^T M B`` is singular).
+
+    Judged on the columns at unit mass (``B^T M B`` scaled by its diagonal): an affine basis of a body
+    1e-9 across has columns 1e9 apart in length, which are no less independent for it.
+    """
     if not space.dense:
         return
-    values = np.linalg.eigvalsh(np.asarray(mass_matrix))
-    dependent = int(np.count_nonzero(values <= 1e-12 * values.max()))
+    gram = np.asarray(mass_matrix)
+    lengths = np.sqrt(np.maximum(gram.diagonal(), 0.0))
+    massless = lengths == 0.0
+    lengths[massless] = 1.0
+    values = np.linalg.eigvalsh(gram / np.outer(lengths, lengths))
+    dependent = int(np.count_nonzero(values <= 1e-12 * values.max())) if values.size else 0
     if dependent:
         raise ValueError(
             f"B's {space.r} columns are not independent ({dependent} of them are combinations of the others, "
@@ -189,6 +197,14 @@ class Model:
             return (
                 f"the system matrix is singular to working precision: with h = {self.h:g} the inertia term "
                 f"(mass / h^2, up to {mass:.3g}) is {mass / stiff:.1e} of {what} (up to {others[name]:.3g})" + remedy
+            )
+        column_mass = M.diagonal()
+        spread = float(column_mass.max() / column_mass.min()) if column_mass.min() > 0.0 else np.inf
+        if spread > 1e12:
+            return (
+                f"the system matrix cannot be factored to working precision: B's columns differ in mass by "
+                f"{spread:.1e} (B^T M B's diagonal from {column_mass.min():.3g} to {column_mass.max():.3g}); "
+                "scale them to comparable lengths (mass_orthonormalize(B, M) gives each unit mass)"
             )
         return "the reduced system matrix is not positive definite: check that B has full column rank"
 

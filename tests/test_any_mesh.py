@@ -16,7 +16,7 @@ from skfem_modal import linear_modal_analysis
 from skfem_modal.clusters import spectral_clusters
 from skfem_modal.contact import ALLOWANCE
 from skfem_modal.eigen import canonical_eigenpairs, generic_weight
-from skfem_modal.fem import _mass
+from skfem_modal.fem import mass_matrix
 from skfem_modal.mesh import connected_parts
 from skfem_modal.scene import Scene
 from skfem_modal.sim import ModalMuscle
@@ -57,7 +57,7 @@ def permuted(mesh, seed=0):
 
 
 def lumped(mesh):
-    return _mass(mesh, 1.0, True, "P1", False)
+    return mass_matrix(mesh, rho=1.0, lumped=True, vector=False)
 
 
 def same_up_to_sign(A, B, tol):

@@ -344,17 +344,36 @@ def test_more_arguments_are_named_when_wrong(sim):
             sm.ModalMuscle.from_mesh(sim.mesh, n_muscles=muscles, pinned=np.arange(n))
 
 
-def test_an_affine_basis_spans_the_rest_pose_at_any_scale():
-    """A review: at 1e-9 the affine basis's columns are 1e9 apart, and the fit dropped the small ones."""
+def test_an_affine_basis_at_any_scale_is_taken_or_refused_by_what_is_wrong():
+    """A review: at 1e-9 the affine basis's columns are 1e9 apart, and the fit dropped the small ones. Then the
+    rank check called 4 of its 6 columns combinations of the others: their mass is 1e-19 of the others', and
+    the system matrix cannot be factored for that; the error now says so, and mass_orthonormalize mends it."""
     from skfem import MeshTri
 
-    from skfem_modal.checks import _basis
-    from skfem_modal.subspace import lbs_basis
+    from skfem_modal.fem import mass_matrix
+    from skfem_modal.subspace import lbs_basis, mass_orthonormalize
 
     base = sm.caterpillar(nx=12, ny=6)
+    moved = {}
     for scale in (1e-9, 1.0, 1e9):
         mesh = MeshTri(base.p * scale, base.t)
         B = lbs_basis(mesh.p.T, np.ones((mesh.p.shape[1], 1)))
-        assert _basis(B, mesh.p.T.ravel()) is not None
+        D = np.zeros((mesh.p.size, 1))
+        D[::2, 0] = mesh.p[0]  # a stretch along x, the same at every scale
+        labels = np.zeros(mesh.t.shape[1], dtype=np.int64)
+        # lengths times s, density and time kept: stiffness times s^2 gives the same motion, scaled
+        material = dict(mu=1e5 * scale**2, gamma=1e5 * scale**2, rho=1e3, h=0.01)
+        if scale != 1.0:
+            with pytest.raises(ValueError, match=r"B's columns differ in mass by [0-9.]+e\+1[7-9] .*mass_orthonormal"):
+                sm.ModalMuscle(mesh, B, D, labels, **material)
+        sim = sm.ModalMuscle(mesh, mass_orthonormalize(B, mass_matrix(mesh)), D, labels, **material)
+        z, z_dot, _ = sim.rest_state()
+        assert np.abs(sim.positions(z) - mesh.p.T).max() <= 1e-15 * scale
+        for _ in range(20):
+            z, z_dot = sim.step(z, z_dot, np.array([0.1]), velocity=True)
+        moved[scale] = sim.positions(z) / scale - base.p.T
+    assert np.abs(moved[1.0]).max() > 0.04  # it stretched by 4 % of its size
+    np.testing.assert_allclose(moved[1e-9], moved[1.0], atol=1e-13)
+    np.testing.assert_allclose(moved[1e9], moved[1.0], atol=1e-13)
     with pytest.raises(ValueError, match="B's columns do not span the rest pose"):
-        _basis(B[:, [0, 1, 2, 4, 5]], mesh.p.T.ravel())  # without y e_y, the rest pose needs: y = a x + b
+        sm.ModalMuscle(mesh, B[:, [0, 1, 2, 4, 5]], D, labels, **material)  # without y e_y: y = a x + b

@@ -13,7 +13,7 @@ import pytest
 import skfem_modal as sm
 from skfem_modal.cli import main
 from skfem_modal.eigen import lowest_eigenpairs
-from skfem_modal.fem import _mass, _stiffness
+from skfem_modal.fem import mass_matrix, stiffness_matrix
 from skfem_modal.scene import Scene, SceneError
 from skfem_modal.sim import ModalMuscle
 from skfem_modal.subspace import lbs_basis
@@ -121,7 +121,7 @@ def test_the_eigensolver_does_not_depend_on_units(mu, rho):
     scaled_values, scaled_modes = sm.linear_modal_analysis(mesh, 6, mu=mu, lam=mu, rho=rho)
     np.testing.assert_allclose(scaled_values[3:], values[3:] * (mu / rho), rtol=1e-9)
     np.testing.assert_allclose(scaled_modes[:, 3:] * np.sqrt(rho), modes[:, 3:], atol=1e-9 * np.abs(modes).max())
-    K, M = _stiffness(mesh, mu, mu, "P1"), _mass(mesh, rho, True, "P1", True)
+    K, M = stiffness_matrix(mesh, mu=mu, lam=mu), mass_matrix(mesh, rho=rho)
     lowest, _ = lowest_eigenpairs(K, M, 6, 2)
     np.testing.assert_allclose(lowest[3:], values[3:] * (mu / rho), rtol=1e-9)
 
@@ -303,14 +303,13 @@ def test_a_tiny_body_is_orthonormalised_in_order_without_a_warning():
     """
     import warnings
 
-    from skfem_modal.fem import _mass
     from skfem_modal.mesh import load_mesh
     from skfem_modal.subspace import mass_orthonormalize, skinning_eigenmodes
 
     ghost = sm.normalize_and_center(load_mesh(SHARED / "ghost.obj"))
     tiny = type(ghost)(ghost.p * 1e-6, ghost.t)
     _, _, B = skinning_eigenmodes(tiny, 8)  # as the scene that warned: 48 columns
-    M = _mass(tiny, 1.0, True, "P1", True)
+    M = mass_matrix(tiny)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         Q = mass_orthonormalize(B, M)
