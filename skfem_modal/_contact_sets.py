@@ -567,7 +567,9 @@ def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, compliance, a
     picked : Picked
     near, stick : ndarray of bool, shape (p,)
     x_t : ndarray, shape (p dim,)
-        The picked coordinates of the global solution ``z_t`` (r,).
+        The picked coordinates of the global solution ``z_t``.
+    z_t : ndarray, shape (r,)
+        The global solution projected.
     z : ndarray, shape (r,)
         Set to the projection.
     friction, compliance : float

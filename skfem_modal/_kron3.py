@@ -135,10 +135,13 @@ def separable_watch(watch, up, rtol=1e-11):
     ----------
     watch : ndarray, shape (p, 3 K)
     up : int
+    rtol : float
+        Largest deviation from the factored form, relative to ``max |watch|``.
 
     Returns
     -------
     U : ndarray, shape (p, K), or None
+        None if ``watch`` does not factor.
     """
     p, K = watch.shape[0], watch.shape[1] // 3
     W3 = np.asarray(watch).reshape(p, K, 3)

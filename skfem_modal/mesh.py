@@ -226,7 +226,7 @@ def tangled_elements(p: np.ndarray, t: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    indices : ndarray of int
+    indices : ndarray of int, shape (k,)
         Tangled elements, ascending (empty for a valid mesh).
 
     Examples
@@ -299,7 +299,7 @@ def hanging_vertices(p: np.ndarray, t: np.ndarray):
 
     Returns
     -------
-    vertices : ndarray of int
+    vertices : ndarray of int, shape (k,)
         The hanging vertices, ascending.
     facets : ndarray of int, shape (len(vertices), dim)
         The corners of the facet each lies in.
@@ -1449,7 +1449,8 @@ def vertices_where(mesh, condition: str) -> np.ndarray:
 
     Returns
     -------
-    indices : ndarray of int, ascending
+    indices : ndarray of int, shape (k,)
+        The vertices, ascending.
 
     Examples
     --------

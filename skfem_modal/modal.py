@@ -72,7 +72,7 @@ def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
     n_muscles : int
-    pinned : array_like of int, optional
+    pinned : array_like of int, shape (k,), optional
         Clamped vertices.
 
     Examples
@@ -116,7 +116,7 @@ def linear_modal_analysis(
         Lame parameters of the stiffness.
     rho : float or ndarray of shape (nT,)
         Density of the mass matrix.
-    fixed : array_like of int or bool, optional
+    fixed : array_like of int, shape (k,), or of bool, shape (n,), optional
         Pinned vertices: their DOFs are eliminated and the modes are zero there
         (with P2, also the edge nodes between two pinned vertices).
     mass : {"lumped", "consistent"}
@@ -361,7 +361,7 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
     n_muscles : int
     mu, lam, rho : float or ndarray of shape (nT,)
         Material of the modal analysis (``lam`` defaults to ``mu``).
-    pinned : array_like of int, optional
+    pinned : array_like of int, shape (k,), optional
         Clamped vertices: then the modes of the clamped body (no rigid ones).
     signs : array_like of +1 / -1, shape (n_muscles,), optional
         Flip muscles (the modes' own signs follow

@@ -39,7 +39,7 @@ def fixed_nodes(mesh, fixed, element: str = "P1") -> np.ndarray:
     Parameters
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
-    fixed : array_like of int (vertex indices) or of bool, shape (n,)
+    fixed : array_like of int, shape (k,) (vertex indices), or of bool, shape (n,)
     element : {"P1", "P2"}
 
     Returns
@@ -113,7 +113,7 @@ def rigid_motions(mesh, fixed=None, element: str = "P1") -> np.ndarray:
     Parameters
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
-    fixed : array_like of int or bool, optional
+    fixed : array_like of int, shape (k,), or of bool, shape (n,), optional
         Fixed vertices.
     element : {"P1", "P2"}
 
@@ -248,6 +248,16 @@ def rigid_mode_count(mesh, fixed=None) -> int:
     Parts are vertex-connected; fixed vertices remove the motions that move
     them (one pinned vertex in 2D leaves the rotation about it).
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    fixed : array_like of int, shape (k,), or of bool, shape (n,), optional
+        Pinned vertices.
+
+    Returns
+    -------
+    int
+
     Examples
     --------
     >>> from skfem_modal.mesh import caterpillar
@@ -276,6 +286,16 @@ def hinge_count(mesh, fixed=None) -> int:
     Pieces of a part joined only at a vertex (or, in 3D, along an edge) turn
     against each other; pins hold some of those turns. Counted from the
     geometry (P1 and P2 alike: the pieces' shared nodes decide).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    fixed : array_like of int, shape (k,), or of bool, shape (n,), optional
+        Pinned vertices.
+
+    Returns
+    -------
+    int
 
     Examples
     --------

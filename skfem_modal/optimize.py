@@ -418,6 +418,10 @@ def run_search(
     executor : concurrent.futures.Executor, optional
         Default: a local process pool of ``workers`` or, with ``scheduler``,
         a dask cluster (:class:`~skfem_modal.rollouts.Rollouts`).
+    workers : int
+        Processes of the default local pool.
+    scheduler : str, optional
+        Address of a dask scheduler (``tcp://host:8786``) whose workers run the rollouts.
     blas_threads : int or None
         BLAS threads per worker.
     progress : bool

@@ -31,10 +31,14 @@ class FullSpaceSimulator(ModalMuscle):
     mesh : skfem.MeshTri or skfem.MeshTet
     D : ndarray, shape (n * dim, m), or None
         Muscle modes (without the rest pose).
-    mu, gamma, rho, h, active_labels, gravity, contact_vertices, ground, up,
-    stickiness, push_out, pinned, pin_stiffness, damping_mass,
-    damping_stiffness, max_s :
-        As for :class:`~skfem_modal.sim.ModalMuscle`.
+    **kwargs
+        The settings of :class:`~skfem_modal.sim.ModalMuscle` (all but ``B``,
+        ``labels`` and ``backend``): ``mu``, ``gamma``, ``rho`` and ``h``
+        (required), ``active_labels``, ``gravity``, ``contact_vertices``,
+        ``ground``, ``up``, ``contact_model``, ``friction``, ``allowance``,
+        ``exact_friction``, ``stickiness``, ``push_out``, ``pinned``,
+        ``pin_stiffness``, ``damping_mass``, ``damping_stiffness``, ``etol``,
+        ``warm_start``, ``acceleration``, ``max_s``.
     max_iter : int
         Local/global iterations per step, at most (default 2000).
     tol, rtol : float
@@ -82,6 +86,10 @@ class FullSpaceSimulator(ModalMuscle):
             (``gamma`` and ``lam`` default to ``mu``), the time step, the pinned vertices.
         **kwargs
             The constructor's other settings (``gravity``, ``ground``, ``max_iter``, ...).
+
+        Returns
+        -------
+        sim : FullSpaceSimulator
 
         Examples
         --------

@@ -798,7 +798,7 @@ class Scene:
     # ------------------------------------------------------------ loading
     @classmethod
     def from_toml(cls, path) -> Scene:
-        """Load and validate a scene file."""
+        """Load and validate a scene file (TOML), a :class:`Scene`; its paths are read from the file's folder."""
         path = os.fspath(path)
         return cls.from_dict(read_scene_file(path), base_dir=os.path.dirname(os.path.abspath(path)), source=path)
 
@@ -811,10 +811,25 @@ class Scene:
     def from_dict(cls, data: dict, base_dir: str | None = None, source: str = "dict") -> Scene:
         """Validate a scene given as nested dicts (the same keys as the TOML file).
 
-        Its file paths are read from ``base_dir`` (default: the current
-        directory; :func:`resolve_paths`), and held absolute in ``config``.
-        :meth:`to_dict`'s ``source`` is taken as the source (a run's
-        ``summary.json`` scene builds again).
+        Parameters
+        ----------
+        data : dict
+            The scene's sections and keys (docs/scenes.md).
+        base_dir : str, optional
+            Where its file paths are read from (default: the current directory;
+            :func:`resolve_paths`); they are held absolute in ``config``.
+        source : str
+            What the scene came from, for messages; :meth:`to_dict`'s ``source`` key is
+            taken instead (a run's ``summary.json`` scene builds again).
+
+        Returns
+        -------
+        scene : Scene
+
+        Raises
+        ------
+        SceneError
+            Naming every key with a problem, one a line, before anything is built.
         """
         errors: list[str] = []
         if isinstance(data, dict) and "source" in data:
@@ -852,10 +867,12 @@ class Scene:
     # ---------------------------------------------------------- properties
     @property
     def dim(self) -> int:
+        """The mesh's dimension, 2 or 3."""
         return self.mesh.p.shape[0]
 
     @property
     def h(self) -> float:
+        """The time step (``time.step``)."""
         return self.config["time"]["step"]
 
     @property
@@ -934,6 +951,10 @@ class Scene:
         )
 
     def ground_height(self) -> float | None:
+        """The ground's height along :attr:`up`: ``ground.height``, or ``ground.offset`` below the lowest vertex.
+
+        None without a ground.
+        """
         g = self.config["ground"]
         if g is None:
             return None
@@ -950,6 +971,7 @@ class Scene:
         return up_axis(acceleration, self.dim, None if g is None else g["up"], ground=g is not None)
 
     def contact_candidates(self) -> np.ndarray | None:
+        """The vertices ``ground.contacts_where`` selects, shape (k,), or None (without it: every vertex)."""
         g = self.config["ground"]
         if g is None or g["contacts_where"] is None:
             return None
@@ -960,6 +982,10 @@ class Scene:
 
         ``ground.contacts`` larger than the boundary vertices available (those
         where ``contacts_where`` holds, if given) gives all of them.
+
+        Returns
+        -------
+        vertices : ndarray of int, shape (k,), or None
         """
         if self.config["ground"] is None:
             return None
@@ -968,6 +994,7 @@ class Scene:
         return sample_boundary(self.mesh, self.contact_count(), self.contact_candidates())
 
     def pinned_vertices(self) -> np.ndarray | None:
+        """The pinned vertices (``[pinned]``), shape (k,), or None without pins."""
         p = self.config["pinned"]
         if p is None:
             return None
@@ -1127,6 +1154,17 @@ class Scene:
         amplitudes ``fraction * ceiling``, so a scene and a script that use
         ``sine_gait`` step bit for bit the same (contact-rich motion is chaotic:
         round-off differences grow).
+
+        Parameters
+        ----------
+        t : float
+            Time.
+        ceilings : ndarray, shape (count,)
+            The muscles' amplitude ceilings (``sim.ceilings``).
+
+        Returns
+        -------
+        a : ndarray, shape (count,)
         """
         muscles = self.config["muscles"]
         gait = muscles["gait"]

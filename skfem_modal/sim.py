@@ -311,34 +311,69 @@ def _from_mesh(
     parallel: bool = True,
     blas_threads: int | None = 1,
 ):
-    """Build every ingredient from a mesh and a few numbers.
+    """Build every ingredient from a mesh and a few numbers: muscles, subspace, clusters, contact vertices.
 
-    Muscles are the lowest linear modes without the rigid ones (material
-    ``mu``, ``lam`` (default ``mu``), ``rho``), in the deterministic sign
-    convention of :func:`~skfem_modal.linear_modal_analysis`, each
-    multiplied by ``muscle_signs[k]`` (+1 or -1) if given; the subspace is
-    ``n_weights`` skinning eigenmodes, mass-orthonormalised; passive
-    clusters are spectral clusters of the weights (``seed``); one active
-    cluster (or ``n_active_clusters`` spectral clusters; at least one per
-    connected part of the mesh, so separate bodies turn apart), clustering
-    on the first ``cluster_weights`` weights (default ``n_weights``); with a
-    ``ground``, ``n_contacts`` boundary vertices by farthest-point sampling
-    or ``"all"`` of them (default: every boundary vertex with the ``coulomb``
-    contact, 30 with the ``reference`` one, as its tutorial), among
-    ``contact_candidates`` if given. With ``pinned``
-    vertices the muscles are the modes of the body clamped there.
-    ``progress(stage)``, if given, is called before each stage (``True``:
-    each stage printed to stderr). With
-    ``parallel`` the modal analysis runs in a second thread beside the
-    subspace and clusters (the results do not change). ``cluster_by``:
-    ``"weights"`` (spectral clusters of the skinning weights) or
-    ``"rotations"`` (by how the subspace's lowest modes rotate the
-    elements, :func:`~skfem_modal.clusters.rotation_clusters`: more
-    accuracy per cluster where few are used). ``etol``, ``warm_start``
-    and ``acceleration``: as for the constructor. Each BLAS call
-    uses at most ``blas_threads`` threads meanwhile (``None``: as the
-    BLAS library is set), so the two threads do not oversubscribe the
-    cores (:mod:`skfem_modal.threads`).
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Rest shape, in its own units (:mod:`skfem_modal.units` warns of a size the material
+        cannot hold up).
+    n_muscles : int
+        Muscles: the lowest linear modes without the rigid ones (material ``mu``, ``lam``,
+        ``rho``), in the deterministic sign convention of
+        :func:`~skfem_modal.linear_modal_analysis`; with ``pinned`` vertices, the modes of the
+        body clamped there.
+    muscle_signs : array_like of +1 or -1, shape (n_muscles,), optional
+        Each muscle mode multiplied by its sign.
+    n_weights : int
+        Skinning eigenmodes of the subspace (mass-orthonormalised).
+    cluster_weights : int, optional
+        The first this many weights are clustered (default ``n_weights``).
+    n_clusters : int
+        Passive rotation clusters: spectral clusters of the weights (``seed``).
+    mu, gamma, lam, rho : float
+        Passive stiffness, muscle stiffness (default ``mu``), the modal analysis's Lame
+        ``lam`` (default ``mu``) and density; see :class:`ModalMuscle`.
+    h : float
+        Time step.
+    gravity : array_like, shape (dim,), optional
+        Gravitational acceleration; None: no gravity.
+    ground : float, optional
+        Height of the ground plane along ``up``; None: no ground.
+    n_contacts : int or "all", optional
+        With a ``ground``: that many boundary vertices by farthest-point sampling, or all of
+        them (default: every boundary vertex with the ``coulomb`` contact, 30 with the
+        ``reference`` one, as its tutorial).
+    contact_candidates : array_like of int, shape (k,), optional
+        The vertices the contact vertices are chosen among.
+    up : int, optional
+        Index of the up axis (default: the axis gravity pulls down along).
+    contact_model, friction, allowance, exact_friction, stickiness, push_out
+        The contact's model and settings, as for :class:`ModalMuscle`.
+    pinned : array_like of int, shape (k,), optional
+        Vertices held at their rest positions.
+    pin_stiffness, damping_mass, damping_stiffness, max_iter, tol, rtol, etol, warm_start, acceleration, backend
+        As for :class:`ModalMuscle`.
+    n_active_clusters : int
+        Muscle rotation clusters: spectral clusters, at least one per connected part of the mesh
+        (so separate bodies turn apart).
+    cluster_by : {"weights", "rotations"}
+        ``weights``: spectral clusters of the skinning weights; ``rotations``: by how the
+        subspace's lowest modes rotate the elements
+        (:func:`~skfem_modal.clusters.rotation_clusters`: more accuracy per cluster where few
+        are used).
+    max_s : float
+        The muscles' amplitude ceilings (:class:`ModalMuscle`).
+    seed : int
+        Seed of the clustering.
+    progress : callable or bool, optional
+        ``progress(stage)`` is called before each stage (True: each stage printed to stderr).
+    parallel : bool
+        Run the modal analysis in a second thread beside the subspace and clusters (the results
+        do not change).
+    blas_threads : int or None
+        Threads each BLAS call may use meanwhile (None: as the BLAS library is set), so that the
+        two threads do not oversubscribe the cores (:mod:`skfem_modal.threads`).
 
     Returns
     -------
@@ -547,8 +582,16 @@ class _GroundSettings:
     def penetration(self, z, relative: bool = False) -> float:
         """Depth of the lowest boundary vertex below the ground, for a state ``z`` (0 without a ground).
 
-        ``relative``: the deepest relative to the size of the vertex's own connected part (in a mesh of
-        several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
+        Parameters
+        ----------
+        z : ndarray, shape (r,)
+        relative : bool
+            The deepest relative to the size of the vertex's own connected part (in a mesh of
+            several bodies, each as large as itself: :func:`~skfem_modal.mesh.part_sizes`).
+
+        Returns
+        -------
+        float
         """
         z = self._state(z)
         contact = self._model.contact
@@ -632,7 +675,7 @@ class ModalMuscle(_GroundSettings):
         Muscle rotation cluster of each element; default one cluster.
     gravity : array_like, shape (dim,), optional
         Gravitational acceleration; ``None``: no gravity.
-    contact_vertices : array_like of int, optional
+    contact_vertices : array_like of int, shape (k,), optional
         Vertices that can touch the ground (default with a ground: all boundary vertices).
     ground : float, optional
         Height of the ground plane along ``up``; ``None``: no ground.
@@ -664,7 +707,7 @@ class ModalMuscle(_GroundSettings):
     push_out : float, optional
         ``reference`` only, in [0, 1]: fraction of a contact point's
         penetration undone per step (default 0, the reference behaviour).
-    pinned : array_like of int, optional
+    pinned : array_like of int, shape (k,), optional
         Vertices held at their rest positions by stiff springs
         ``pin_stiffness / 2 |x_i - X_i|^2`` (in the subspace a pin is as exact
         as the basis allows).
@@ -1263,6 +1306,8 @@ def _passive_diagonal(space, weights) -> float:
 class StepRecord:
     """One step of :func:`simulate`: its number, time, state, activation and cost.
 
+    Its constructor takes the attributes in this order (``change`` and ``start`` optional).
+
     Attributes
     ----------
     step : int
@@ -1284,8 +1329,8 @@ class StepRecord:
 
     __slots__ = ("step", "time", "z", "z_dot", "a", "seconds", "iterations", "change", "start")
 
-    def __init__(self, step, time_, z, z_dot, a, seconds, iterations, change=0.0, start=None):
-        self.step, self.time, self.z, self.z_dot = step, time_, z, z_dot
+    def __init__(self, step, time, z, z_dot, a, seconds, iterations, change=0.0, start=None):
+        self.step, self.time, self.z, self.z_dot = step, time, z, z_dot
         self.a, self.seconds, self.iterations, self.change, self.start = a, seconds, iterations, change, start
 
     @property
@@ -1311,7 +1356,7 @@ def simulate(sim, steps: int, activation=None, state=None):
         ``activation(t)`` gives the muscles' activation during the step that
         starts at time ``t``, shape (m,); an array, the same activation every
         step; None: zero.
-    state : tuple, optional
+    state : tuple of ndarray, shape (r,), optional
         ``(z, z_dot)`` to start from (``sim.rest_state()``'s three values do too: its zero
         activation is not used); default the rest state.
 

@@ -614,8 +614,9 @@ def make_executor(
         Address of a dask.distributed scheduler (``tcp://host:8786``): then
         its executor (needs the ``distributed`` extra).
     initializer : callable, optional
-        Called with ``initargs`` in each local pool process as it starts
-        (``initargs`` are pickled once per process).
+        Called with ``initargs`` in each local pool process as it starts.
+    initargs : tuple
+        The initializer's arguments (pickled once per process).
     quiet_interrupts : bool
         The local pool's processes start with Ctrl-C blocked, left to the
         caller (:class:`~skfem_modal.interrupts.QuietSpawnContext`).
@@ -820,6 +821,10 @@ def run_study(
         Where the scene's relative paths start.
     executor : concurrent.futures.Executor, optional
         Default: :func:`make_executor` with ``workers`` / ``scheduler``.
+    workers : int
+        Processes of the default local pool.
+    scheduler : str, optional
+        Address of a dask scheduler (``tcp://host:8786``) whose workers run the settings.
     progress : bool
         Print a line per finished run.
     overwrite : bool
