@@ -5,7 +5,9 @@ not counted. At most two functions over 80 such lines, no class over 400.
 """
 
 import ast
+import inspect
 import pathlib
+import re
 
 import skfem_modal
 
@@ -62,3 +64,60 @@ def test_no_class_over_400_lines_of_code():
     assert sum(kind == "class" for kind, _, _ in found) > 20
     long = sorted((n, name) for kind, name, n in found if kind == "class" and n > LONGEST_CLASS)
     assert not long, f"classes over {LONGEST_CLASS} lines of code: {long}"
+
+
+# ------------------------------------------------------------ the public API's docstrings
+
+_SECTIONS = {"Returns", "Yields", "Raises", "Attributes", "Examples", "Notes", "See Also", "Warns", "References"}
+
+
+def documented_parameters(doc) -> set | None:
+    """The names a numpydoc ``Parameters`` section lists (``a, b : type`` lists two), None without one."""
+    lines = inspect.cleandoc(doc or "").splitlines()
+    if "Parameters" not in lines:
+        return None
+    names = set()
+    for line in lines[lines.index("Parameters") + 2 :]:
+        if line in _SECTIONS:
+            break
+        entry = re.match(r"(\*{0,2}\w+(?:, \*{0,2}\w+)*)(?: :|$)", line)
+        if entry and not line.startswith(" "):
+            names |= {name.strip().lstrip("*") for name in entry.group(1).split(",")}
+    return names
+
+
+def public_callables():
+    """``(name, docstring, function)`` of the package root's functions, classes (their constructors) and methods."""
+    for name in skfem_modal.__all__:
+        obj = getattr(skfem_modal, name)
+        if inspect.isclass(obj):
+            yield name, obj.__doc__, obj.__init__
+            for method_name, method in vars(obj).items():
+                function = getattr(method, "__func__", method)
+                if not method_name.startswith("_") and inspect.isfunction(function):
+                    yield f"{name}.{method_name}", function.__doc__, function
+        elif inspect.isfunction(obj):
+            yield name, obj.__doc__, obj
+
+
+def test_documented_parameters_are_the_signatures():
+    """Every parameter of the root's public callables is in its docstring's Parameters section, and no other."""
+    checked, wrong = 0, []
+    for name, doc, function in public_callables():
+        names = documented_parameters(doc)
+        if names is None:
+            continue
+        parameters = [p for p in inspect.signature(function).parameters if p not in ("self", "cls")]
+        missing, extra = [p for p in parameters if p not in names], sorted(names - set(parameters))
+        checked += 1
+        if missing or extra:
+            wrong.append(f"{name}: not documented {missing}, documented but not taken {extra}")
+    assert checked >= 40, checked  # (the package's API, not an empty walk)
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_docstring_check_finds_a_misnamed_parameter():
+    doc = "Do.\n\nParameters\n----------\nz, z_dot : ndarray, shape (r,)\nh : float\n    Step.\n\n"
+    doc += "Returns\n-------\nx : int\n"
+    assert documented_parameters(doc) == {"z", "z_dot", "h"}
+    assert documented_parameters("One line.") is None
