@@ -103,6 +103,10 @@ def vector_dofs(scalar_dofs: np.ndarray, dim: int) -> np.ndarray:
 def element_volumes(mesh) -> np.ndarray:
     """Area (2D) or volume (3D) of every element.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
     Returns
     -------
     volumes : ndarray, shape (nT,)
@@ -180,6 +184,11 @@ def _positive(value, n_elements: int, name: str, allow_zero: bool = False) -> np
 def node_positions(mesh, element: str = "P1") -> np.ndarray:
     """Rest positions of the nodes carrying DOFs.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    element : {"P1", "P2"}
+
     Returns
     -------
     positions : ndarray, shape (n_nodes, dim)
@@ -204,6 +213,11 @@ def _values(basis) -> np.ndarray:
 
 def quadrature_volumes(mesh, element: str = "P1") -> np.ndarray:
     """Quadrature weights (with the Jacobian) of :func:`deformation_jacobian`'s points.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    element : {"P1", "P2"}
 
     Returns
     -------

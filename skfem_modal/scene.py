@@ -1098,6 +1098,13 @@ class Scene:
         (sampled as :meth:`build` does), iterated to ``rtol`` (or to round-off,
         :data:`REFERENCE_FLOOR` of the body's size, for a step that barely moves).
 
+        Parameters
+        ----------
+        rtol : float
+            A step stops when its last change is below ``rtol`` times its motion.
+        max_iter : int
+            Iterations a step, at most.
+
         Returns
         -------
         ref : skfem_modal.reference.FullSpaceSimulator
