@@ -471,7 +471,7 @@ def _hint(mesh) -> str:
 
 
 def body_size(mesh) -> float:
-    """The body's size: its largest extent along an axis, what relative lengths refer to.
+    """The size of a body ``mesh``: its largest extent along an axis, what relative lengths refer to.
 
     >>> body_size(beam2d(2.0, 0.5, 4, 2))
     2.0

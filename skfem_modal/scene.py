@@ -798,7 +798,7 @@ class Scene:
     # ------------------------------------------------------------ loading
     @classmethod
     def from_toml(cls, path) -> Scene:
-        """Load and validate a scene file (TOML), a :class:`Scene`; its paths are read from the file's folder."""
+        """Load and validate the scene file (TOML) at ``path``, a :class:`Scene`; its paths are read from its folder."""
         path = os.fspath(path)
         return cls.from_dict(read_scene_file(path), base_dir=os.path.dirname(os.path.abspath(path)), source=path)
 

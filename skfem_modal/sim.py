@@ -1162,6 +1162,10 @@ class ModalMuscle(_GroundSettings):
         muscle action; for a pinned one the displacement from the rest shape (the pins
         hold the frame).
 
+        Parameters
+        ----------
+        z : ndarray, shape (r,)
+
         Returns
         -------
         amplitudes : ndarray, shape (m,)
@@ -1172,7 +1176,7 @@ class ModalMuscle(_GroundSettings):
         return muscles.amplitudes(self._state(z), body_frame="pinned" not in self._model.named)
 
     def contact_positions(self, z) -> np.ndarray:
-        """Positions of the contact vertices, shape (p, dim) (empty without a ground)."""
+        """Positions of the contact vertices in a state ``z`` (r,), shape (p, dim) (empty without a ground)."""
         contact = self._model.contact
         return np.zeros((0, self.dim)) if contact is None else contact.positions(self._state(z))
 
@@ -1277,7 +1281,7 @@ class ModalMuscle(_GroundSettings):
         return self.kinetic_energy(z_dot) + self.energy(z, z, np.zeros_like(z), np.zeros(self.n_muscles))
 
     def kinetic_energy(self, z_dot) -> float:
-        """``1/2 z_dot^T B^T M B z_dot``, the kinetic energy of a velocity, shape (r,)."""
+        """The kinetic energy of a velocity ``z_dot``, shape (r,): ``1/2 z_dot^T B^T M B z_dot``."""
         v = self._state(z_dot, "z_dot")
         return 0.5 * float(v @ (self._model.inertia.mass_matrix @ v))
 

@@ -106,7 +106,7 @@ TOL = 5e-7
 
 
 class SimulationError(RuntimeError):
-    """The simulation went non-finite; ``step`` is the step number when known."""
+    """The simulation went non-finite: ``message`` says how; ``step`` is the step number when known."""
 
     def __init__(self, message: str, step: int | None = None):
         super().__init__(message if step is None else f"step {step}: {message}")

@@ -111,9 +111,11 @@ def test_farthest_point_sampling_is_deterministic_and_spread():
     for i in range(1, 20):
         d = np.min(np.linalg.norm(pts[:, None] - pts[a[:i]][None], axis=2), axis=1)
         assert d[a[i]] == pytest.approx(d.max())
-    # ties go to the first index
+    # ties go to the first index (the reference's rule for its contact vertices), the start's and each pick's
     line = np.array([[0.0], [1.0], [-1.0], [2.0]])
     assert farthest_point_sampling(line[[1, 0, 2, 3]], 2).tolist() == [2, 3]
+    assert farthest_point_sampling(np.array([[0.0], [1.0], [-1.0]]), 2, start=0).tolist() == [0, 1]  # 1 and -1 tie
+    assert farthest_point_sampling(np.array([[0.0], [0.0], [1.0]]), 2).tolist() == [0, 2]  # two smallest x
     with pytest.raises(ValueError, match="k must be in 1..4"):
         farthest_point_sampling(line, 5)
 
@@ -239,6 +241,19 @@ def test_load_tetrahedra_and_quadratic_cells(tmp_path):
     loaded = load_mesh(path)
     assert isinstance(loaded, MeshTet) and loaded.t.shape == m.t.shape
     np.testing.assert_allclose(element_volumes(loaded).sum(), 1.0)
+    # the same box as quadratic tetrahedra (meshio's order: the corners, then the midpoints of edges
+    # 01, 12, 02, 03, 13, 23, here each tetrahedron's own): read by its corners, and said so
+    edges = [(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)]
+    n, count = m.p.shape[1], m.t.shape[1]
+    midpoints = np.concatenate([(m.p[:, m.t[a]] + m.p[:, m.t[b]]).T / 2 for a, b in edges])
+    cells = np.hstack([m.t.T] + [n + k * count + np.arange(count)[:, None] for k in range(6)])
+    meshio.write(path, meshio.Mesh(np.vstack([m.p.T, midpoints]), [("tetra10", cells)]), file_format="gmsh22")
+    said = r"quadratic tetra10 cells are read by their corner vertices; their 288 mid-edge"
+    with pytest.warns(UserWarning, match=said):
+        quadratic = load_mesh(path)
+    assert isinstance(quadratic, MeshTet)
+    np.testing.assert_array_equal(quadratic.p, loaded.p)
+    np.testing.assert_array_equal(quadratic.t, loaded.t)
 
 
 def test_load_refuses_curved_surfaces_and_unknown_formats(tmp_path):

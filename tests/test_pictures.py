@@ -24,6 +24,9 @@ def test_up_follows_the_ground_then_gravity():
     np.testing.assert_array_equal(up_vector(summary(3, gravity=[0.0, -9.8, 0.0])), [0, 1, 0])
     np.testing.assert_array_equal(up_vector(summary(2, gravity=[0.0, 9.8])), [0, -1])  # y-down image outlines
     np.testing.assert_array_equal(up_vector(summary(3)), [0, 0, 1])
+    # both: the ground's up axis, not gravity's (an incline: gravity tilted 30 degrees off -y)
+    np.testing.assert_array_equal(up_vector(summary(2, ground={"up": 1}, gravity=[4.9, -8.49])), [0, 1])
+    np.testing.assert_array_equal(up_vector(summary(3, ground={"up": 2}, gravity=[0.0, -9.8, 0.0])), [0, 0, 1])
 
 
 @pytest.mark.parametrize("up", [[0, 0, 1], [0, 1, 0], [1, 0, 0]])
