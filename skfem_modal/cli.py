@@ -985,8 +985,10 @@ def main(argv=None) -> int:
     parser = build_parser()
     given = list(sys.argv[1:] if argv is None else argv)
     args, unknown = parser.parse_known_args(_joined_signed_values(given, _single_value_options(parser)))
-    if unknown:  # said by the command's parser, which names the command and its help
-        _commands(parser)[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
+    if unknown:  # said by the parser they were given to: the command's (naming it and its help), or the top's
+        before = given[: given.index(args.command)] if args.command in given else []
+        said_by = parser if any(word in before for word in unknown) else _commands(parser)[args.command]
+        said_by.error(f"unrecognized arguments: {' '.join(unknown)}")
     args.argv = given
     try:
         with warnings.catch_warnings(), terminate_as_interrupt():

@@ -202,8 +202,8 @@ class Model:
         spread = float(column_mass.max() / column_mass.min()) if column_mass.min() > 0.0 else np.inf
         if spread > 1e12:
             return (
-                f"the system matrix cannot be factored to working precision: B's columns differ in mass by "
-                f"{spread:.1e} (B^T M B's diagonal from {column_mass.min():.3g} to {column_mass.max():.3g}); "
+                "the system matrix is too unevenly scaled to solve to working precision: B's columns differ in mass "
+                f"by {spread:.1e} (B^T M B's diagonal from {column_mass.min():.3g} to {column_mass.max():.3g}); "
                 "scale them to comparable lengths (mass_orthonormalize(B, M) gives each unit mass)"
             )
         return "the reduced system matrix is not positive definite: check that B has full column rank"

@@ -131,11 +131,11 @@ def _inverted_start():
     return result, out
 
 
-def _material(factor):
+def _material(factor, coulomb=False):
     def make():
         mesh = small_caterpillar()
         ground = float(mesh.p[1].min()) - 0.3
-        sim = build(mesh, mu=1e6 * factor, gravity=True, ground=ground)
+        sim = build(mesh, mu=1e6 * factor, gravity=True, ground=ground, coulomb=coulomb)
         result = run(sim, 300)
         return result, outcome(result, no_input=True, ground=ground, size=2.0)
 
@@ -186,6 +186,8 @@ CASES = {
     "elements inverted at the start": _inverted_start,
     "material 1e4 times stiffer": _material(1e4),
     "material 1e3 times softer": _material(1e-3),
+    "material 1e4 times stiffer (Coulomb contact)": _material(1e4, coulomb=True),
+    "material 1e3 times softer (Coulomb contact)": _material(1e-3, coulomb=True),
     "time step 0.1": _large_step(),
     "time step 0.1 (Coulomb contact)": _large_step(coulomb=True),
     "activations at 3 times the ceiling": _strong_activation,

@@ -276,6 +276,7 @@ def test_modes_names_a_bad_material_option_before_reading_the_mesh(option, said,
         (["run", "--every", "0"], "skfem-modal run: error: argument --every: expected a positive integer, got '0'"),
         (["modes", "-k", "0"], "skfem-modal modes: error: argument -k: expected a positive integer, got '0'"),
         (["run", "--bogus"], "skfem-modal run: error: unrecognized arguments: --bogus"),
+        (["--bogus", "run"], "skfem-modal: error: unrecognized arguments: --bogus"),
         (["bogus"], "skfem-modal: error: argument command: invalid choice: 'bogus'"),
     ],
 )

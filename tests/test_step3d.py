@@ -263,8 +263,11 @@ def test_kronecker_step_is_redone_when_the_sign_check_fails(monkeypatch):
     sims = simulators(backends=("numpy", "plain"))
     certify, einsum = _kron3.certify_levels, np.einsum
 
+    certified = []
+
     def without_shift_proof(levels, **options):
         ok, top, rho = certify(levels, **options)
+        certified.append(ok)
         return ok, False, rho
 
     def sign_fails(subscripts, *operands, **options):
@@ -276,5 +279,6 @@ def test_kronecker_step_is_redone_when_the_sign_check_fails(monkeypatch):
         patch.setattr(_kron3, "certify_levels", without_shift_proof)
         patch.setattr(_kron3.np, "einsum", sign_fails)
         fast, checked, _ = run_pair(sims, 10, 0.6)
+    assert len(certified) == 10 and all(certified)  # the powers passed: the sign check alone refused them
     assert sims[0].solver.redone - before == 10  # every step refused, and redone
     assert np.abs(fast - checked).max() <= 1e-10 * np.abs(checked).max()

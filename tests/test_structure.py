@@ -106,24 +106,29 @@ def public_callables():
             yield name, obj.__doc__, obj
 
 
-def test_documented_parameters_are_the_signatures():
-    """The root's public callables document their parameters by name.
+def undocumented(doc, parameters) -> tuple[list, list]:
+    """``(missing, extra)``: parameters a docstring does not give, and names its Parameters section lists in vain.
 
-    With a Parameters section: it lists exactly the signature's parameters. Without one (a method of
-    one obvious argument, a record whose constructor takes its attributes): each parameter is an
-    entry of its Attributes section or named in ````double backquotes```` in its text.
+    With a Parameters section it must list exactly ``parameters``. Without one (a method of one obvious
+    argument, a record whose constructor takes its attributes) each parameter must be an entry of its
+    Attributes section or named in ````double backquotes```` in its text.
     """
+    parameters = [p for p in parameters if p not in ("self", "cls") and not p.startswith("_")]
+    listed = documented_parameters(doc)
+    if listed is not None:
+        return [p for p in parameters if p not in listed], sorted(listed - set(parameters))
+    return [p for p in parameters if p not in named_in(doc) | {"args", "kwargs"}], []
+
+
+def test_documented_parameters_are_the_signatures():
+    """The root's public callables document their parameters by name (:func:`undocumented`)."""
     sections, named, wrong = 0, 0, []
     for name, doc, function in public_callables():
-        parameters = [p for p in inspect.signature(function).parameters if p not in ("self", "cls")]
-        parameters = [p for p in parameters if not p.startswith("_")]  # (a dataclass's private fields)
-        listed = documented_parameters(doc)
-        if listed is not None:
-            sections += 1
-            missing, extra = [p for p in parameters if p not in listed], sorted(listed - set(parameters))
-        else:
-            named += bool(parameters)
-            missing, extra = [p for p in parameters if p not in named_in(doc) and p not in ("args", "kwargs")], []
+        parameters = list(inspect.signature(function).parameters)
+        has_section = documented_parameters(doc) is not None
+        sections += has_section
+        named += not has_section and len(parameters) > 1
+        missing, extra = undocumented(doc, parameters)
         if missing or extra:
             wrong.append(f"{name}: not documented {missing}, documented but not taken {extra}")
     assert sections >= 40 and named >= 10, (sections, named)  # (the package's API, not an empty walk)
@@ -135,3 +140,7 @@ def test_the_docstring_check_finds_a_misnamed_parameter():
     doc += "Returns\n-------\nx : int\n"
     assert documented_parameters(doc) == {"z", "z_dot", "h"}
     assert documented_parameters("One line.") is None
+    assert undocumented(doc, ["z", "z_dot", "time"]) == (["time"], ["h"])  # h documented, time taken
+    record = "A record.\n\nAttributes\n----------\ntime_ : float\nz : ndarray\n"
+    assert undocumented(record, ["self", "time", "z"]) == (["time"], [])
+    assert undocumented("Positions of a state ``z``.", ["self", "z"]) == ([], [])
