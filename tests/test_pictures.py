@@ -6,6 +6,7 @@ import shutil
 import meshio
 import numpy as np
 import pytest
+from ci import unavailable
 
 from skfem_modal.camera import Camera, deformation, frame_windows, grid_spacing, up_vector
 from skfem_modal.cli import main
@@ -117,7 +118,7 @@ def test_y_up_and_z_up_scenes_are_drawn_alike(creature_runs, backend):
         from skfem_modal.plot import gl_available
 
         if not gl_available():
-            pytest.skip("no off-screen OpenGL here: pyvista cannot render")
+            unavailable("no off-screen OpenGL here: pyvista cannot render")
     images = []
     for run in creature_runs:
         assert main(["render", str(run), "--backend", backend, "-q"]) == 0
@@ -136,7 +137,7 @@ def test_every_frame_has_the_same_scale_and_colours(creature_runs, backend):
         from skfem_modal.plot import gl_available
 
         if not gl_available():
-            pytest.skip("no off-screen OpenGL here: pyvista cannot render")
+            unavailable("no off-screen OpenGL here: pyvista cannot render")
     run = creature_runs[0]
     assert main(["render", str(run), "--backend", backend, "-q"]) == 0
     frames = frames_of(run)

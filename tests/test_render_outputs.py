@@ -6,6 +6,7 @@ import weakref
 
 import numpy as np
 import pytest
+from ci import unavailable
 from test_first_use import SMALL_RUN
 
 from skfem_modal import plot
@@ -20,7 +21,7 @@ SCENE = SMALL_RUN + "[gravity]\nacceleration = [0.0, -9.8]\n[ground]\noffset = 0
 
 def needs_gl():
     if not plot.gl_available():
-        pytest.skip("no off-screen OpenGL here: pyvista cannot render")
+        unavailable("no off-screen OpenGL here: pyvista cannot render")
 
 
 @pytest.fixture(scope="module")
