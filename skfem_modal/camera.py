@@ -69,6 +69,11 @@ class Camera:
 
     Screen coordinates of a point ``x`` are ``(x . right, x . screen_up)``;
     ``x . towards`` is its depth (larger is nearer).
+
+    Parameters
+    ----------
+    right, screen_up, towards : ndarray, shape (3,)
+        Unit vectors, orthogonal.
     """
 
     right: np.ndarray

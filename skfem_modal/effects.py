@@ -52,7 +52,19 @@ class Effect:
         return None, None, None
 
     def energy(self, h, u, u0, v0, a):
-        """Its energy at ``u`` for a step from ``(u0, v0)`` under activation ``a``, and the gradient."""
+        """Its energy at ``u`` for a step of ``h`` from ``(u0, v0)`` under activation ``a``, and the gradient.
+
+        Parameters
+        ----------
+        h : float
+        u, u0, v0 : ndarray, shape (r,)
+        a : ndarray, shape (m,)
+
+        Returns
+        -------
+        E : float
+        grad : ndarray, shape (r,), or 0.0 (none)
+        """
         return 0.0, 0.0
 
 

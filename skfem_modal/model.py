@@ -247,6 +247,17 @@ class Model:
     def energy(self, u, u0, v0, a, gradient: bool = False):
         """The energy a step minimises, at ``u``, rotations optimal (contact adds none).
 
+        Parameters
+        ----------
+        u : ndarray, shape (r,)
+            The candidate end of the step.
+        u0, v0 : ndarray, shape (r,)
+            The step's start and velocity.
+        a : ndarray, shape (m,)
+            The activation.
+        gradient : bool
+            Also the gradient.
+
         Returns
         -------
         E : float

@@ -300,6 +300,20 @@ def next_squarings(rho: np.ndarray, least: int = 2, most: int = 8, growth: float
     the next step. One squaring fewer (``k - 1``) when ``rho_(k-2)`` would
     still pass, one more when ``rho_(k-1)`` is close to failing.
 
+    Parameters
+    ----------
+    rho : ndarray, shape (k - 1,)
+        This step's ``rho_j`` (the largest over the matrices), ``k`` its squarings.
+    least, most : int
+        The range of squarings.
+    growth : float
+    tol : float
+        The certificate's tolerance.
+
+    Returns
+    -------
+    int
+
     >>> next_squarings(np.array([1e-2, 1e-4, 6e-7])), next_squarings(np.array([1e-4, 1e-8, 1e-16]))
     (5, 3)
     >>> next_squarings(np.array([1e-3, 1e-6, 1e-12]))

@@ -339,6 +339,20 @@ class LocalGlobal:
 
         Each backend in turn until one accepts the step (the last must be exact).
 
+        Parameters
+        ----------
+        backends : list
+            From :func:`make_backends`: the fast one first, an exact one last.
+        z, z_dot : ndarray, shape (r,)
+        a : ndarray, shape (m,)
+        contact : Effect, optional
+            The model's contact, which projects each global solution.
+
+        Returns
+        -------
+        z_next : ndarray, shape (r,)
+        iterations : int
+
         Raises
         ------
         SimulationError

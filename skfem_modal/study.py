@@ -236,6 +236,15 @@ def _steps_scene(data: dict, steps: int) -> dict:
 def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
     """Run a scene's full-space reference.
 
+    Parameters
+    ----------
+    data : dict
+        The scene (its TOML keys).
+    base_dir : str or None
+        Where its relative paths start.
+    steps : int
+        Steps to run.
+
     Returns
     -------
     reference : dict

@@ -378,8 +378,22 @@ def warn_scale(
 ) -> None:
     """Warn (:class:`ScaleWarning`) with :func:`scale_mismatch`'s message, if any.
 
-    ``mu`` and ``rho`` may be per element (their means are compared); ``stacklevel`` as for
-    :func:`warnings.warn`, counted from the caller.
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    mu, rho : float or ndarray, shape (nT,)
+        Stiffness and density; per element, their means are compared.
+    gravity : array_like, shape (dim,), optional
+    duration : float, optional
+        The run's simulated time.
+    what : str
+        What the message calls the body.
+    h : float, optional
+        The time step.
+    stacklevel : int
+        As for :func:`warnings.warn`, counted from the caller.
+    damping_stiffness : float
+        The stiffness-proportional damping coefficient (time).
     """
     message = scale_mismatch(
         mesh, float(np.mean(mu)), float(np.mean(rho)), gravity, duration, what, h, float(damping_stiffness)
