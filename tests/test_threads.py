@@ -3,6 +3,7 @@
 import sys
 
 import pytest
+from ci import unavailable
 
 from skfem_modal.mesh import beam2d
 from skfem_modal.sim import ModalMuscle
@@ -16,7 +17,7 @@ def two_blas_threads():
     """Every BLAS library at 2 threads (whatever the environment says), as on a 2-core machine by default."""
     with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
         if not openblas_threads() or set(openblas_threads()) != {2}:
-            pytest.skip(f"cannot give OpenBLAS 2 threads here: {openblas_threads()}")
+            unavailable(f"cannot give OpenBLAS 2 threads here: {openblas_threads()}")
         yield
 
 
