@@ -91,7 +91,15 @@ class StepEnergy:
         self.round_off = 0.0
 
     def start(self, z, z_dot, a) -> None:
-        """Set up the step from ``(z, z_dot)`` under activation ``a``."""
+        """Set up the step from ``(z, z_dot)`` under activation ``a``.
+
+        Parameters
+        ----------
+        z, z_dot : ndarray, shape (r,)
+            The state at the start of the step: its coordinates and their velocities.
+        a : ndarray, shape (m,)
+            The muscles' activations over the step.
+        """
         self.exact.start(z, z_dot, a)
 
     @property
@@ -143,7 +151,23 @@ class Anderson:
         self.dG, self.dF = [], []
 
     def propose(self, z, g, energy=None, local=None):
-        """The extrapolated iterate from ``z`` and ``g = g(z)``, or None while there is no history."""
+        """The extrapolated iterate from ``z`` and ``g = g(z)``, or None while there is no history.
+
+        Each call adds ``g`` and its residual ``g - z`` to the history (the first only starts it).
+
+        Parameters
+        ----------
+        z : ndarray, shape (r,)
+            The last iterate.
+        g : ndarray, shape (r,)
+            Its plain iterate, the local/global map of ``z``.
+        energy, local : optional
+            Not used: taken for the signature of :meth:`SubspaceNewton.propose`.
+
+        Returns
+        -------
+        proposal : ndarray, shape (r,) or None
+        """
         f = g - z
         if self.f is not None:
             self.dG.append(g - self.g)
@@ -183,7 +207,25 @@ class SubspaceNewton:
         """Nothing to forget: each Newton iterate uses only the current point."""
 
     def propose(self, z, g, energy, local):
-        """The Newton iterate from ``z``, with ``g = g(z)`` and ``local = (S, R)`` at ``z``; None where not convex."""
+        """The Newton iterate from ``z``, with ``g = g(z)`` and ``local = (S, R)`` at ``z``; None where not convex.
+
+        Parameters
+        ----------
+        z : ndarray, shape (r,)
+            The last iterate.
+        g : ndarray, shape (r,)
+            Its plain iterate, the local/global map of ``z``.
+        energy : StepEnergy
+            The step's energy, started for this step: its cluster ``rows`` and ``columns`` (a subspace's).
+        local : tuple of ndarray, shape (clusters, dim, dim)
+            ``(S, R)``: the cluster matrices at ``z`` and their closest rotations (``energy.S`` and
+            ``energy.R`` after evaluating it at ``z``).
+
+        Returns
+        -------
+        proposal : ndarray, shape (r,) or None
+            None where the energy is not convex at ``z`` (the Newton system is not positive definite).
+        """
         d, q = self.dim, self.q
         S, R = local
         n = S.shape[0]

@@ -99,13 +99,19 @@ class Camera:
         return cls(right, np.cross(towards, right), towards)
 
     def screen(self, points) -> np.ndarray:
-        """Screen coordinates of points (n, 2 or 3), shape (n, 2)."""
+        """Screen coordinates of ``points``, shape (n, 2).
+
+        ``points``: array_like, shape (n, 2) or (n, 3); 2D points lie in the plane z = 0.
+        """
         points = np.asarray(points, float)
         basis = np.stack([self.right, self.screen_up])[:, : points.shape[1]]
         return points @ basis.T
 
     def depth(self, points) -> np.ndarray:
-        """Depth of points (n, 2 or 3) along the view, larger nearer, shape (n,)."""
+        """Depth of ``points`` along the view, larger nearer, shape (n,).
+
+        ``points``: array_like, shape (n, 2) or (n, 3); 2D points lie in the plane z = 0.
+        """
         points = np.asarray(points, float)
         return points @ self.towards[: points.shape[1]]
 

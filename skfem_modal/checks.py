@@ -231,7 +231,24 @@ def _gravity_and_up(gravity, up, dim: int, ground: bool = True):
 
 
 def nothing_free(held: int, n: int, name: str, fewer: str) -> str | None:
-    """Why holding ``held`` of a mesh's ``n`` vertices in place (as ``name`` does) leaves nothing to move, or None."""
+    """Why holding ``held`` of a mesh's ``n`` vertices in place (as ``name`` does) leaves nothing to move, or None.
+
+    Parameters
+    ----------
+    held : int
+        How many distinct vertices are held.
+    n : int
+        The mesh's number of vertices.
+    name : str
+        What holds them, to start the message (e.g. ``"pinned"``).
+    fewer : str
+        What to do instead, in the message's closing parentheses (e.g. ``"pin fewer"``).
+
+    Returns
+    -------
+    problem : str or None
+        A sentence when ``held >= n``, else None.
+    """
     return f"{name} holds all {n} vertices of the mesh: nothing is left free to move ({fewer})" if held >= n else None
 
 

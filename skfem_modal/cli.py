@@ -51,6 +51,28 @@ def parse_mesh_spec(spec: str, merge: bool = False):
     parameters (a list in brackets: ``box3d:size=[4,1,1]``); anything that is
     not a built-in name is read as a file
     (``merge``: its coincident vertices merged, as for a triangle soup).
+
+    Parameters
+    ----------
+    spec : str
+        A mesh file's path (any format meshio reads), or a built-in shape's name
+        (:data:`~skfem_modal.mesh.BUILTIN_SHAPES`) with optional ``:key=value,...`` parameters: each
+        value an integer, a float, ``true``/``false``, or a bracketed list of numbers.
+    merge : bool
+        Merge a mesh file's coincident vertices; refused for a built-in shape.
+
+    Returns
+    -------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
+    Raises
+    ------
+    ValueError
+        ``spec`` names a scene (``.toml``); a parameter that is not ``key=value``, given twice, not a
+        number or unknown to the shape (:func:`~skfem_modal.mesh.builtin_mesh`); ``merge`` with a built-in
+        shape; or a mesh file that cannot be read as a mesh (:func:`~skfem_modal.mesh.load_mesh`).
+    FileNotFoundError
+        No such mesh file.
     """
     from .mesh import BUILTIN_SHAPES, builtin_mesh, load_mesh
 
@@ -109,6 +131,14 @@ def _material(args) -> tuple[float, float]:
 
 
 def cmd_modes(args) -> int:
+    """``skfem-modal modes``: a mesh's linear vibration modes, printed as a table and written for ParaView.
+
+    ``args``: the options :func:`build_parser` parsed for ``modes`` (the mesh spec, ``-k``, the
+    material, ``--fix``, ``--out``, ...). Returns :data:`EXIT_OK`; bad input (``--fix`` selecting no
+    vertex or every one, a mesh of many parts without ``-k``, an inconsistent material) raises
+    ``ValueError``, and an eigen solve that fails ``FloatingPointError``, for :func:`main` to turn into
+    its exit code.
+    """
     from .export import export_modes
     from .mesh import mesh_summary, vertices_where
     from .modal import actuation_limits, hinge_count, linear_modal_analysis, natural_frequencies, rigid_mode_count
@@ -170,6 +200,14 @@ def _load_scene(path):
 
 
 def cmd_run(args) -> int:
+    """``skfem-modal run``: run a scene (default: the built-in caterpillar crawl) into ``--out``, then render it
+    with ``--render``.
+
+    ``args``: the options :func:`build_parser` parsed for ``run``. Returns :data:`EXIT_OK`, or
+    :data:`EXIT_NUMERICAL` when the simulation failed (said on stderr); bad input (a scene error, an
+    earlier run in ``--out`` without ``--overwrite``, picture options without ``--render``) raises, for
+    :func:`main` to turn into its exit code.
+    """
     from .monitor import MotionWarning
     from .outputs import clear_earlier_run
     from .run import run_scene
@@ -244,11 +282,25 @@ def _render(run_dir, args, say) -> int:
 
 
 def cmd_render(args) -> int:
+    """``skfem-modal render``: pictures and an animation of the run in ``args.run_dir``.
+
+    ``args``: the options :func:`build_parser` parsed for ``render`` (the backend, format, frames and
+    size). Returns :data:`EXIT_OK`; rendering that cannot work here (a missing extra) raises before any
+    work, as does a run folder that cannot be read.
+    """
     say = _say(args)
     return _render(args.run_dir, args, say)
 
 
 def cmd_info(args) -> int:
+    """``skfem-modal info``: what a scene or a mesh holds (sizes, effects, material), or the scene file
+    reference (``--scene-reference``), printed.
+
+    ``args``: the options :func:`build_parser` parsed for ``info``; its ``target`` a scene ``.toml``
+    (default: the built-in scene), a mesh file or a built-in shape spec (:func:`parse_mesh_spec`).
+    Returns :data:`EXIT_OK`; ``--merge`` with a scene, or a scene or mesh that cannot be read, raises
+    (``ValueError``, ``FileNotFoundError``), for :func:`main` to turn into its exit code.
+    """
     from .contact import ALLOWANCE, THIN_WORDS
     from .mesh import mesh_summary
     from .scene import schema_markdown
@@ -372,6 +424,13 @@ def _scene_data(path, default):
 
 
 def cmd_study(args) -> int:
+    """``skfem-modal study``: the accuracy/cost study of a scene (default: the floating caterpillar), its report
+    written to ``--out`` (:func:`~skfem_modal.study.run_study`).
+
+    ``args``: the options :func:`build_parser` parsed for ``study``. Returns :data:`EXIT_OK`; an earlier
+    study in ``--out`` without ``--overwrite`` raises ``FileExistsError``, and workers lost
+    :class:`~skfem_modal.study.WorkersLost`, for :func:`main` to turn into its exit code.
+    """
     from .outputs import clear_earlier_study
     from .study import FLOATING_CATERPILLAR, run_study
 
@@ -499,6 +558,15 @@ def _all_parsers(parser) -> list:
 
 
 def cmd_optimize(args) -> int:
+    """``skfem-modal optimize``: the CMA-ES gait search (:func:`~skfem_modal.optimize.run_search`) into ``--out``.
+
+    ``args``: the options :func:`build_parser` parsed for ``optimize``, and ``args.argv`` (the command line's
+    words, for the command that resumes a stopped search). Returns :data:`EXIT_OK`; a search stopped by
+    Ctrl-C returns :data:`~skfem_modal.interrupts.EXIT_INTERRUPTED`, and one that lost its workers
+    :data:`EXIT_WORKERS_LOST`, each saying on stderr (even with ``-q``) what its checkpoint holds and how to
+    resume it or start it again. Bad input (a scene error, a ``--direction`` that is no direction of the
+    scene, a search in ``--out`` without ``--resume`` or ``--overwrite``) raises, for :func:`main`.
+    """
     from .optimize import GaitSpace, SearchInterrupted, SearchStop, run_search
     from .scene import DEFAULT_SCENE, Scene
 
@@ -553,6 +621,14 @@ def cmd_optimize(args) -> int:
 
 
 def cmd_transfer(args) -> int:
+    """``skfem-modal transfer``: replay a finished search's best gait with more accurate settings, and print
+    how much of its travel survives (a markdown table, none with ``-q``;
+    :func:`~skfem_modal.transfer.transfer_search` writes ``transfer.csv`` in the search's folder).
+
+    ``args``: the options :func:`build_parser` parsed for ``transfer`` (the search folder,
+    ``--full-space-limit``). Returns :data:`EXIT_OK`; a search stopped before its generations were done
+    is said in a warning (its best so far is replayed); a folder without a finished search raises.
+    """
     from .transfer import transfer_search
 
     def say(label):
@@ -686,6 +762,12 @@ def _window_size(text: str) -> tuple[int, int]:
 
 
 def cmd_play(args) -> int:
+    """``skfem-modal play``: the live window on a scene (:func:`~skfem_modal.play.play`).
+
+    ``args``: the options :func:`build_parser` parsed for ``play``. Returns :data:`EXIT_OK`, or
+    :data:`EXIT_BAD_INPUT` when the window cannot open here (:class:`~skfem_modal.play.PlayError`, said on
+    stderr).
+    """
     from .play import PlayError, play
 
     say = _say(args)
@@ -981,7 +1063,25 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``skfem-modal`` console script."""
+    """Entry point of the ``skfem-modal`` console script.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command line's words after the program name (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    code : int
+        The exit code (the module docs list them): the command's own, or the one its error maps to, the
+        error said on stderr as ``skfem-modal COMMAND: ...``.
+
+    Raises
+    ------
+    SystemExit
+        From the parser: ``--help`` and ``--version`` (code 0), and a usage error (code
+        :data:`EXIT_BAD_INPUT`, said in one line).
+    """
     parser = build_parser()
     given = list(sys.argv[1:] if argv is None else argv)
     args, unknown = parser.parse_known_args(_joined_signed_values(given, _single_value_options(parser)))

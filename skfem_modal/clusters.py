@@ -195,6 +195,20 @@ def cluster_count_problem(n_elements: int, n_parts: int, k: int) -> str | None:
     :func:`spectral_clusters` and :func:`rotation_clusters` and a scene's
     ``subspace.clusters`` and ``subspace.active_clusters`` checks.
 
+    Parameters
+    ----------
+    n_elements : int
+        The mesh's number of elements.
+    n_parts : int
+        Its number of connected parts (:func:`~skfem_modal.mesh.connected_parts`); 1 where clusters may
+        span parts (the active clusters, raised to one per part later).
+    k : int
+        The number of clusters asked for, a whole number (checked by the caller).
+
+    Returns
+    -------
+    problem : str or None
+
     Examples
     --------
     >>> cluster_count_problem(100, 1, 20) is None
@@ -212,7 +226,10 @@ def cluster_count_problem(n_elements: int, n_parts: int, k: int) -> str | None:
 
 
 def seed_problem(seed) -> str | None:
-    """What a k-means seed must be (a phrase after "must be"), or None: scipy's ``kmeans2`` takes 0..2**32 - 1."""
+    """What a k-means ``seed`` must be (a phrase after "must be"), or None: scipy's ``kmeans2`` takes 0..2**32 - 1.
+
+    ``seed``: any value; a Python or numpy integer (not a bool) in that range fits.
+    """
     if not is_whole(seed) or not 0 <= seed < 2**32:
         return "an integer in 0..4294967295 (2**32 - 1)"
     return None

@@ -136,7 +136,8 @@ GROUND_DURING_A_RUN = (
 def allowance_lengths(mesh, labels=None) -> np.ndarray:
     """What each vertex's allowance is a share of: its part's size, or :data:`THIN` times its thickness if less.
 
-    ``labels`` (n,): the connected parts (:func:`~skfem_modal.mesh.connected_labels`), if already known.
+    ``mesh``: a scikit-fem mesh; ``labels`` (n,): its connected parts
+    (:func:`~skfem_modal.mesh.connected_labels`), if already known.
 
     Returns
     -------
@@ -161,7 +162,8 @@ def thin(lengths, sizes) -> np.ndarray:
 
 
 def checked_allowance(value, name: str = "allowance") -> float:
-    """The Coulomb contact's allowance as a float, checked to be in [:data:`LEAST_ALLOWANCE`, :data:`MOST_ALLOWANCE`].
+    """The Coulomb contact's allowance ``value`` as a float, checked to be in [:data:`LEAST_ALLOWANCE`,
+    :data:`MOST_ALLOWANCE`]; ``name`` is the setting's name in the error.
 
     Raises
     ------
@@ -337,7 +339,10 @@ class ReferenceContact(_Ground):
         self._point_rows = np.arange(vertices.size * self.dim).reshape(-1, self.dim)  # each point's position rows
 
     def bind(self, system, h, gravity=None) -> None:
-        """Take the factored system of time step ``h`` (a new one clears the cached corrections; gravity: unused)."""
+        """Take the factored ``system`` (:meth:`~skfem_modal.space.Subspace.factor`) of time step ``h``.
+
+        A new one clears the cached corrections; ``gravity`` is unused (the reference contact has no climb rule).
+        """
         JeT = self.Je.T.toarray() if sps.issparse(self.Je) else self.Je.T
         self.HinvJeT = system.solve(JeT)  # (r, p dim): H^-1 Je^T
         self.E = self.HinvJeT.T  # Je H^-1: sensitivity of contact positions to the force
@@ -365,11 +370,14 @@ class ReferenceContact(_Ground):
         self._dot = (lambda A, x: A @ x) if sps.issparse(self.Je) else dot
 
     def positions(self, z) -> np.ndarray:
-        """Contact point positions, shape (p, dim)."""
+        """Contact point positions of a state ``z`` (r,), shape (p, dim)."""
         return (self.Je @ np.asarray(z, float)).reshape(-1, self.dim)
 
     def start_step(self, z_start, z_dot=None, again=False) -> None:
-        """Remember the contact positions at the start of the step (``again``: the same step once more)."""
+        """Remember the contact positions at the step's start ``z_start`` (r,); ``again``: the same step once more.
+
+        ``z_dot`` (the start velocity) is unused: the reference's rule reads positions only.
+        """
         self.p_start = self.Je @ z_start
         up_start = self.p_start[self.up :: self.dim]
         if self.push_out:
@@ -648,7 +656,9 @@ class CoulombContact(_Ground):
         self.active_count = 0
 
     def bind(self, system, h, gravity=None) -> None:
-        """Take the factored system of time step ``h`` (a new one clears the pushes made so far).
+        """Take the factored ``system`` (:meth:`~skfem_modal.space.Subspace.factor`) of time step ``h``.
+
+        A new one clears the pushes made so far.
 
         ``gravity`` (dim,), or None: how far a vertex below the ground may climb in a step.
         """
@@ -706,15 +716,17 @@ class CoulombContact(_Ground):
         return state
 
     def positions(self, z) -> np.ndarray:
-        """Positions of the candidate vertices, shape (p, dim)."""
+        """Positions of the candidate vertices in a state ``z`` (r,), shape (p, dim)."""
         return self.space.positions(np.asarray(z, float))[self.vertices]
 
     # ------------------------------------------------------------ a step
     def start_step(self, z_start, z_dot=None, again=False) -> None:
         """Remember where the step starts; the step's first global solution picks the vertices.
 
-        ``again``: the same step run again by another backend (the first refused it): from what
-        the step started with, not from what the refused run left (who touched, slid, which way).
+        ``z_start``, ``z_dot`` (r,, or None): the start state and velocity (the velocity says which vertices
+        move towards the ground fast). ``again``: the same step run again by another backend (the first
+        refused it): from what the step started with, not from what the refused run left (who touched, slid,
+        which way).
 
         Raises
         ------
@@ -819,7 +831,10 @@ class CoulombContact(_Ground):
         self.sets.aim(self.start.ravel(), self.target, self.floor)
 
     def project(self, z, watched=None) -> bool:
-        """Project a global solution ``z`` (r,) in place; True if it changed."""
+        """Project a global solution ``z`` (r,) in place; True if it changed.
+
+        ``watched`` is unused (nothing is watched: :attr:`watch` is None); it is the backend interface's.
+        """
         if self._first:
             self._first = False
             if self._keep > 0 and self._previous.size and not self._missed.size:

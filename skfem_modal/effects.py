@@ -44,11 +44,13 @@ class Effect:
     name = "effect"
 
     def matrix(self, h):
-        """Its part of the system matrix, shape (r, r), or None."""
+        """Its part of the system matrix for a time step ``h`` (float), shape (r, r) (sparse in the full space),
+        or None."""
         return None
 
     def rhs(self, h):
-        """``(Pz, Pv, f)``: its right-hand side ``Pz u0 + Pv v0 + f``; None for absent parts."""
+        """``(Pz, Pv, f)``: its right-hand side ``Pz u0 + Pv v0 + f`` for a time step ``h`` (float); None for
+        absent parts (``Pz``, ``Pv`` (r, r), ``f`` (r,))."""
         return None, None, None
 
     def energy(self, h, u, u0, v0, a):
@@ -227,7 +229,7 @@ class Muscles(Effect):
         return E + c0 + float(c1 @ a) + float(a @ Q @ a), grad
 
     def amplitudes(self, u, body_frame: bool = False) -> np.ndarray:
-        """Realised modal amplitudes of a state, shape (m,).
+        """Realised modal amplitudes of a state ``u`` (r,), shape (m,).
 
         ``body_frame``: of the displacement from the rest shape moved by the body's best rigid motion
         (:class:`_BodyFrame`), so that a body that turned or moved is not read as muscle action; else of
@@ -396,7 +398,7 @@ class Damping(Effect):
         self._row_weights = np.repeat(totals, dd)
 
     def rotation_scale(self, h) -> float:
-        """``1 + beta / h``: the weight of the elasticity's rotation term with this damping."""
+        """``1 + beta / h``: the weight of the elasticity's rotation term with this damping, at the step ``h``."""
         return 1.0 + self.stiffness_coefficient / h
 
     def offset(self, h, S0):

@@ -25,7 +25,22 @@ __all__ = ["Ingredients", "ingredients", "skinning_subspace", "element_clusters"
 
 
 def timed(timings: dict, stage: str, make):
-    """``make()``, its wall time added to ``timings[stage]``."""
+    """``make()``, its wall time added to ``timings[stage]``.
+
+    Parameters
+    ----------
+    timings : dict
+        Seconds by stage name; changed in place.
+    stage : str
+        The stage's name: its seconds are added to those already there (0 if none).
+    make : callable
+        Called with no arguments.
+
+    Returns
+    -------
+    made : object
+        What ``make()`` returned.
+    """
     clock = time.perf_counter()
     made = make()
     timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - clock
@@ -108,8 +123,23 @@ def element_clusters(
 def active_clusters(mesh, weights, n_active_clusters: int = 1, seed: int = 0):
     """The muscle clusters of the elements (shape (nT,)), or None for one: at least one per connected part.
 
-    Separate bodies never share a muscle rotation. ``weights`` (n, k): the skinning weights the
-    clusters are spectral clusters of (:func:`element_clusters`' ``weights``).
+    Separate bodies never share a muscle rotation.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        With ``n`` vertices and ``nT`` elements.
+    weights : ndarray, shape (n, k)
+        The skinning weights the clusters are spectral clusters of (:func:`element_clusters`' ``weights``).
+    n_active_clusters : int
+        Muscle clusters asked for, raised to the mesh's number of connected parts.
+    seed : int
+        Seed of the spectral clustering.
+
+    Returns
+    -------
+    active_labels : ndarray of int, shape (nT,), or None
+        Muscle cluster of each element; None for one cluster.
     """
     n_active = max(n_active_clusters, int(connected_parts(mesh).max()) + 1)
     return spectral_clusters(mesh, weights, n_active, seed=seed) if n_active > 1 else None
@@ -226,6 +256,9 @@ def ingredients(
 ):
     """Every ingredient of a simulator from a mesh: :meth:`~skfem_modal.sim.ModalMuscle.from_mesh`'s stages.
 
+    The keyword arguments, every one required, are those of :meth:`~skfem_modal.sim.ModalMuscle.from_mesh`
+    (which passes them on by name, its defaults filled in), of the types it takes.
+
     Parameters
     ----------
     mesh : skfem.MeshTri or skfem.MeshTet
@@ -235,13 +268,32 @@ def ingredients(
         It must stay open until ``muscles()`` was called.
     say : callable, optional
         ``say(stage)`` before each stage.
-    n_muscles, muscle_signs, n_weights, cluster_weights, n_clusters, n_active_clusters, cluster_by, mu, lam, rho,
-    pinned, seed, ground, n_contacts, contact_candidates, contact_model :
-        As for :meth:`~skfem_modal.sim.ModalMuscle.from_mesh` (which passes them on by name).
+    n_muscles, muscle_signs, pinned :
+        The muscles: the modal analysis's lowest modes without the rigid ones (of the body clamped at the
+        ``pinned`` vertices, None: none), each multiplied by its sign (``muscle_signs`` None: as the modes
+        come).
+    mu, lam, rho :
+        The modal analysis's material (``lam`` None: ``mu``); ``mu`` and ``rho`` also weigh the clusters
+        by rotations.
+    n_weights, cluster_weights :
+        The subspace's skinning weights, and those computed for clustering (:func:`skinning_subspace`).
+    n_clusters, n_active_clusters, cluster_by, seed :
+        The passive and muscle rotation clusters (:func:`element_clusters`).
+    ground, n_contacts, contact_candidates, contact_model :
+        The contact vertices, sampled only with a ``ground`` (its height not used here): ``n_contacts``
+        boundary vertices (``"all"``: every one; None: the ``contact_model``'s default,
+        :data:`~skfem_modal.contact.DEFAULT_CONTACTS`) among ``contact_candidates`` (None: every boundary
+        vertex).
 
     Returns
     -------
     Ingredients
+
+    Raises
+    ------
+    ValueError
+        An unknown ``cluster_by``, ``muscle_signs`` that are not ``n_muscles`` values of +1 or -1, or
+        counts this mesh cannot take (:func:`count_problems`, every one named).
     """
     if cluster_by not in CLUSTER_BY:
         raise ValueError(f"cluster_by must be one of {', '.join(map(repr, CLUSTER_BY))}, got {cluster_by!r}")

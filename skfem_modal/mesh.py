@@ -19,7 +19,7 @@ import numpy as np
 from skfem import MeshTet, MeshTri
 from skfem.element import ElementTetP1, ElementTriP1
 
-from .values import checked_flag
+from .values import checked_flag, is_finite_real, is_whole
 
 __all__ = [
     "MeshError",
@@ -383,6 +383,24 @@ def validated(mesh, *, what: str = "mesh"):
     pipeline of public functions (each of which checks its input) validates
     the mesh a single time.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        The mesh to check, on entry. It is trusted by identity: it must not
+        change inside the block.
+    what : str
+        How to name the mesh in error messages (e.g. ``"scene.mesh"``).
+
+    Yields
+    ------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        The same mesh.
+
+    Raises
+    ------
+    TypeError, MeshError
+        On entry, as :func:`check_mesh`.
+
     Examples
     --------
     >>> m = beam2d(nx=4, ny=2)
@@ -444,6 +462,20 @@ def check_points(mesh, *, what: str = "mesh") -> None:
     """The checks of :func:`check_mesh` that read the points only, one pass: for functions that use nothing else.
 
     The mesh type, array shapes and dtypes, finite coordinates and their range.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        The mesh to check (at once accepted inside :func:`validated`).
+    what : str
+        How to name the mesh in error messages.
+
+    Raises
+    ------
+    TypeError
+        Not a linear triangle or tetrahedron mesh, or wrong dtypes.
+    MeshError
+        Wrong shapes, no element, non-finite coordinates, or a size out of range.
     """
     if id(mesh) in _TRUSTED:
         return
@@ -481,9 +513,10 @@ def body_size(mesh) -> float:
 
 
 def connected_labels(mesh) -> np.ndarray:
-    """The connected part of each vertex (elements sharing a vertex are connected), unchecked, shape (n,).
+    """The connected part of each vertex of ``mesh`` (elements sharing a vertex are connected), unchecked, shape (n,).
 
     :func:`connected_parts` for a mesh already checked (numbered as scipy's graph search finds them).
+    ``mesh``: a skfem.MeshTri or skfem.MeshTet.
     """
     return _parts(mesh.t, mesh.p.shape[1])
 
@@ -493,7 +526,13 @@ def part_sizes(mesh, labels=None) -> np.ndarray:
 
     What a vertex's relative lengths refer to: two bodies far apart in one
     mesh are each as large as themselves, not as the distance between them.
-    ``labels`` (n,): the parts (:func:`connected_labels`), if already known.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Not checked.
+    labels : ndarray of int, shape (n,), optional
+        The parts (:func:`connected_labels`), if already known.
 
     Returns
     -------
@@ -519,8 +558,14 @@ def part_thicknesses(mesh, labels=None) -> np.ndarray:
     The width across each face of the hull (the farthest hull vertex from its plane), least over
     the faces: a box's or a plank's thickness however it is turned or moved (in 3D the least
     width can fall between two edges instead, and is then up to the least face's). A thin body
-    that bends (an L, a ring) is as thick as its hull. ``labels`` (n,): the parts
-    (:func:`connected_labels`), if already known.
+    that bends (an L, a ring) is as thick as its hull.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Not checked.
+    labels : ndarray of int, shape (n,), optional
+        The parts (:func:`connected_labels`), if already known.
 
     Returns
     -------
@@ -1294,10 +1339,20 @@ def connected_parts(mesh) -> np.ndarray:
 
     Two elements are connected when they share a vertex.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Checked (:func:`check_mesh`).
+
     Returns
     -------
     labels : ndarray of int, shape (n,)
         Part index of each vertex, numbered 0.. in order of first vertex.
+
+    Raises
+    ------
+    TypeError, MeshError
+        A mesh that cannot be used (:func:`check_mesh`).
     """
     check_mesh(mesh)
     labels = connected_labels(mesh)
@@ -1312,11 +1367,21 @@ def connected_parts(mesh) -> np.ndarray:
 def mesh_summary(mesh) -> dict:
     """Sizes and extents of a mesh, for printing and for ``summary.json``.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Checked (:func:`check_mesh`).
+
     Returns
     -------
     info : dict
         ``dim``, ``vertices``, ``elements``, ``element`` name, ``measure``
         (total area/volume), ``bounds`` (min and max per axis), ``parts``.
+
+    Raises
+    ------
+    TypeError, MeshError
+        A mesh that cannot be used (:func:`check_mesh`).
     """
     check_mesh(mesh)
     dim = mesh.p.shape[0]
@@ -1366,16 +1431,13 @@ def shape_parameters(name: str) -> dict:
 def _expected_like(default, value) -> str | None:
     """What ``value`` should be, for a parameter whose default is ``default``; None if it fits."""
 
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-
     if isinstance(default, bool):
-        return None if isinstance(value, bool) else "true or false"
+        return None if isinstance(value, (bool, np.bool_)) else "true or false"
     if isinstance(default, int):
-        return None if isinstance(value, int) and not isinstance(value, bool) else "an integer"
+        return None if is_whole(value) else "an integer"
     if isinstance(default, float):
-        return None if number(value) else "a finite number"
-    ok = isinstance(value, (list, tuple)) and len(value) == len(default) and all(map(number, value))
+        return None if is_finite_real(value) else "a finite number"
+    ok = isinstance(value, (list, tuple)) and len(value) == len(default) and all(map(is_finite_real, value))
     return None if ok else f"a list of {len(default)} numbers"
 
 
@@ -1385,10 +1447,22 @@ def shape_parameter_problems(name: str, params: dict) -> list[tuple[str, str]]:
     Types are checked against the defaults (:func:`shape_parameters`); ranges
     are checked by the shape function itself.
 
+    Parameters
+    ----------
+    name : {"caterpillar", "beam2d", "beam3d", "box3d", "creature"}
+        The built-in shape.
+    params : dict
+        Parameter names to the values given (as read from a scene: bools, ints, floats, lists).
+
     Returns
     -------
     problems : list of (parameter, message)
         Empty when every parameter is known and of the right type.
+
+    Raises
+    ------
+    ValueError
+        An unknown shape ``name`` (:func:`shape_parameters`).
 
     Examples
     --------

@@ -240,6 +240,23 @@ def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:
 
     ``l`` is an element's size (its measure to the power ``1 / dim``); ``mu``, ``lam``, ``rho``
     floats or arrays of shape (nT,). Round-off in the eigenvalues is relative to it.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    mu, lam : float or ndarray, shape (nT,)
+        The Lame parameters, per element or for all.
+    rho : float or ndarray, shape (nT,)
+        The density, per element or for all.
+
+    Returns
+    -------
+    scale : float
+
+    Raises
+    ------
+    TypeError, MeshError
+        A mesh that cannot be used (:func:`~skfem_modal.mesh.check_mesh`).
     """
     dim = mesh.p.shape[0]
     size_squared = element_volumes(mesh) ** (2.0 / dim)
@@ -391,6 +408,19 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
 def muscle_signs(signs, n_muscles: int, name: str = "muscle_signs"):
     """Muscles' signs checked: an array of +-1, shape (n_muscles,), or None (as the modes come).
 
+    Parameters
+    ----------
+    signs : array_like of +1 / -1, shape (n_muscles,), or None
+        The signs to check; None keeps the modes' own signs.
+    n_muscles : int
+        The number of muscles: with none, any ``signs`` give None.
+    name : str
+        The argument's name, for the error message.
+
+    Returns
+    -------
+    signs : ndarray of float, shape (n_muscles,), or None
+
     Raises
     ------
     ValueError
@@ -398,7 +428,10 @@ def muscle_signs(signs, n_muscles: int, name: str = "muscle_signs"):
     """
     if signs is None or not n_muscles:
         return None
-    values = np.asarray(signs, dtype=np.float64) if not isinstance(signs, str) else np.zeros(0)
+    try:  # (a string, a dict or a ragged list is no array of numbers: the same message names the argument)
+        values = np.asarray(signs, dtype=np.float64) if not isinstance(signs, (str, dict)) else np.zeros(0)
+    except (TypeError, ValueError):
+        values = np.zeros(0)
     if values.shape != (n_muscles,) or not np.all(np.abs(values) == 1):
         raise ValueError(f"{name} must be {n_muscles} values of +1 or -1, got {signs!r}")
     return values

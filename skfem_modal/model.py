@@ -174,7 +174,8 @@ class Model:
             raise
 
     def retime(self, h: float) -> None:
-        """Reassemble at a new time step; if its system is singular, the old step stays and the error is raised."""
+        """Reassemble at the time step ``h`` (s, > 0); if its system is singular, the old step stays and the
+        error is raised."""
         old, self.h = self.h, float(h)
         self.assemble_or_undo(lambda: setattr(self, "h", old))
 
@@ -209,19 +210,23 @@ class Model:
         return "the reduced system matrix is not positive definite: check that B has full column rank"
 
     def replace(self, effect) -> None:
-        """Put an effect in (replacing the one of its name, or adding it) and reassemble."""
+        """Put ``effect`` (an :class:`~skfem_modal.effects.Effect`) in, replacing the one of its name or adding it
+        in the order of :data:`~skfem_modal.effects.ORDER`, and reassemble (or raise, the model unchanged)."""
         named, before = {**self.named, effect.name: effect}, list(self.effects)
         self._set([named[n] for n in ORDER if n in named])
         self.assemble_or_undo(lambda: self._set(before))
 
     def remove(self, name: str) -> None:
-        """Take an effect out and reassemble."""
+        """Take the effect called ``name`` (e.g. ``"gravity"``) out and reassemble (or raise, the model unchanged)."""
         before = list(self.effects)
         self._set([e for e in self.effects if e.name != name])
         self.assemble_or_undo(lambda: self._set(before))
 
     def constant(self, z, z_dot) -> np.ndarray:
-        """The start-of-step part of a global solution, ``H^-1 (Pz z + Pv z_dot + f)``, shape (r,)."""
+        """The start-of-step part of a global solution, ``H^-1 (Pz z + Pv z_dot + f)``, shape (r,).
+
+        ``z``, ``z_dot`` (r,): the state the step starts from.
+        """
         if self.space.dense:
             return self.C[:, : z.size] @ z + self.C[:, z.size : 2 * z.size] @ z_dot + self.C[:, -1]
         return self.system.solve(self.Pz @ z + self.Pv @ z_dot + self.f)

@@ -590,6 +590,12 @@ class MotionMonitor:
     def finish(self, warn: bool = True) -> dict:
         """What was seen, for ``summary.json``; warns (:class:`MotionWarning`) if it was not physical.
 
+        Parameters
+        ----------
+        warn : bool
+            Whether to issue the warnings (the report lists them either way): a failed run's caller
+            passes False.
+
         Returns
         -------
         report : dict
@@ -600,6 +606,13 @@ class MotionMonitor:
             vertex went into the ground after a step, or any vertex in a state checked, of its
             part's size: the summary's ``worst_penetration_relative``), ``inverted_elements`` (the
             most inside out in a state checked) and ``first_problem_step``.
+
+        Warns
+        -----
+        CeilingWarning
+            With ``warn``, when the muscles were driven beyond their ceilings: the first sentence of ``warnings``.
+        MotionWarning
+            With ``warn``, each other sentence of ``warnings``.
         """
         self._measure_pushes()
         overdriven = "ceilings" in self.first_problem_step

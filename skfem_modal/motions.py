@@ -80,6 +80,13 @@ def _fixed_vertices(fixed, n: int) -> np.ndarray:
 def facet_pieces(mesh) -> np.ndarray:
     """Label each element with its piece: the elements joined to it through shared facets.
 
+    Elements that share only a vertex (or, in 3D, only an edge) are in different pieces.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Not checked.
+
     Returns
     -------
     labels : ndarray of int, shape (nT,)

@@ -180,6 +180,17 @@ def sine_gait(t, amplitudes, periods, phases, ramp=0.0) -> np.ndarray:
 def shortest_period(amplitudes, periods) -> float | None:
     """The shortest period of a sine gait's moving muscles (amplitude not 0), or None if none moves.
 
+    Parameters
+    ----------
+    amplitudes, periods : array_like of float, shape (m,)
+        Each muscle's amplitude and period (:func:`sine_gait`).
+
+    Returns
+    -------
+    period : float or None
+
+    Examples
+    --------
     >>> shortest_period([0.2, 0.0, 0.1], [1.0, 0.1, 0.5])
     0.5
     """
@@ -189,6 +200,17 @@ def shortest_period(amplitudes, periods) -> float | None:
 
 def checked_ramp(value, name: str = "ramp") -> float:
     """A gait's ramp (:func:`gait_ramp`) as a float, checked to be a time >= 0.
+
+    Parameters
+    ----------
+    value : int or float
+        The ramp time: a Python or numpy number (not a bool), finite and >= 0.
+    name : str
+        How to name it in the message.
+
+    Returns
+    -------
+    ramp : float
 
     Raises
     ------

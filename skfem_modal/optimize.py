@@ -100,7 +100,19 @@ class SearchStop(BaseException):
 
 
 class SearchInterrupted(SearchStop, KeyboardInterrupt):
-    """Ctrl-C stopped a search; its checkpoint holds every finished generation (:class:`SearchStop`)."""
+    """Ctrl-C stopped a search; its checkpoint holds every finished generation (:class:`SearchStop`).
+
+    Parameters
+    ----------
+    generations : int
+        Generations finished and checkpointed (0: none, and no checkpoint).
+    total : int
+        Generations asked for.
+    out_dir : str
+        The search's folder.
+    earlier_kept : bool
+        The search this one was to replace is still there, untouched (no generation was finished).
+    """
 
     def __init__(self, generations: int, total: int, out_dir: str, earlier_kept: bool = False):
         kept = self._kept(generations, total, out_dir, earlier_kept)
@@ -110,7 +122,21 @@ class SearchInterrupted(SearchStop, KeyboardInterrupt):
 
 class SearchWorkersLost(SearchStop, WorkersLost):
     """The search's workers were lost (a process killed, the dask scheduler gone); its checkpoint is kept
-    (:class:`SearchStop`)."""
+    (:class:`SearchStop`).
+
+    Parameters
+    ----------
+    reason : str
+        What happened to the workers, in words (:func:`~skfem_modal.study.lost_workers`).
+    generations : int
+        Generations finished and checkpointed (0: none, and no checkpoint).
+    total : int
+        Generations asked for.
+    out_dir : str
+        The search's folder.
+    earlier_kept : bool
+        The search this one was to replace is still there, untouched (no generation was finished).
+    """
 
     def __init__(self, reason: str, generations: int, total: int, out_dir: str, earlier_kept: bool = False):
         kept = self._kept(generations, total, out_dir, earlier_kept)
@@ -156,7 +182,20 @@ class GaitSpace:
         self.period_min, self.period_max = float(period_min), float(period_max)
 
     def gait(self, u) -> dict:
-        """Gait parameters of a point of the unit cube (3 m values)."""
+        """Gait parameters of a point ``u`` of the unit cube (array_like, shape (3 m,): amplitudes, periods,
+        phases, each rescaled to [0, 1]; clipped into the cube first).
+
+        Returns
+        -------
+        gait : dict
+            ``amplitude`` (fractions of the ceilings), ``period`` and ``phase`` (fractions of the period):
+            lists of m floats.
+
+        Raises
+        ------
+        ValueError
+            ``u`` is not 3 m values.
+        """
         m = self.m
         u = np.asarray(u, dtype=np.float64)
         if u.shape != (3 * m,):
@@ -169,7 +208,17 @@ class GaitSpace:
         }
 
     def point(self, gait: dict) -> np.ndarray:
-        """The unit-cube point of a gait (clipped into the box; no ``phase``: zeros)."""
+        """The unit-cube point of a gait (clipped into the box; no ``phase``: zeros).
+
+        ``gait``: a dict of ``amplitude``, ``period`` and optionally ``phase`` (None or absent: zeros), m
+        values each, as :meth:`gait` gives and a scene's ``muscles.gait`` holds; phases are taken modulo 1.
+        Returns an ndarray, shape (3 m,).
+
+        Raises
+        ------
+        ValueError
+            A key missing, or not m values.
+        """
         for key in ("amplitude", "period"):
             if key not in gait:
                 raise ValueError(f"the gait has no {key!r} (a gait has amplitude, period and phase)")
@@ -203,6 +252,10 @@ def _toml_value(value) -> str:
 
 def scene_to_toml(data: dict) -> str:
     """A scene dict as TOML text (tables for sections, inline tables below that).
+
+    ``data``: a scene, as its TOML file's tables (a table's keys whose values are None are left out;
+    ``params`` and ``box`` are written as inline tables). Values are bools, numbers, strings, lists
+    and dicts of them; anything else is a ``TypeError``.
 
     Examples
     --------
@@ -269,8 +322,23 @@ def _cma():
 def read_checkpoint(path: str) -> dict:
     """A search's checkpoint: its state (the CMA-ES state, the history, the settings).
 
+    Parameters
+    ----------
+    path : str
+        The checkpoint file (``checkpoint.pkl`` in a search's folder).
+
+    Returns
+    -------
+    state : dict
+        ``generation`` (finished) and ``settings`` (checked here), and the rest of what a search keeps:
+        ``es`` (the CMA-ES state), ``history`` (a row a generation), ``rollouts``, ``seconds``,
+        ``numpy_random``, ``scene_data`` (the scene searched), ``asked`` (generations asked for) and
+        ``start_gait``.
+
     Raises
     ------
+    OSError
+        The file cannot be opened (``FileNotFoundError``: no such file).
     ValueError
         The file is not a checkpoint this version reads (damaged, or from an older version); the message names it.
     """

@@ -337,5 +337,26 @@ def clear_earlier_study(directory, overwrite: bool, *, how: str = "overwrite=Tru
 
     As :func:`clear_earlier_run`, for :data:`STUDY_FILES`; a folder holding a
     run or a search is refused whatever ``overwrite``.
+
+    Parameters
+    ----------
+    directory : str or path-like
+    overwrite : bool
+        Remove the files of an earlier study; other files stay. Without it, an earlier study is an error.
+    how : str
+        How the caller asks to overwrite, for the error message (e.g. the command-line flag).
+
+    Returns
+    -------
+    removed : int
+        Files removed.
+
+    Raises
+    ------
+    FileExistsError
+        The directory holds an earlier study and ``overwrite`` is false; or, whatever ``overwrite``, it
+        holds a run or a search, or ``directory`` (or a folder on its path) is a file.
+    PermissionError
+        Nothing can be written there.
     """
     return _clear(os.fspath(directory), overwrite, how, "study")

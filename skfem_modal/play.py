@@ -27,6 +27,7 @@ import numpy as np
 
 from .muscles import checked_ramp, gait_ramp
 from .outputs import check_output_file
+from .values import is_whole
 
 __all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display", "window_size_problem"]
 
@@ -39,6 +40,10 @@ MIN_WINDOW = (560, 360)
 
 def window_size_problem(size) -> str | None:
     """What is wrong with a window size (width, height) in pixels, or None.
+
+    ``size``: a pair of integers; each side at least :data:`MIN_WINDOW`'s and at most
+    :data:`~skfem_modal.plot.MAX_PICTURE_SIDE`. The problem, when there is one, is a sentence
+    naming the size and the bounds.
 
     >>> window_size_problem((960, 600)) is None
     True
@@ -185,9 +190,22 @@ class Player:
         self._takeover = None
 
     def set_slider(self, k: int, value: float) -> None:
-        """Set muscle ``k``'s slider (clipped to its range); the sliders take over from the gait."""
+        """Set muscle ``k``'s slider (clipped to its range); the sliders take over from the gait.
+
+        Parameters
+        ----------
+        k : int
+            The muscle, from 0 to m - 1.
+        value : float
+            The activation, in mode-amplitude units; clipped to ``[-ranges[k], ranges[k]]``.
+
+        Raises
+        ------
+        ValueError
+            ``k`` is not a muscle's index, or ``value`` is not finite.
+        """
         m = self.sim.n_muscles
-        if not (isinstance(k, int | np.integer) and 0 <= k < m):
+        if not (is_whole(k) and 0 <= k < m):  # (not a bool: True would be muscle 1)
             raise ValueError(f"slider index must be an integer in [0, {m}), got {k!r}")
         value = float(value)
         if not np.isfinite(value):
@@ -368,6 +386,12 @@ def play_problem(off_screen: bool = False) -> str | None:
     class asked for (``VTK_DEFAULT_OPENGL_WINDOW``) and, on Linux, an X
     display ``DISPLAY`` that opens.
 
+    Parameters
+    ----------
+    off_screen : bool
+        Whether the window would be rendered off-screen (``--off-screen``): then only pyvista and
+        off-screen OpenGL are needed, no display.
+
     Returns
     -------
     problem : str or None
@@ -421,6 +445,11 @@ def virtual_display(size=(1280, 800)):
     during a reset is dropped); the server is stopped and ``DISPLAY``
     restored afterwards (on Linux the server also ends with this process if
     it is killed first).
+
+    Parameters
+    ----------
+    size : (int, int)
+        Width and height of the virtual screen in pixels (24-bit colour).
 
     Yields
     ------

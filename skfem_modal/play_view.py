@@ -402,7 +402,7 @@ class PlayView:
         return np.asarray(self.plotter.screenshot(return_img=True))[:, :, :3]
 
     def save_screenshot(self, path) -> str:
-        """Save the window as a PNG (folders made as needed); returns the path."""
+        """Save the window as a PNG at ``path`` (str or path-like; folders made as needed); returns the path (str)."""
         import os
 
         from .plot import _save_png

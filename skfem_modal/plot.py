@@ -80,12 +80,27 @@ def picture_size_problem(size, fmt: str = "gif") -> str | None:
 def read_run(run_dir) -> dict:
     """Read what a run wrote.
 
+    Parameters
+    ----------
+    run_dir : str or path-like
+        A run's output folder (``skfem-modal run``, :func:`~skfem_modal.run.run_scene`): its
+        ``summary.json``, ``com.csv``, ``amplitudes.csv`` and ``frames.pvd``.
+
     Returns
     -------
     run : dict
         ``summary`` (dict), ``com`` (times (k,), values (k, dim)),
         ``amplitudes`` (times, commanded (k, m), realised (k, m)),
-        ``frames`` (list of (time, path)).
+        ``frames`` (list of (time, path)); ``k`` is the steps plus one (the rest state).
+
+    Raises
+    ------
+    FileNotFoundError
+        One of those files is missing.
+    ValueError
+        A file that is not what a run writes: ``summary.json`` not JSON, a table cut in a row or holding
+        something other than numbers, or a table or ``frames.pvd`` whose length disagrees with the summary's
+        steps or frames (the message names the file).
     """
     run_dir = os.fspath(run_dir)
     path = os.path.join(run_dir, "summary.json")
@@ -229,7 +244,19 @@ def _pyplot():
 
 
 def plot_com(run, path) -> str:
-    """Centre of mass over time (each axis), with the ground height."""
+    """Centre of mass over time (each axis), with the ground height.
+
+    Parameters
+    ----------
+    run : dict
+        A run, as :func:`read_run` reads it.
+    path : str or path-like
+        The picture to write (e.g. ``com.png``; matplotlib picks the format from the suffix).
+
+    Returns
+    -------
+    path : str
+    """
     plt = _pyplot()
     t, com = run["com"]
     dim = com.shape[1]
@@ -258,6 +285,17 @@ def plot_amplitudes(run, path) -> str:
     One colour per muscle, all distinct however many there are
     (:func:`muscle_colours`); the legend, one entry per muscle and one per
     line style, sits outside the axes, beside the curves rather than on them.
+
+    Parameters
+    ----------
+    run : dict
+        A run, as :func:`read_run` reads it.
+    path : str or path-like
+        The picture to write (e.g. ``amplitudes.png``; matplotlib picks the format from the suffix).
+
+    Returns
+    -------
+    path : str
     """
     plt = _pyplot()
     fig = amplitudes_figure(run)
@@ -267,7 +305,7 @@ def plot_amplitudes(run, path) -> str:
 
 
 def amplitudes_figure(run):
-    """The figure of :func:`plot_amplitudes` (a matplotlib Figure, not yet saved)."""
+    """The figure of :func:`plot_amplitudes` (a matplotlib Figure, not yet saved) of a ``run`` (:func:`read_run`)."""
     plt = _pyplot()
     from matplotlib.lines import Line2D
 
@@ -295,6 +333,8 @@ def amplitudes_figure(run):
 
 def muscle_colours(m: int) -> np.ndarray:
     """One colour per muscle, all distinct: matplotlib's ten for up to ten, else evenly along turbo.
+
+    ``m``: the number of muscles (0 or more).
 
     Returns
     -------

@@ -89,7 +89,11 @@ MAX_ROLLOUT_STEPS = 1_000_000
 
 
 def rollout_steps(steps) -> int:
-    """A rollout's length, checked: a positive integer up to :data:`MAX_ROLLOUT_STEPS`."""
+    """A rollout's length, checked: a positive integer up to :data:`MAX_ROLLOUT_STEPS`.
+
+    ``steps``: the length asked for, a Python or numpy integer (not a bool, nor a float however whole).
+    Returns it as an int; anything else is a ``ValueError`` naming it.
+    """
     if not is_whole(steps) or steps < 1:
         raise ValueError(f"steps must be a positive integer, got {steps!r}")
     if steps > MAX_ROLLOUT_STEPS:  # 2e10 asked a worker for 596 GiB
@@ -101,7 +105,19 @@ def rollout_steps(steps) -> int:
 
 
 def unit_direction(direction, dim: int) -> np.ndarray:
-    """A travel direction made a unit vector (shape (dim,); None: +x), or a ValueError naming what it got."""
+    """A travel direction made a unit vector (shape (dim,); None: +x), or a ValueError naming what it got.
+
+    Parameters
+    ----------
+    direction : array_like, shape (dim,), or None
+        Any non-zero, finite vector.
+    dim : int
+        The scene's dimension (2 or 3).
+
+    Returns
+    -------
+    direction : ndarray, shape (dim,)
+    """
     try:
         vector = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
     except (TypeError, ValueError):
@@ -193,6 +209,22 @@ class Trial:
         """Build a scene's simulator and the trial on it (``settings``: as for the constructor).
 
         The trial's ``ramp`` is the scene's (``muscles.gait.ramp``, 0 without a gait), unless given.
+
+        Parameters
+        ----------
+        data : dict
+            The scene (its TOML keys).
+        base_dir : str, optional
+            Where the scene's relative paths start (default: the current directory).
+        backend : {"auto", "numpy", "numba", "plain"}
+            The simulator's backend (:meth:`~skfem_modal.scene.Scene.build`).
+        **settings
+            ``steps``, ``direction``, ``objective``, ``tip_limit``, ``tip_weight`` and ``ramp``, as for
+            :class:`Trial`.
+
+        Returns
+        -------
+        trial : Trial
         """
         from .scene import Scene
 
@@ -441,6 +473,16 @@ class Rollouts:
 
     def map(self, gaits) -> list[dict]:
         """Run and score each gait (in order): :func:`rollout`'s results.
+
+        Parameters
+        ----------
+        gaits : list of dict
+            Gaits as :meth:`Trial.run` takes them.
+
+        Returns
+        -------
+        scores : list of dict
+            One a gait, in the same order.
 
         Raises
         ------

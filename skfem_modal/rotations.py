@@ -89,7 +89,12 @@ CS2 = np.array([[1.0, 0.0], [0.0, -1.0], [0.0, 1.0], [1.0, 0.0]])  # F -> (F00 +
 
 
 def rotations2_flat(F4: np.ndarray) -> np.ndarray:
-    """2D closest rotations of row-major matrices, shape (n, 4) -> (n, 4)."""
+    """2D closest rotations of row-major matrices, shape (n, 4) -> (n, 4).
+
+    ``F4``: ndarray of float, shape (n, 4), each row a 2 x 2 matrix ``[F00, F01, F10, F11]`` (not changed).
+    Where every rotation is a maximiser (``F00 + F11 = F10 - F01 = 0``: the zero matrix, among others) the
+    identity.
+    """
     cs = F4 @ CS2
     norm = np.hypot(cs[:, 0], cs[:, 1])
     zero = norm == 0.0
@@ -174,7 +179,11 @@ def closest_rotations3(F9: np.ndarray, q0: np.ndarray | None = None):
 
 
 def rotations3_flat(F9: np.ndarray) -> np.ndarray:
-    """3D closest rotations of row-major matrices, shape (n, 9) -> (n, 9)."""
+    """3D closest rotations of row-major matrices, shape (n, 9) -> (n, 9).
+
+    ``F9``: ndarray of float, shape (n, 9), each row a 3 x 3 matrix (:func:`closest_rotations3` without its
+    quaternions).
+    """
     return closest_rotations3(F9)[0]
 
 
@@ -276,6 +285,22 @@ def certify_levels(levels: np.ndarray, tol: float = 1e-13, top_bound: float = 1.
     ``levels[0]`` may hold ``4 s / sqrt(top_bound)`` instead (the shift's
     proof is then ``t_1 / levels[0]^2 < top_bound``), which saves such a
     caller a multiplication.
+
+    Parameters
+    ----------
+    levels : ndarray, shape (k + 1, ...)
+        ``4 s`` (or ``4 s / sqrt(top_bound)``) and the traces ``t_1 .. t_k`` for any number of
+        matrices, ``k >= 2``; not changed.
+    tol : float
+        As :func:`certify_squarings`'s.
+    top_bound : float
+        The bound ``t_1 / levels[0]^2`` must be below for ``top``.
+
+    Returns
+    -------
+    ok, top : bool
+    rho : list of float, length k - 1
+        As :func:`certify_squarings` returns them.
     """
     # no errstate here (it costs as much as the arithmetic): a zero or
     # non-finite trace gives NaN or inf, which fail the comparisons

@@ -73,6 +73,8 @@ class Progress:
             self._bar = None
 
     def update(self, n: int = 1) -> None:
+        """Count ``n`` more done (int); without tqdm the line is printed again every twentieth of ``total`` on a
+        terminal, every tenth in a log."""
         self.count += n
         if not self.enabled:
             return
@@ -94,6 +96,7 @@ class Progress:
         self._printed = self.count
 
     def close(self) -> None:
+        """End the bar: tqdm's is cleared; the plain line shows the last count, and a terminal's ends its line."""
         if not self.enabled:
             return
         if self._bar is not None:

@@ -65,9 +65,28 @@ class SceneError(ValueError):
 
 @dataclass(frozen=True)
 class Key:
-    """One scene key: its type, default, meaning and units."""
+    """One scene key: its type, default, meaning and units.
 
-    kind: str  # float, int, bool, str, floats, ints, strs, table, float|str
+    Attributes
+    ----------
+    kind : str
+        The value's type, as the file gives it: ``"float"``, ``"int"``, ``"bool"``, ``"str"``, ``"floats"``,
+        ``"ints"``, ``"strs"`` (lists of them), ``"table"`` or ``"int|all"`` (an integer or the string
+        ``"all"``).
+    default : object
+        The value when the key is absent or null (None: no default).
+    doc : str
+        What the key means (markdown), for the scene reference (:func:`schema_markdown`).
+    units : str
+        Its units, for the reference ("": none said).
+    check : callable, optional
+        ``check(value)`` of a value of the right kind: None when it is allowed, else what was expected
+        (e.g. ``"a positive number"``), said in the error.
+    required : bool
+        The key must be given (absent or null is an error).
+    """
+
+    kind: str  # float, int, bool, str, floats, ints, strs, table, int|all
     default: Any
     doc: str
     units: str = ""
@@ -523,12 +542,24 @@ DEFAULT_SCENE: dict[str, Any] = {
 def read_scene_file(path) -> dict:
     """A scene file's tables, unvalidated (:meth:`Scene.from_toml` validates them).
 
+    Parameters
+    ----------
+    path : str or path-like
+        A scene file: TOML in UTF-8 (a byte-order mark is skipped).
+
+    Returns
+    -------
+    data : dict
+        The file's tables, as :mod:`tomllib` reads them.
+
     Raises
     ------
     FileNotFoundError
         No such file.
+    IsADirectoryError
+        ``path`` is a folder.
     SceneError
-        Not valid TOML; the message names the file and where.
+        Not UTF-8, or not valid TOML; the message names the file and where.
     """
     path = os.fspath(path)
     if os.path.isdir(path):

@@ -159,6 +159,7 @@ class ActivationRows:
             offset += size
 
     def write(self, a) -> None:
+        """Write ``X(a)`` of each operator into its destination, for the activation ``a`` (m,)."""
         dot(a, self.varying, self.product)
         for part, constant, destination in self.parts:
             np.add(part, constant, out=destination)
@@ -171,6 +172,12 @@ class PlainBackend:
     (:func:`~skfem_modal.rotations.closest_rotations3`, warm-started within
     a step and checked as eigenvectors). In a subspace the global step is
     ``z = c + [W | W_A(a)] vec(R)``; in the full space a sparse back-solve.
+    Its methods are the backend interface the driver calls (the module docstring).
+
+    Parameters
+    ----------
+    model : Model
+        The operators it steps (:class:`~skfem_modal.model.Model`).
     """
 
     name = "plain"
@@ -198,6 +205,7 @@ class PlainBackend:
         self.offset = None
 
     def start(self, z, z_dot, a) -> None:
+        """Set up a step from ``z``, ``z_dot`` (r,) under the activation ``a`` (m,)."""
         model = self.model
         self.c = model.constant(z, z_dot)
         if self.dense:
@@ -220,9 +228,11 @@ class PlainBackend:
         self.k = 0
 
     def start_row(self):
+        """The step's start state, shape (r,)."""
         return self.z0
 
     def restart(self, z) -> None:
+        """Continue from ``z`` (r,) instead of the last iterate."""
         self.Y[1] = z
 
     def rotations(self, S):
@@ -238,6 +248,10 @@ class PlainBackend:
         return S if self.offset is None else S + self.offset
 
     def iterate(self, count, contact):
+        """One iteration (``count`` is at most :attr:`max_batch`, 1), ``contact`` (or None) projecting it.
+
+        Returns the last iterate and the new one as rows, shape (2, r).
+        """
         self.Y[0] = self.Y[1]
         z = self.Y[0]
         R = self.rotations(self.arguments(z)).ravel()
@@ -255,9 +269,11 @@ class PlainBackend:
         return self.Y
 
     def finish(self, k) -> bool:
+        """Accept the step stopped after ``k`` iterations: True (every rotation is exact)."""
         return True
 
     def result(self, k):
+        """``z_k``, the step's result after ``k`` iterations, a new array of shape (r,)."""
         return self.Y[1].copy()
 
 
@@ -308,7 +324,8 @@ class LocalGlobal:
         self._work = {}
 
     def bind(self, model) -> None:
-        """Step this model (after it changed: its energy and accelerator are made again when needed)."""
+        """Step ``model`` (a :class:`~skfem_modal.model.Model`; after it changed: its energy and accelerator are
+        made again when needed)."""
         self.model = model
         self.scale = model.scale
         self._helpers = None

@@ -57,7 +57,7 @@ class _MeshData:
         return state
 
     def dofs(self, vertices) -> np.ndarray:
-        """Interleaved DOF indices of vertices."""
+        """Interleaved DOF indices of ``vertices`` (ndarray of int, (p,)), vertex-major, shape (p dim,)."""
         return vector_dofs(vertices, self.dim)
 
     def com_rows(self, mass) -> np.ndarray:
@@ -68,6 +68,7 @@ class _MeshData:
         return np.asarray(self.force(selector)).T / mass[:: self.dim].sum()
 
     def full_positions(self, x) -> np.ndarray:
+        """A full interleaved field ``x`` (N,) as vertex positions, shape (n, dim)."""
         return np.asarray(x, float).reshape(-1, self.dim)
 
 
@@ -95,7 +96,10 @@ class Subspace(_MeshData):
         return np.stack([phi[0].grad[..., 0] for phi in basis.basis])
 
     def gram(self, diagonal) -> np.ndarray:
-        """``B^T diag(d) B``, shape (r, r), a few rows of ``B`` at a time (no copy of ``B``)."""
+        """``B^T diag(diagonal) B``, shape (r, r), a few rows of ``B`` at a time (no copy of ``B``).
+
+        ``diagonal`` (N,): per interleaved DOF, a lumped mass for instance.
+        """
         B = self.B
         out = np.zeros((self.r, self.r))
         rows = max(1, int(2e6 // max(self.r, 1)))
@@ -105,7 +109,10 @@ class Subspace(_MeshData):
         return (out + out.T) / 2
 
     def elastic_hessian(self, weights) -> np.ndarray:
-        """``B^T J^T (w x I) J B``, shape (r, r): ``sum_i B_i^T L_w B_i`` with ``L_w`` the w-weighted Laplacian."""
+        """``B^T J^T (w x I) J B``, shape (r, r): ``sum_i B_i^T L_w B_i`` with ``L_w`` the w-weighted Laplacian.
+
+        ``weights`` (nT,): per element, ``w`` (a stiffness times the element's volume, say).
+        """
         dim, n, t = self.dim, self.n, self.mesh.t
         grads = self._gradients
         vals = np.einsum("ake,bke->abe", grads, grads) * weights
@@ -141,7 +148,7 @@ class Subspace(_MeshData):
         return self.B.T @ f
 
     def rows(self, dofs) -> np.ndarray:
-        """The rows of ``B`` of some DOFs, shape (len(dofs), r)."""
+        """The rows of ``B`` of some interleaved ``dofs`` (ndarray of int), shape (len(dofs), r)."""
         return np.ascontiguousarray(self.B[dofs])
 
     @cached_property
@@ -161,27 +168,39 @@ class Subspace(_MeshData):
         return np.ascontiguousarray(U)
 
     def heights(self, vertices, up) -> Heights:
-        """A reader of some vertices' coordinate ``up`` from ``z`` (a few flops a vertex for skinning bases)."""
+        """A reader of the ``vertices``' (ndarray of int) coordinate ``up`` (int) from ``z``.
+
+        A few flops a vertex for skinning bases (:attr:`scalar_fields`).
+        """
         U = self.scalar_fields
         if U is not None:
             return Heights(U[vertices], slice(up, None, self.dim))
         return Heights(self.rows(self.dofs(vertices)[up :: self.dim]), slice(None))
 
     def coordinates(self, x, mass) -> np.ndarray:
-        """Mass-weighted least-squares coordinates of a full field ``x`` (N,) in the span of ``B``, shape (r,)."""
+        """Coordinates ``z`` (r,) of a full field ``x`` (N,) in the span of ``B``, by least squares weighted by
+        ``mass`` (N,)."""
         MB = self.B * mass[:, None]
         return np.linalg.solve(self.B.T @ MB, MB.T @ np.asarray(x, float).ravel())
 
     def positions(self, z) -> np.ndarray:
-        """Vertex positions ``B z``, shape (n, dim)."""
+        """Vertex positions ``B z`` of a state ``z`` (r,), shape (n, dim)."""
         return (self.B @ np.asarray(z, float)).reshape(-1, self.dim)
 
     def factor(self, H) -> DenseSystem:
+        """The system matrix ``H`` (r, r) factored: a :class:`DenseSystem`."""
         return DenseSystem(H)
 
 
 class FullSpace(_MeshData):
-    """Every DOF of the mesh is an unknown: operators stay sparse, the system is factored sparse."""
+    """Every DOF of the mesh is an unknown: operators stay sparse, the system is factored sparse.
+
+    The reference a :class:`Subspace` is checked against (its methods are the same, with ``B = I``).
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    """
 
     dense = False
 
@@ -190,32 +209,41 @@ class FullSpace(_MeshData):
         self.r = self.N
 
     def gram(self, diagonal) -> sps.csr_matrix:
+        """``diag(diagonal)`` for ``diagonal`` (N,), sparse (N, N)."""
         return sps.diags(np.asarray(diagonal, float), format="csr")
 
     def elastic_hessian(self, weights) -> sps.csr_matrix:
+        """``J^T (w x I) J``, sparse (N, N), for the per-element ``weights`` ``w`` (nT,)."""
         W = sps.diags(np.repeat(weights, self.dim * self.dim))
         return (self.J.T @ W @ self.J).tocsr()
 
     def through(self, T) -> sps.csr_matrix:
+        """A sparse operator ``T`` (rows, N) itself, as CSR."""
         return sps.csr_matrix(T)
 
     def force(self, f):
+        """A full field (or fields) ``f``, (N,) or (N, k), itself."""
         return f
 
     def rows(self, dofs) -> sps.csr_matrix:
+        """Selector rows of some interleaved ``dofs`` (ndarray of int), sparse (len(dofs), N)."""
         dofs = np.asarray(dofs)
         return sps.csr_matrix((np.ones(dofs.size), (np.arange(dofs.size), dofs)), shape=(dofs.size, self.N))
 
     def heights(self, vertices, up) -> Heights:
+        """A reader of the ``vertices``' (ndarray of int) coordinate ``up`` (int): the DOFs themselves."""
         return Heights(None, np.asarray(vertices) * self.dim + up)
 
     def coordinates(self, x, mass) -> np.ndarray:
+        """A full field ``x`` as the unknowns, a copy of shape (N,) (``mass`` unused: every DOF is free)."""
         return np.array(x, dtype=float).ravel()
 
     def positions(self, x) -> np.ndarray:
+        """Vertex positions of a state ``x`` (N,), shape (n, dim)."""
         return self.full_positions(x)
 
     def factor(self, H) -> SparseSystem:
+        """The sparse system matrix ``H`` (N, N) factored: a :class:`SparseSystem`."""
         return SparseSystem(H)
 
 
@@ -253,7 +281,7 @@ class Heights:
         return picked[which] if self.rows is None else self.rows[which] @ picked
 
     def above(self, z, floor) -> np.ndarray:
-        """The coordinates (p,), in double precision wherever one may be below its ``floor`` (p,).
+        """The coordinates (p,) of a state ``z`` (r,), in double precision wherever one may be below its ``floor`` (p,).
 
         For many rows, a product that reads each once a step (the seal's 6227 boundary vertices:
         1.6 MB) is made in single precision first, half the bytes, then again in double precision
@@ -331,7 +359,13 @@ class DenseSystem:
 
 
 class SparseSystem:
-    """The full-space system matrix, factored once (sparse LU, symmetric mode)."""
+    """The full-space system matrix, factored once (sparse LU, symmetric mode).
+
+    Parameters
+    ----------
+    H : sparse matrix, shape (N, N)
+        Symmetric positive definite.
+    """
 
     dense = False
 
@@ -354,5 +388,6 @@ class SparseSystem:
         self._factor()
 
     def solve(self, X) -> np.ndarray:
+        """``H^-1 X`` for ``X`` (dense or sparse) of shape (N,) or (N, k), dense."""
         X = X.toarray() if sps.issparse(X) else np.asarray(X, dtype=np.float64)
         return self._lu.solve(X)

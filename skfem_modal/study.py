@@ -50,6 +50,7 @@ from .mesh import body_size
 from .outputs import clear_earlier_study, made_folder, remove_if_empty
 from .sim import simulate
 from .threads import limited_blas_threads
+from .values import is_real
 
 __all__ = [
     "PRESETS",
@@ -202,7 +203,28 @@ def resolution_scene(data: dict, factor: float) -> dict:
     Grid counts are scaled (the caterpillar's vertices per side, the beams'
     cells), the creature's cell size divided. Mesh files cannot be refined:
     ``ValueError``.
+
+    Parameters
+    ----------
+    data : dict
+        The scene (its TOML keys); not changed.
+    factor : float
+        Positive refinement factor (0.5: half as fine). Scaled counts are rounded, at least 2
+        vertices a side for the caterpillar and 1 cell for the beams.
+
+    Returns
+    -------
+    data : dict
+        A deep copy, ``mesh.params`` holding the scaled parameters (the grid counts or ``cell``,
+        and those the scene gave).
+
+    Raises
+    ------
+    ValueError
+        The scene's mesh is a file (and ``factor`` is not 1), or ``factor`` is not a positive number.
     """
+    if not (is_real(factor) and factor > 0.0 and np.isfinite(factor)):
+        raise ValueError(f"a resolution factor must be a positive number (0.5: half as fine), got {factor!r}")
     data = copy.deepcopy(data)
     if factor == 1.0:
         return data
@@ -346,6 +368,10 @@ def time_steps(tasks: list[dict], *, rounds: int = 3, steps: int = 60) -> list[f
     ----------
     tasks : list of dict
         As for :func:`run_reduced` (``reference`` is not used).
+    rounds : int
+        Rounds of timing: each simulator's time is the lowest of its rounds' medians.
+    steps : int
+        Steps each simulator runs in a round (after one step of warm-up).
 
     Returns
     -------
@@ -480,6 +506,21 @@ def modal_convergence(cases=((40, 1), (80, 2), (160, 4)), length=40.0, height=1.
 
     Errors of the first two bending frequencies against Euler-Bernoulli, and of
     the first four against the finest P2 mesh (twice the last case).
+
+    Parameters
+    ----------
+    cases : sequence of (int, int)
+        Cells along and across the beam (:func:`~skfem_modal.mesh.beam2d`'s ``nx``, ``ny``) of each
+        mesh, coarsest first: the reference is P2 on twice the last.
+    length, height : float
+        The beam's size; it is clamped at ``x == min``. Young's modulus and density are 1.
+
+    Returns
+    -------
+    rows : list of dict
+        Two a case (P1, then P2): ``element``, ``cells`` (``"NXxNY"``), ``dofs``, ``seconds`` (the
+        eigen solve's), ``error_vs_euler_bernoulli`` and ``error_vs_refined_p2`` (largest relative
+        frequency errors).
     """
     from .mesh import beam2d, vertices_where
     from .modal import linear_modal_analysis
@@ -515,7 +556,26 @@ def modal_convergence(cases=((40, 1), (80, 2), (160, 4)), length=40.0, height=1.
 
 
 def pareto_front(rows, cost="step_ms", error="trajectory_error") -> list[int]:
-    """Indices of the rows no other row beats in both cost and error, by cost."""
+    """Indices of the rows no other row beats in both cost and error, by cost.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Study rows (:func:`run_reduced`'s, with their timings), each holding ``cost`` and ``error``.
+    cost, error : str
+        The keys of the cost and the error, both lower-is-better.
+
+    Returns
+    -------
+    front : list of int
+        Indices into ``rows``, cheapest first (of rows of equal cost, the one with the lowest error).
+
+    Examples
+    --------
+    >>> pareto_front([{"step_ms": 1, "trajectory_error": 0.5}, {"step_ms": 2, "trajectory_error": 0.6},
+    ...               {"step_ms": 3, "trajectory_error": 0.1}])
+    [0, 2]
+    """
     order = sorted(range(len(rows)), key=lambda i: (rows[i][cost], rows[i][error]))
     front, best = [], np.inf
     for i in order:
@@ -547,7 +607,23 @@ def _percent(fraction: float) -> str:
 
 
 def recommend(rows, thresholds=(0.01, 0.02, 0.05, 0.10, 0.20)) -> list[str]:
-    """Plain sentences: the cheapest setting within each error threshold, and the defaults."""
+    """Plain sentences: the cheapest setting within each error threshold, and the defaults.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Study rows (:func:`run_reduced`'s, with ``step_ms``); only those at resolution 1 with a
+        ``trajectory_error`` count. The ``base`` row, when there is one, is said first, then the
+        runs of its sweeps with twice its weights (failing that, more) and twice its clusters.
+    thresholds : sequence of float
+        Trajectory errors (fractions: 0.01 is 1 %), increasing: a threshold whose fastest setting
+        is the previous one's says so in a short sentence.
+
+    Returns
+    -------
+    lines : list of str
+        One sentence a line.
+    """
     same = [r for r in rows if r["resolution"] == 1.0 and "trajectory_error" in r]
     lines = []
     base = next((r for r in same if r["sweep"] == "base"), None)
@@ -750,6 +826,8 @@ def checked_executor(executor):
 
 def dask_client(executor):
     """The dask client behind an executor (``client.get_executor()``), or None for any other executor.
+
+    ``executor``: any executor, or None (then None).
 
     Examples
     --------

@@ -36,10 +36,20 @@ __all__ = [
 def laplacian(mesh) -> sps.csr_matrix:
     """The scalar cotangent Laplacian: scikit-fem's ``laplace`` form with P1.
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Checked (:func:`~skfem_modal.mesh.check_mesh`).
+
     Returns
     -------
     L : scipy.sparse.csr_matrix, shape (n, n)
         Symmetric positive semi-definite; constants are its null space.
+
+    Raises
+    ------
+    TypeError, MeshError
+        A mesh that cannot be used (:func:`~skfem_modal.mesh.check_mesh`).
     """
     check_mesh(mesh)
     return asm(laplace, scalar_basis(mesh, "P1")).tocsr()
@@ -93,6 +103,19 @@ def weight_count_problem(n_vertices: int, n_parts: int, k: int) -> str | None:
     needs its own constant weight to move on its own): the rule of
     :func:`skinning_eigenmodes` and a scene's ``subspace.weights`` and
     ``subspace.cluster_weights`` checks.
+
+    Parameters
+    ----------
+    n_vertices : int
+        The mesh's number of vertices.
+    n_parts : int
+        Its number of connected parts (:func:`~skfem_modal.mesh.connected_parts`).
+    k : int
+        The number of skinning weights asked for, a whole number (checked by the caller).
+
+    Returns
+    -------
+    problem : str or None
 
     Examples
     --------

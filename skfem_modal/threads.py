@@ -38,6 +38,23 @@ _SETTERS = (
 def checked_thread_count(limit, name: str = "blas_threads") -> int | None:
     """A BLAS thread count: None (leave the libraries as they are) or a whole number >= 1; else a ValueError naming it.
 
+    Parameters
+    ----------
+    limit : int or None
+        The count to check: None, or a Python or numpy integer (not a bool).
+    name : str
+        The argument's name, for the error message.
+
+    Returns
+    -------
+    limit : int or None
+        ``limit`` as a Python int (None stays None).
+
+    Raises
+    ------
+    ValueError
+        ``limit`` is neither None nor a whole number >= 1.
+
     Examples
     --------
     >>> checked_thread_count(0)

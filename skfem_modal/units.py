@@ -310,6 +310,26 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     mechanical energy at rest read -1.6 instead of 0 and its centre drifted 2.1e-5 of its size
     in 10 s; by 1e4 sizes 63 and 8.4e-5; by 5e5 sizes 4.6e5 and 1.2 % (drifting ever faster).
 
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Its points are checked (:func:`~skfem_modal.mesh.check_points`).
+    what : str
+        How to name the mesh in the message.
+
+    Returns
+    -------
+    problem : str or None
+        A paragraph when the centre of the mesh's bounding box is more than :data:`FAR_FROM_ORIGIN` of its
+        sizes (:func:`~skfem_modal.mesh.body_size`) from the origin, else None.
+
+    Raises
+    ------
+    TypeError, MeshError
+        Points that cannot be used (:func:`~skfem_modal.mesh.check_points`).
+
+    Examples
+    --------
     >>> from skfem_modal.mesh import beam2d
     >>> beam = beam2d(2.0, 0.5, 4, 2)
     >>> far_from_origin(beam) is None

@@ -5,13 +5,15 @@
 (True, True, False, False)
 >>> is_real(0.5), is_real(np.float32(2)), is_real(3), is_real(True), is_real("0.5")
 (True, True, True, False, False)
+>>> is_finite_real(1e308), is_finite_real(float("inf")), is_finite_real(10**400), is_finite_real(np.int64(4))
+(True, False, False, True)
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["is_whole", "is_real", "checked_flag"]
+__all__ = ["is_whole", "is_real", "is_finite_real", "checked_flag"]
 
 
 def is_whole(value) -> bool:
@@ -22,6 +24,16 @@ def is_whole(value) -> bool:
 def is_real(value) -> bool:
     """Whether ``value`` is a real number: a Python or numpy integer or float, not a bool (nor a string of one)."""
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def is_finite_real(value) -> bool:
+    """Whether ``value`` is a real number (:func:`is_real`) that a float holds finitely (not ``10**400``, nor inf)."""
+    if not is_real(value):
+        return False
+    try:
+        return bool(np.isfinite(float(value)))
+    except OverflowError:  # a Python int beyond a float's range
+        return False
 
 
 def checked_flag(value, name: str) -> bool:

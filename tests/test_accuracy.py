@@ -120,6 +120,9 @@ def test_resolution_scene():
     assert study.resolution_scene({"mesh": {"shape": "creature"}}, 2.0)["mesh"]["params"]["cell"] == 0.05
     with pytest.raises(ValueError, match="a mesh from a file has no resolution"):
         study.resolution_scene({"mesh": {"file": "x.msh"}}, 2.0)
+    for factor in (0.0, -1.0, float("nan"), "2"):  # (0 divided the creature's cell by zero)
+        with pytest.raises(ValueError, match="a resolution factor must be a positive number"):
+            study.resolution_scene({"mesh": {"shape": "creature"}}, factor)
 
 
 def test_pareto_front():

@@ -8,6 +8,7 @@ import pytest
 from skfem_modal import ModalMuscle, caterpillar, mass_matrix
 from skfem_modal.ingredients import element_clusters, ingredients, skinning_subspace
 from skfem_modal.mesh import connected_parts
+from skfem_modal.modal import muscle_signs
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +81,10 @@ def test_bad_stage_arguments_are_refused_before_any_work(mesh):
         ingredients(mesh, cluster_by="colour", contact_model="coulomb", **kw)
     with pytest.raises(ValueError, match="muscle_signs must be 2 values of \\+1 or -1"):
         ingredients(mesh, cluster_by="weights", contact_model="coulomb", **{**kw, "muscle_signs": [1, 2]})
+    # nothing numpy cannot make an array of gets past the same message (a dict, a ragged list, a string)
+    for bad in ({"a": 1, "b": -1}, [[1], [1, -1]], "+-", [1, None]):
+        with pytest.raises(ValueError, match="muscle_signs must be 2 values of \\+1 or -1"):
+            muscle_signs(bad, 2)
 
 
 def test_every_argument_of_from_mesh_reaches_a_stage():

@@ -313,6 +313,11 @@ def test_builtin_shape_parameters_are_typed_and_all_have_defaults():
         builtin_mesh("caterpillar", normalize=1)
     # an integer is a fine float, and a list a fine size
     assert builtin_mesh("box3d", nx=1, ny=1, nz=1, size=[2, 1, 1]).p[0].max() == 2.0
+    # numpy's integers and bools are Python's (counts from an array, say); a float cannot hold 10**400
+    box = builtin_mesh("box3d", nx=np.int64(1), ny=1, nz=np.int32(2), size=[np.int64(2), 1.0, np.float32(1)])
+    assert box.t.shape[1] == 6 * 2 and builtin_mesh("caterpillar", normalize=np.bool_(False)).p.shape[1] > 0
+    with pytest.raises(ValueError, match=r"parameter width: expected a finite number, got 1000000000000"):
+        builtin_mesh("caterpillar", width=10**400)
 
 
 def test_connected_parts():

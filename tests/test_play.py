@@ -320,6 +320,8 @@ def test_bad_controls_are_named(crawl):
     player = Player(sim)
     with pytest.raises(ValueError, match=r"slider index must be an integer in \[0, 4\), got 4"):
         player.set_slider(4, 0.1)
+    with pytest.raises(ValueError, match=r"slider index must be an integer in \[0, 4\), got True"):
+        player.set_slider(True, 0.1)  # (a bool is an int to Python: it moved muscle 1)
     with pytest.raises(ValueError, match="slider 1 value must be finite, got nan"):
         player.set_slider(1, float("nan"))
     with pytest.raises(TypeError, match="gait must be a callable"):

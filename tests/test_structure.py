@@ -5,8 +5,10 @@ not counted. At most two functions over 80 such lines, no class over 400.
 """
 
 import ast
+import importlib
 import inspect
 import pathlib
+import pkgutil
 import re
 
 import skfem_modal
@@ -92,18 +94,42 @@ def named_in(doc) -> set:
     return listed | set(re.findall(r"``(\w+)", doc or ""))
 
 
-def public_callables():
-    """``(name, docstring, function)`` of the package root's functions, classes (their constructors) and methods."""
-    for name in skfem_modal.__all__:
-        obj = getattr(skfem_modal, name)
+def _callables_of(namespace, names):
+    """``(name, docstring, function)`` of the functions, classes (their constructors) and methods among ``names``.
+
+    A method that overrides another without a docstring of its own has the one it overrides (as
+    ``help`` and Sphinx show it).
+    """
+    for name in names:
+        obj = getattr(namespace, name)
         if inspect.isclass(obj):
             yield name, obj.__doc__, obj.__init__
             for method_name, method in vars(obj).items():
                 function = getattr(method, "__func__", method)
                 if not method_name.startswith("_") and inspect.isfunction(function):
-                    yield f"{name}.{method_name}", function.__doc__, function
+                    yield f"{name}.{method_name}", inspect.getdoc(getattr(obj, method_name)), function
         elif inspect.isfunction(obj):
             yield name, obj.__doc__, obj
+
+
+def public_callables():
+    """The package root's public callables (:func:`_callables_of`)."""
+    yield from _callables_of(skfem_modal, skfem_modal.__all__)
+
+
+def module_callables():
+    """Every public module's own public callables, ``("module.name", docstring, function)``."""
+    for info in pkgutil.iter_modules(skfem_modal.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"skfem_modal.{info.name}")
+        names = [n for n, obj in vars(module).items() if not n.startswith("_") and _defined_in(obj, module)]
+        for name, doc, function in _callables_of(module, names):
+            yield f"{info.name}.{name}", doc, function
+
+
+def _defined_in(obj, module) -> bool:
+    return (inspect.isclass(obj) or inspect.isfunction(obj)) and obj.__module__ == module.__name__
 
 
 def undocumented(doc, parameters) -> tuple[list, list]:
@@ -120,19 +146,38 @@ def undocumented(doc, parameters) -> tuple[list, list]:
     return [p for p in parameters if p not in named_in(doc) | {"args", "kwargs"}], []
 
 
-def test_documented_parameters_are_the_signatures():
-    """The root's public callables document their parameters by name (:func:`undocumented`)."""
+def _wrong_parameters(callables):
+    """``(sections, named, wrong)``: callables with a Parameters section, without one but with several
+    parameters named in their text, and a line for each whose docstring does not give its parameters."""
     sections, named, wrong = 0, 0, []
-    for name, doc, function in public_callables():
+    for name, doc, function in callables:
+        if function is object.__init__:
+            continue
         parameters = list(inspect.signature(function).parameters)
         has_section = documented_parameters(doc) is not None
         sections += has_section
         named += not has_section and len(parameters) > 1
         missing, extra = undocumented(doc, parameters)
-        if missing or extra:
-            wrong.append(f"{name}: not documented {missing}, documented but not taken {extra}")
+        if missing or extra or not doc:
+            wrong.append(
+                f"{name}: not documented {missing}, documented but not taken {extra}"
+                + ("" if doc else ", no docstring")
+            )
+    return sections, named, wrong
+
+
+def test_documented_parameters_are_the_signatures():
+    """The root's public callables document their parameters by name (:func:`undocumented`)."""
+    sections, named, wrong = _wrong_parameters(public_callables())
     assert sections >= 40 and named >= 10, (sections, named)  # (the package's API, not an empty walk)
     assert not wrong, "\n".join(wrong)
+
+
+def test_every_public_function_of_every_module_documents_its_parameters():
+    """Beyond the root: each public module's own public functions, classes and methods (:func:`undocumented`)."""
+    sections, named, wrong = _wrong_parameters(module_callables())
+    assert sections >= 150 and named >= 30, (sections, named)
+    assert not wrong, f"{len(wrong)} callables:\n" + "\n".join(wrong)
 
 
 def test_the_docstring_check_finds_a_misnamed_parameter():
