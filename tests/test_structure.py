@@ -189,3 +189,12 @@ def test_the_docstring_check_finds_a_misnamed_parameter():
     record = "A record.\n\nAttributes\n----------\ntime_ : float\nz : ndarray\n"
     assert undocumented(record, ["self", "time", "z"]) == (["time"], [])
     assert undocumented("Positions of a state ``z``.", ["self", "z"]) == ([], [])
+
+
+def test_the_readme_module_table_names_every_module():
+    """Each module of the package has its row in the README's module table (a new module gets one)."""
+    readme = (PACKAGE.parent / "README.md").read_text()
+    rows = [line for line in readme.splitlines() if line.startswith("| `")]
+    named = set(re.findall(r"`(\w+\.py)`", "\n".join(rows)))
+    modules = {path.name for path in PACKAGE.glob("*.py") if path.name != "__init__.py"}
+    assert len(modules) > 40 and not modules - named, sorted(modules - named)
