@@ -263,6 +263,15 @@ def make_accelerator(name: str, model, memory: int = 5):
         Newton needs a subspace (its system is the size of the clusters).
     memory : int
         Anderson's history.
+
+    Returns
+    -------
+    Anderson, SubspaceNewton or None
+
+    Raises
+    ------
+    ValueError
+        ``"newton"`` on a model without a subspace (every DOF).
     """
     if name == "none":
         return None

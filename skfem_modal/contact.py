@@ -408,6 +408,11 @@ class ReferenceContact(_Ground):
         layout : StateLayout, optional
             ``z`` is a backend's state vector holding z and ``watched`` (a view into it) where
             ``layout`` says: corrected in place, with corrections made once for the layout.
+
+        Returns
+        -------
+        bool
+            Whether a contact point was active (``z`` changed).
         """
         heights = self._dot(self.Je_up, z) if watched is None else watched
         if self.push_out:

@@ -75,6 +75,11 @@ def muscle_count_problem(mesh, n_muscles: int, pinned=None) -> str | None:
     pinned : array_like of int, shape (k,), optional
         Clamped vertices.
 
+    Returns
+    -------
+    str or None
+        The phrase (to follow the count in a message), or None.
+
     Examples
     --------
     >>> from skfem_modal.mesh import beam2d

@@ -317,6 +317,13 @@ class Trial:
         displacement : ndarray, shape (dim,)
         frames : ndarray, shape (T, dim * dim)
             ``body_rotation_rows @ z`` of each state.
+
+        Returns
+        -------
+        dict
+            ``fitness`` (the objective's gain less the tipping penalty), ``travel`` (along the
+            direction), ``alignment`` (the body's worst alignment with the direction, in [0, 1]),
+            ``max_tilt`` (radians), ``penalty`` and ``finite`` (True).
         """
         dim, up, d = self.sim.dim, self.sim.up, self.direction
         R = polar_rotations(frames.reshape(-1, dim, dim))

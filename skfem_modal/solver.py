@@ -553,6 +553,12 @@ def make_backends(model, name: str, max_iter: int) -> list:
         iterations (the ``fast`` extra). ``plain``: one iteration at a time,
         every rotation exact (the reference for the others).
     max_iter : int
+
+    Returns
+    -------
+    list
+        The backends to try in turn, each built for ``model``: one whose rotations are exact, or the
+        Kronecker form followed by the :class:`PlainBackend` that redoes a step it refuses.
     """
     dense_3d = model.space.dense and model.space.dim == 3
     plain = PlainBackend(model)

@@ -798,6 +798,16 @@ def checked_executor(executor):
     ----------
     executor : concurrent.futures.Executor, dask Client or None
 
+    Returns
+    -------
+    concurrent.futures.Executor or None
+        ``executor`` itself, a dask client's ``get_executor()``, or None (None given).
+
+    Raises
+    ------
+    TypeError
+        Anything else, naming its type.
+
     Examples
     --------
     >>> from concurrent.futures import ThreadPoolExecutor
@@ -856,6 +866,10 @@ def lost_workers(error: BaseException, executor=None) -> str | None:
         The executor that ran the task: a dask client no longer connected
         to its scheduler tells a lost scheduler (the tasks submitted while
         it tried to reconnect are cancelled with no reason when it gives up).
+
+    Returns
+    -------
+    str or None
 
     Examples
     --------

@@ -10,6 +10,7 @@ import inspect
 import pathlib
 import pkgutil
 import re
+import textwrap
 
 import skfem_modal
 
@@ -198,3 +199,45 @@ def test_the_readme_module_table_names_every_module():
     named = set(re.findall(r"`(\w+\.py)`", "\n".join(rows)))
     modules = {path.name for path in PACKAGE.glob("*.py") if path.name != "__init__.py"}
     assert len(modules) > 40 and not modules - named, sorted(modules - named)
+
+
+def _returns_a_value(function) -> bool:
+    """Whether ``function``'s own body (not a function inside it) has a ``return`` of something other than None."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(function))).body[0]
+    inner = {
+        id(node) for node in ast.walk(tree) if isinstance(node, (ast.FunctionDef, ast.Lambda)) and node is not tree
+    }
+    skipped = {id(n) for node in ast.walk(tree) if id(node) in inner for n in ast.walk(node)}
+    return any(
+        isinstance(node, ast.Return) and node.value is not None and not (
+            isinstance(node.value, ast.Constant) and node.value.value is None)
+        for node in ast.walk(tree) if id(node) not in skipped
+    )  # fmt: skip
+
+
+def test_a_documented_function_that_returns_says_what():
+    """A public callable with a Parameters section that returns a value has a Returns (or Yields) section."""
+    checked, wrong = 0, []
+    for name, doc, function in module_callables():
+        if function.__name__ == "__init__" or documented_parameters(doc) is None:
+            continue
+        checked += 1
+        lines = set(inspect.cleandoc(doc).splitlines())
+        if _returns_a_value(function) and not lines & {"Returns", "Yields"}:
+            wrong.append(name)
+    assert checked > 150 and not wrong, (checked, wrong)
+
+
+def test_the_return_check_reads_only_the_function_itself():
+    def outer(x):
+        def inner():
+            return x
+
+        return None
+
+    assert not _returns_a_value(outer) and _returns_a_value(_adds_one)
+
+
+def _adds_one(x):
+    """(A function that returns a value, for the test above.)"""
+    return x + 1
