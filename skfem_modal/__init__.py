@@ -9,6 +9,7 @@ ParaView (:mod:`~skfem_modal.export`).
 """
 
 import importlib as _importlib
+from importlib.util import find_spec as _find_spec
 
 #: Where each public name lives: imported on first use, so the command line starts (and a Ctrl-C
 #: during its start is handled) before numpy, scipy and scikit-fem are loaded.
@@ -118,6 +119,8 @@ __all__ = [
 def __getattr__(name: str):
     module = _EXPORTS.get(name)
     if module is None:
+        if not name.startswith("_") and _find_spec(f".{name}", __name__) is not None:
+            return _importlib.import_module(f".{name}", __name__)  # a submodule: sm.mesh as after import sm.mesh
         raise AttributeError(f"module 'skfem_modal' has no attribute {name!r}")
     value = getattr(_importlib.import_module(f".{module}", __name__), name)
     globals()[name] = value  # found once

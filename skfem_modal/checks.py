@@ -7,6 +7,8 @@ setting is checked by one function wherever it is given.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.sparse as sps
 
@@ -38,6 +40,8 @@ def _positive_scalar(value, name, *, allow_zero=False):
         v = float(value)
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be a number, got {value!r}") from None
+    except OverflowError:  # an integer beyond a float's range
+        v = math.inf
     if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
         raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
     return v

@@ -552,6 +552,19 @@ def _commands(parser) -> dict:
     }
 
 
+def _unknown_before_a_command(parser, given) -> None:
+    """With no command word given, an option the program does not know is the error to say, not the command
+    missing (``skfem-modal --bogus`` said only that a command is required)."""
+    (choices,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    choices.required = False
+    try:
+        _, unknown = parser.parse_known_args(given)
+    finally:
+        choices.required = True
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+
+
 def _all_parsers(parser) -> list:
     """``parser`` and the parsers of its commands."""
     return [parser, *_commands(parser).values()]
@@ -585,6 +598,7 @@ def cmd_optimize(args) -> int:
             args.out,
             generations=args.generations,
             popsize=args.popsize,
+            sigma0=args.sigma0,
             seed=args.seed,
             steps=args.steps,
             base_dir=base_dir,
@@ -609,6 +623,11 @@ def cmd_optimize(args) -> int:
         print(_next_command(args.argv, stop.generations), file=sys.stderr)
         return EXIT_INTERRUPTED if isinstance(stop, SearchInterrupted) else EXIT_WORKERS_LOST
     best = result["best"]
+    if result["converged"]:
+        say(
+            f"converged after {result['generations']} of {args.generations} generations: CMA-ES's steps fell below "
+            "1e-11 of the search box (its candidates are one gait), so the rest would roll the same gait out again"
+        )
     say(
         f"best: travel {best['travel']:.4g}, alignment {best['alignment']:.3g} (fitness {best['fitness']:.4g}"
         + (f", travel spread {best['travel_spread']:.3g} over {args.samples} samples" if args.samples > 1 else "")
@@ -917,6 +936,9 @@ def _optimize_options(p) -> None:
     p.add_argument("--generations", type=_positive_int, default=20, help="CMA-ES generations")
     p.add_argument("--popsize", type=_popsize, default=12, help="candidates per generation (at least 2)")
     p.add_argument("--seed", type=_seed, default=0, help="the same seed gives the same search (0 to 4294967294)")
+    p.add_argument(
+        "--sigma0", type=_positive_float, default=0.2, help="CMA-ES's first step size, a share of the search box"
+    )
     p.add_argument("--steps", type=_positive_int, help="rollout length in steps (default: the scene's)")
     p.add_argument(
         "--direction",
@@ -1084,6 +1106,8 @@ def main(argv=None) -> int:
     """
     parser = build_parser()
     given = list(sys.argv[1:] if argv is None else argv)
+    if not set(given) & set(_commands(parser)):
+        _unknown_before_a_command(parser, given)
     args, unknown = parser.parse_known_args(_joined_signed_values(given, _single_value_options(parser)))
     if unknown:  # said by the parser they were given to: the command's (naming it and its help), or the top's
         before = given[: given.index(args.command)] if args.command in given else []

@@ -40,6 +40,7 @@ Both models report the deepest of all boundary vertices below the ground
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 
 import numpy as np
@@ -60,6 +61,7 @@ from ._fast import dot
 from .effects import Effect
 from .mesh import boundary_vertices, connected_labels, part_sizes, part_thicknesses
 from .solver import SimulationError
+from .values import is_finite_real, is_real
 
 __all__ = [
     "CoulombContact",
@@ -170,10 +172,9 @@ def checked_allowance(value, name: str = "allowance") -> float:
     ValueError
         Naming ``name``, if the value is not a number in that range.
     """
-    try:
-        allowance = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number (a share of the body's size), got {value!r}") from None
+    if not is_real(value):  # (float() would take "0.001" and True)
+        raise ValueError(f"{name} must be a number (a share of the body's size), got {value!r}")
+    allowance = float(value) if is_finite_real(value) else math.inf  # (10**400: beyond a float's range)
     if not LEAST_ALLOWANCE <= allowance <= MOST_ALLOWANCE:
         raise ValueError(
             f"{name} must be at least {LEAST_ALLOWANCE:g} (less is lost in the round-off of the positions) and at "

@@ -9,6 +9,7 @@ arrays handed back to users hold positions as ``(n, dim)``.
 from __future__ import annotations
 
 import inspect
+import math
 import os
 import re
 import warnings
@@ -976,9 +977,12 @@ def _shape_checked(name: str, counts: dict, sizes: dict, elements=lambda: 0.0) -
     for key, value in sizes.items():
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
             raise ValueError(f"{name}: {key} must be a number, got {value!r}")
-        if not (np.isfinite(value) and value > 0):
+        if not (is_finite_real(value) and value > 0):
             raise ValueError(f"{name}: {key} must be positive and finite, got {value!r}")
-    estimate = float(elements())
+    try:
+        estimate = float(elements())
+    except OverflowError:  # (counts beyond a float's range)
+        estimate = math.inf
     if not estimate <= MAX_SHAPE_ELEMENTS:
         raise ValueError(
             f"{name}: these parameters make about {estimate:.3g} elements, more than {MAX_SHAPE_ELEMENTS:.0e} "
@@ -1038,8 +1042,12 @@ def caterpillar(
         raise ValueError(f"caterpillar: nx and ny must be at least 2, got nx={nx}, ny={ny}")
     if not 0 < body_fraction < 1:
         raise ValueError(f"caterpillar: body_fraction must be in (0, 1), got {body_fraction}")
-    if not 0 < leg_fraction <= 1 or n_legs < 1:
-        raise ValueError(f"caterpillar: need n_legs >= 1 and leg_fraction in (0, 1], got {n_legs}, {leg_fraction}")
+    # (at most a leg a triangle: each leg is a pass over the triangles, and 10**400 of them never ended)
+    if not 0 < leg_fraction <= 1 or not 1 <= n_legs <= 2 * nx * ny:
+        raise ValueError(
+            f"caterpillar: need n_legs in [1, 2 nx ny] (no more legs than triangles) and leg_fraction in (0, 1], "
+            f"got n_legs = {n_legs}, leg_fraction = {leg_fraction}"
+        )
     xs = np.linspace(0.0, width, nx)
     ys = np.linspace(0.0, height, ny)
     px, py = np.meshgrid(xs, ys, indexing="xy")

@@ -263,8 +263,8 @@ def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:
     TypeError, MeshError
         A mesh that cannot be used (:func:`~skfem_modal.mesh.check_mesh`).
     """
-    dim = mesh.p.shape[0]
-    size_squared = element_volumes(mesh) ** (2.0 / dim)
+    volumes = element_volumes(mesh)  # (the mesh checked first)
+    size_squared = volumes ** (2.0 / mesh.p.shape[0])
     return float(np.median((2.0 * np.asarray(mu) + np.asarray(lam)) / (np.asarray(rho) * size_squared)))
 
 

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import ORDER
+from .effects import ORDER, Effect
 from .mesh import body_size
+from .values import is_finite_real
 
 __all__ = ["Model", "motion_scale"]
 
@@ -115,11 +116,14 @@ class Model:
         _full_rank(space, self.inertia.mass_matrix)
         self.rest = space.coordinates(space.rest, self.inertia.mass)
         self.scale = motion_scale(space, self.inertia.mass, self.inertia.mass_matrix)
-        self.h = float(h)
+        self.h = _checked_step(h)
         self.assemble()
 
     def _set(self, effects) -> None:
         names = [e.name for e in effects]
+        unknown = [name for name in names if name not in ORDER]
+        if unknown:
+            raise ValueError(f"effects must be of {ORDER}, got {unknown}")
         if names != sorted(names, key=ORDER.index) or names[:2] != ["elasticity", "inertia"]:
             raise ValueError(f"effects must start with elasticity and inertia and follow {ORDER}, got {names}")
         self.effects = tuple(effects)
@@ -176,7 +180,7 @@ class Model:
     def retime(self, h: float) -> None:
         """Reassemble at the time step ``h`` (s, > 0); if its system is singular, the old step stays and the
         error is raised."""
-        old, self.h = self.h, float(h)
+        old, self.h = self.h, _checked_step(h)
         self.assemble_or_undo(lambda: setattr(self, "h", old))
 
     def _singular_why(self, H, terms: dict) -> str:
@@ -212,12 +216,16 @@ class Model:
     def replace(self, effect) -> None:
         """Put ``effect`` (an :class:`~skfem_modal.effects.Effect`) in, replacing the one of its name or adding it
         in the order of :data:`~skfem_modal.effects.ORDER`, and reassemble (or raise, the model unchanged)."""
+        if not isinstance(effect, Effect):
+            raise TypeError(f"effect must be an Effect (skfem_modal.effects), got {effect!r}")
         named, before = {**self.named, effect.name: effect}, list(self.effects)
         self._set([named[n] for n in ORDER if n in named])
         self.assemble_or_undo(lambda: self._set(before))
 
     def remove(self, name: str) -> None:
         """Take the effect called ``name`` (e.g. ``"gravity"``) out and reassemble (or raise, the model unchanged)."""
+        if name not in self.named:
+            raise ValueError(f"the model has no effect called {name!r}; it has {', '.join(self.named)}")
         before = list(self.effects)
         self._set([e for e in self.effects if e.name != name])
         self.assemble_or_undo(lambda: self._set(before))
@@ -299,3 +307,10 @@ def _check_in_range(H, terms: dict) -> None:
         f"the system matrix's entries {reach}, beyond what float64 computes with (at most {limit:.3g}): "
         f"its terms' largest entries are {shares}; make the largest term's coefficients smaller"
     )
+
+
+def _checked_step(h) -> float:
+    """The time step ``h`` as a float, if it is a positive, finite number; else a ValueError naming it."""
+    if not (is_finite_real(h) and h > 0):
+        raise ValueError(f"the time step h must be a positive, finite number, got {h!r}")
+    return float(h)

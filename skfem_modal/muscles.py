@@ -18,10 +18,10 @@ and the force on ``z`` is ``A(a)^T vec(R)``. This module builds the ``A_m``.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.sparse as sps
+
+from .values import is_finite_real
 
 __all__ = [
     "shortest_period",
@@ -189,12 +189,22 @@ def shortest_period(amplitudes, periods) -> float | None:
     -------
     period : float or None
 
+    Raises
+    ------
+    ValueError
+        The two do not have one value per muscle each.
+
     Examples
     --------
     >>> shortest_period([0.2, 0.0, 0.1], [1.0, 0.1, 0.5])
     0.5
     """
-    moving = np.asarray(periods, dtype=np.float64)[np.asarray(amplitudes, dtype=np.float64) != 0.0]
+    amplitudes, periods = np.asarray(amplitudes, dtype=np.float64), np.asarray(periods, dtype=np.float64)
+    if amplitudes.ndim != 1 or amplitudes.shape != periods.shape:
+        raise ValueError(
+            f"a gait needs one amplitude and one period per muscle, got shapes {amplitudes.shape} and {periods.shape}"
+        )
+    moving = periods[amplitudes != 0.0]
     return float(moving.min()) if moving.size else None
 
 
@@ -217,8 +227,7 @@ def checked_ramp(value, name: str = "ramp") -> float:
     ValueError
         Naming ``name``, if it is not a finite number >= 0.
     """
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-    if not (number and 0.0 <= float(value) < math.inf):  # NaN too
+    if not (is_finite_real(value) and value >= 0.0):  # NaN too
         raise ValueError(f"{name} must be a time >= 0, got {value!r}")
     return float(value)
 

@@ -194,12 +194,14 @@ class GaitSpace:
         Raises
         ------
         ValueError
-            ``u`` is not 3 m values.
+            ``u`` is not 3 m finite values.
         """
         m = self.m
         u = np.asarray(u, dtype=np.float64)
         if u.shape != (3 * m,):
             raise ValueError(f"a point of this gait space has 3 x {m} values (amplitudes, periods, phases): {u.size}")
+        if not np.isfinite(u).all():
+            raise ValueError(f"a point of the gait space must be finite, got {u.tolist()}")
         u = np.clip(u, 0.0, 1.0)
         return {
             "amplitude": (u[:m] * self.amplitude_max).tolist(),
@@ -234,8 +236,15 @@ class GaitSpace:
         return np.clip(np.concatenate([amp, per, phase]), 0.0, 1.0)
 
 
+def _toml_key(key) -> str:
+    """A key as TOML writes it: bare where it may be, else quoted (a space or a dot would change what it says)."""
+    if not isinstance(key, str):
+        raise TypeError(f"TOML keys are strings, got {key!r}")
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
 def _toml_value(value) -> str:
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
     if isinstance(value, (int, np.integer)):
         return str(int(value))
@@ -246,16 +255,17 @@ def _toml_value(value) -> str:
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None) + " }"
     raise TypeError(f"cannot write {type(value).__name__} to TOML")
 
 
 def scene_to_toml(data: dict) -> str:
     """A scene dict as TOML text (tables for sections, inline tables below that).
 
-    ``data``: a scene, as its TOML file's tables (a table's keys whose values are None are left out;
-    ``params`` and ``box`` are written as inline tables). Values are bools, numbers, strings, lists
-    and dicts of them; anything else is a ``TypeError``.
+    ``data``: a scene, as its TOML file's tables (keys whose values are None are left out; ``params``
+    and ``box`` are written as inline tables; a key that is not bare, with a space or a dot say, is
+    quoted). Values are bools, numbers, strings, lists and dicts of them (Python's or numpy's); anything
+    else (None in a list too) is a ``TypeError``.
 
     Examples
     --------
@@ -274,11 +284,11 @@ def scene_to_toml(data: dict) -> str:
     lines = []
     for key, value in data.items():
         if not isinstance(value, dict) and value is not None:
-            lines.append(f"{key} = {_toml_value(value)}")
+            lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
 
     def table(name, body):
         lines.append("")
-        lines.append(f"[{name}]")
+        lines.append(f"[{'.'.join(map(_toml_key, name))}]")
         subs = []
         for key, value in body.items():
             if value is None:
@@ -286,13 +296,13 @@ def scene_to_toml(data: dict) -> str:
             if isinstance(value, dict) and key != "params" and key != "box":
                 subs.append((key, value))
             else:
-                lines.append(f"{key} = {_toml_value(value)}")
+                lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
         for key, value in subs:
-            table(f"{name}.{key}", value)
+            table(name + (key,), value)
 
     for key, value in data.items():
         if isinstance(value, dict):
-            table(key, value)
+            table((key,), value)
     return "\n".join(lines) + "\n"
 
 
@@ -330,10 +340,11 @@ def read_checkpoint(path: str) -> dict:
     Returns
     -------
     state : dict
-        ``generation`` (finished) and ``settings`` (checked here), and the rest of what a search keeps:
+        ``generation`` (finished) and ``settings``, and the rest of what a search keeps:
         ``es`` (the CMA-ES state), ``history`` (a row a generation), ``rollouts``, ``seconds``,
-        ``numpy_random``, ``scene_data`` (the scene searched), ``asked`` (generations asked for) and
-        ``start_gait``.
+        ``numpy_random``, ``scene_data`` (the scene searched), ``asked`` (generations asked for),
+        ``start_gait`` and ``start`` (the start gait's own row, once the first generation rolled it out);
+        ``settings`` is checked to be a dict of the search's settings, its values not.
 
     Raises
     ------
@@ -506,7 +517,8 @@ def run_search(
         ``best`` (``gait``, ``fitness``, ``travel``, ``alignment``,
         ``max_tilt_degrees``: the gait's own rollout; ``travel_spread``, the
         standard deviation over its samples; ``generation``), ``history``
-        (rows), ``generations`` done, ``rollouts`` and ``seconds`` (over the
+        (rows), ``generations`` done (fewer than asked when ``converged``: CMA-ES's steps fell below
+        1e-11 of the search box, its candidates one gait), ``rollouts`` and ``seconds`` (over the
         whole search, resumed parts included), ``precompute_seconds`` (this
         call's), and the paths ``checkpoint``, ``history_csv``,
         ``best_scene`` (``best_gait.toml``) and ``plot`` (``fitness.png``).
@@ -557,7 +569,7 @@ def run_search(
             state["asked"] = generations  # (transfer tells a finished search from a stopped one)
             bar = Progress(generations, "generations", enabled=progress, initial=state["generation"], unit="gen")
             last = generations if stop_after is None else min(generations, state["generation"] + stop_after)
-            while state["generation"] < last:
+            while state["generation"] < last and not search_converged(state):
                 state = _generation(state, rollouts, space)
                 _save(paths, data, state)
                 replacing = _remove_replaced(replacing, paths)
@@ -777,11 +789,23 @@ def _result(state: dict, paths: dict, precompute: float) -> dict:
         "history": state["history"],
         "start": state.get("start"),
         "generations": state["generation"],
+        "converged": search_converged(state),
         "rollouts": state["rollouts"],
         "seconds": state["seconds"],
         "precompute_seconds": precompute,
         **{k: v for k, v in paths.items() if k != "plot" or os.path.exists(v)},
     }
+
+
+def search_converged(state: dict) -> bool:
+    """Whether a search's ``state`` (:func:`read_checkpoint`) has converged: CMA-ES's steps have shrunk below
+    ``1e-11`` of the unit cube in every direction (``tolx``).
+
+    Its candidates are then one gait to 11 digits: more generations roll the same gait out again, and
+    a long search (20000 generations of a small scene) went on until the step size underflowed and the
+    candidates were NaN. A search that has not made a generation has not converged.
+    """
+    return bool(state["generation"]) and "tolx" in state["es"].stop()
 
 
 def _roll_out(rollouts, gaits: list, settings: dict, done: int):

@@ -17,6 +17,8 @@ import os
 import re
 import tempfile
 
+from .values import checked_flag
+
 __all__ = [
     "OutputError",
     "named",
@@ -287,6 +289,7 @@ def check_output_folder(directory, kind: str) -> list[str]:
 
 def _clear(directory: str, overwrite: bool, how: str, own: str) -> int:
     """Refuse (:func:`check_output_folder`), or remove the earlier ``own`` output's files."""
+    overwrite = checked_flag(overwrite, "overwrite")  # ("no" is true: it removed an earlier run's files)
     found = check_output_folder(directory, own)
     if not found:
         return 0

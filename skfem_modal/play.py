@@ -27,7 +27,7 @@ import numpy as np
 
 from .muscles import checked_ramp, gait_ramp
 from .outputs import check_output_file
-from .values import is_whole
+from .values import is_finite_real, is_whole
 
 __all__ = ["Player", "PlayError", "play", "play_problem", "slider_ranges", "virtual_display", "window_size_problem"]
 
@@ -49,9 +49,13 @@ def window_size_problem(size) -> str | None:
     True
     >>> window_size_problem((16, 16))
     'window size must be at least 560 x 360 pixels (and at most 8192 a side), got 16 x 16'
+    >>> window_size_problem((960.5, 600))
+    'window size must be two whole numbers of pixels (width, height), got (960.5, 600)'
     """
     from .plot import MAX_PICTURE_SIDE
 
+    if not (isinstance(size, (tuple, list)) and len(size) == 2 and all(map(is_whole, size))):
+        return f"window size must be two whole numbers of pixels (width, height), got {size!r}"
     width, height = (int(v) for v in size)
     if width < MIN_WINDOW[0] or height < MIN_WINDOW[1] or max(width, height) > MAX_PICTURE_SIDE:
         return (
@@ -207,9 +211,9 @@ class Player:
         m = self.sim.n_muscles
         if not (is_whole(k) and 0 <= k < m):  # (not a bool: True would be muscle 1)
             raise ValueError(f"slider index must be an integer in [0, {m}), got {k!r}")
+        if not is_finite_real(value):  # (float() would take "0.5" and True)
+            raise ValueError(f"slider {k} value must be a finite number, got {value!r}")
         value = float(value)
-        if not np.isfinite(value):
-            raise ValueError(f"slider {k} value must be finite, got {value}")
         self.sliders[k] = np.clip(value, -self.ranges[k], self.ranges[k])
         self.gait_on, self._takeover = False, None
 
@@ -559,7 +563,7 @@ def play(
     PlayError
         When no window can open here (the message says what to install or set).
     """
-    if frames is not None and (not isinstance(frames, int | np.integer) or frames < 1):
+    if frames is not None and (not is_whole(frames) or frames < 1):
         raise ValueError(f"frames must be a positive integer, got {frames!r}")
     if off_screen and frames is None:
         raise ValueError("off-screen play needs a number of frames (--frames N): nothing can be seen or clicked")

@@ -219,8 +219,8 @@ class Trial:
         backend : {"auto", "numpy", "numba", "plain"}
             The simulator's backend (:meth:`~skfem_modal.scene.Scene.build`).
         **settings
-            ``steps``, ``direction``, ``objective``, ``tip_limit``, ``tip_weight`` and ``ramp``, as for
-            :class:`Trial`.
+            ``steps`` and ``direction`` (both required), and ``objective``, ``tip_limit``, ``tip_weight``
+            and ``ramp`` (optional), as for :class:`Trial`.
 
         Returns
         -------

@@ -83,7 +83,8 @@ class Progress:
         elif self.count >= self._next:
             self._print()
             # a terminal line is rewritten in place; a log file gets a line a tenth of the way
-            self._next += max(1, self.total // (20 if self._tty else 10))
+            # (from the count printed: a resumed job's count starts far past 0)
+            self._next = self.count + max(1, self.total // (20 if self._tty else 10))
 
     def _print(self) -> None:
         end = "" if self._tty else "\n"

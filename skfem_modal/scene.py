@@ -46,6 +46,7 @@ from .mesh import (
 from .muscles import _sine, shortest_period
 from .solver import MAX_ITERATIONS, TOL
 from .units import ScaleWarning, float_range_problems, scale_mismatch, up_axis
+from .values import is_finite_real
 
 __all__ = [
     "SceneError",
@@ -665,7 +666,7 @@ def _coerce(kind: str, value, path: str, errors: list[str]):
 
     is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if kind == "float":
-        if not is_number or not math.isfinite(value):
+        if not is_number or not is_finite_real(value):
             return bad("a finite number")
         return float(value)
     if kind == "int":
@@ -687,7 +688,7 @@ def _coerce(kind: str, value, path: str, errors: list[str]):
         if items is None:
             return bad("a list")
         if kind == "floats":
-            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in items):
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and is_finite_real(v) for v in items):
                 return bad("a list of finite numbers")
             return [float(v) for v in items]
         if kind == "ints":

@@ -46,11 +46,11 @@ import numpy as np
 
 from .export import written_whole
 from .interrupts import QuietSpawnContext, exit_with_parent
-from .mesh import body_size
+from .mesh import body_size, shape_parameter_problems
 from .outputs import clear_earlier_study, made_folder, remove_if_empty
 from .sim import simulate
 from .threads import limited_blas_threads
-from .values import is_real
+from .values import is_finite_real, is_whole
 
 __all__ = [
     "PRESETS",
@@ -221,9 +221,10 @@ def resolution_scene(data: dict, factor: float) -> dict:
     Raises
     ------
     ValueError
-        The scene's mesh is a file (and ``factor`` is not 1), or ``factor`` is not a positive number.
+        The scene's mesh is a file (and ``factor`` is not 1), ``factor`` is not a positive number, or
+        the shape or a parameter is unknown or of the wrong type (named).
     """
-    if not (is_real(factor) and factor > 0.0 and np.isfinite(factor)):
+    if not (is_finite_real(factor) and factor > 0.0):
         raise ValueError(f"a resolution factor must be a positive number (0.5: half as fine), got {factor!r}")
     data = copy.deepcopy(data)
     if factor == 1.0:
@@ -232,6 +233,10 @@ def resolution_scene(data: dict, factor: float) -> dict:
     if mesh.get("file"):
         raise ValueError("a mesh from a file has no resolution to change; sweep resolutions with a built-in shape")
     shape = mesh.get("shape") or "caterpillar"
+    # (an unknown shape or parameter named before any work: a typo's key was dropped, its value lost)
+    problems = shape_parameter_problems(shape, mesh.get("params", {}))
+    if problems:
+        raise ValueError(f"shape {shape!r}: " + "; ".join(f"parameter {key}: {text}" for key, text in problems))
     params = {**_shape_defaults(shape), **mesh.get("params", {})}
     if shape == "caterpillar":
         for key in ("nx", "ny"):
@@ -376,7 +381,15 @@ def time_steps(tasks: list[dict], *, rounds: int = 3, steps: int = 60) -> list[f
     Returns
     -------
     ms : list of float, one per task
+
+    Raises
+    ------
+    ValueError
+        ``rounds`` or ``steps`` not a whole number >= 1 (nothing timed would read as infinitely slow).
     """
+    for name, value in (("rounds", rounds), ("steps", steps)):
+        if not (is_whole(value) and value >= 1):
+            raise ValueError(f"{name} must be a whole number >= 1, got {value!r}")
     built = []
     for task in tasks:
         scene = _reduced_scene(task)

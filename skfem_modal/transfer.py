@@ -201,7 +201,7 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         left out, each a sentence saying why (the mesh is over ``full_space_limit``), and ``unfinished``: a
         sentence when the search stopped before its generations were done (its best so far replayed), else None.
     """
-    from .optimize import read_checkpoint
+    from .optimize import read_checkpoint, search_converged
     from .scene import Scene, read_scene_file
 
     out_dir = os.fspath(out_dir)
@@ -212,7 +212,7 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     state = read_checkpoint(checkpoint)
     settings = state["settings"]
     unfinished = None
-    if state.get("asked", state["generation"]) > state["generation"]:
+    if state.get("asked", state["generation"]) > state["generation"] and not search_converged(state):
         unfinished = (
             f"the search stopped after {state['generation']} of its {state['asked']} generations: this is its best "
             "so far (continue it with optimize --resume)"

@@ -229,3 +229,81 @@ def test_a_hand_made_basis_is_named_when_its_columns_depend_and_taken_when_spars
     dense = ModalMuscle(sim.mesh, sim.B, sim.D, sim.labels, **args)
     z, z_dot, _ = dense.rest_state()
     np.testing.assert_array_equal(sparse.step(z, z_dot, [0.1]), dense.step(z, z_dot, [0.1]))
+
+
+# ------------------------------------------------------------ found by checking the docstrings' claims
+HUGE = 10**400  # a Python int no float holds: float() raised OverflowError past the checks
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: sm.muscles.checked_ramp(HUGE), "ramp must be a time >= 0"),
+        (lambda: sm.contact.checked_allowance(HUGE), "allowance must be at least 1e-10"),
+        (lambda: sm.contact.checked_allowance("0.001"), r"allowance must be a number \(a share"),
+        (lambda: sm.study.resolution_scene({"mesh": {"shape": "caterpillar"}}, HUGE), "a resolution factor must be"),
+        (lambda: sm.mesh.builtin_mesh("beam2d", nx=HUGE), "beam2d: these parameters make about inf elements"),
+        (lambda: sm.mesh.beam2d(length=HUGE), "beam2d: length must be positive and finite"),
+        (lambda: sm.mesh.caterpillar(n_legs=HUGE), r"caterpillar: need n_legs in \[1, 2 nx ny\]"),
+        (lambda: ModalMuscle.from_mesh(GOOD, n_muscles=1, n_weights=3, n_clusters=2, h=HUGE), "h must be positive"),
+    ],
+)
+def test_numbers_beyond_a_float_are_named(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+def test_model_edits_are_checked():
+    sim = ModalMuscle.from_mesh(GOOD, n_muscles=1, n_weights=3, n_clusters=2)
+    model, h = sim.model, sim.h
+    for bad in (-1, 0, HUGE, float("inf"), True):  # (-1 was taken, and left h at -1)
+        with pytest.raises(ValueError, match="the time step h must be a positive, finite number"):
+            model.retime(bad)
+    assert model.h == h
+    with pytest.raises(ValueError, match="the model has no effect called 'gravityy'; it has elasticity, inertia"):
+        model.remove("gravityy")  # (did nothing and said nothing)
+    with pytest.raises(TypeError, match="effect must be an Effect"):
+        model.replace("gravity")
+    assert [e.name for e in model.effects] == ["elasticity", "inertia", "muscles"]
+
+
+def test_overwrite_is_a_bool_before_any_file_goes(tmp_path):
+    """``overwrite="no"`` is true: it removed an earlier run's files."""
+    from skfem_modal.outputs import clear_earlier_run, clear_earlier_study
+
+    run_dir = tmp_path / "run"
+    sm.run.run_scene(Scene.from_dict({"time": {"steps": 2}}), run_dir, progress=False)
+    before = sorted(p.name for p in run_dir.iterdir())
+    for clear in (clear_earlier_run, clear_earlier_study):
+        with pytest.raises(TypeError, match="overwrite must be True or False, got 'no'"):
+            clear(run_dir, "no")
+    assert sorted(p.name for p in run_dir.iterdir()) == before
+
+
+def test_study_and_gait_inputs_are_named():
+    with pytest.raises(ValueError, match="rounds must be a whole number >= 1, got 0"):
+        sm.study.time_steps([], rounds=0)
+    with pytest.raises(ValueError, match="steps must be a whole number >= 1, got 0"):
+        sm.study.time_steps([], steps=0)
+    with pytest.raises(ValueError, match="shape 'caterpillar': parameter zz: unknown"):
+        sm.study.resolution_scene({"mesh": {"shape": "caterpillar", "params": {"zz": 1}}}, 2.0)  # (dropped)
+    with pytest.raises(ValueError, match="unknown built-in shape 'blob'"):
+        sm.study.resolution_scene({"mesh": {"shape": "blob"}}, 2.0)  # (a KeyError)
+    with pytest.raises(ValueError, match="a gait needs one amplitude and one period per muscle"):
+        sm.muscles.shortest_period([0.2, 0.1], [1.0, 0.1, 0.5])  # (an IndexError)
+    space = sm.optimize.GaitSpace(2)
+    with pytest.raises(ValueError, match="a point of the gait space must be finite"):
+        space.gait([0.5, np.nan, 0.5, 0.5, 0.5, 0.5])  # (a gait of NaN: a collapsed search's candidates)
+    assert sm.play.window_size_problem((960.5, 600)).startswith("window size must be two whole numbers")
+    assert sm.play.window_size_problem((True, True)).startswith("window size must be two whole numbers")
+    assert sm.play.window_size_problem((960, 600)) is None
+
+
+def test_submodules_are_attributes_of_the_package():
+    """``sm.mesh.beam2d`` works without ``import skfem_modal.mesh`` first (an AttributeError before)."""
+    import subprocess
+    import sys
+
+    code = "import skfem_modal as sm; print(sm.mesh.beam2d(2.0, 1.0, 4, 2).p.shape, hasattr(sm, 'no_such'))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "(2, 15) False"

@@ -278,6 +278,9 @@ def test_modes_names_a_bad_material_option_before_reading_the_mesh(option, said,
         (["run", "--bogus"], "skfem-modal run: error: unrecognized arguments: --bogus"),
         (["--bogus", "run"], "skfem-modal: error: unrecognized arguments: --bogus"),
         (["bogus"], "skfem-modal: error: argument command: invalid choice: 'bogus'"),
+        # no command at all: the unknown option is the news (it said only that a command is required)
+        (["--bogus"], "skfem-modal: error: unrecognized arguments: --bogus"),
+        ([], "skfem-modal: error: the following arguments are required: command"),
     ],
 )
 def test_option_errors_are_one_line_naming_the_command(argv, said, capsys):
@@ -288,3 +291,9 @@ def test_option_errors_are_one_line_naming_the_command(argv, said, capsys):
     assert refused.value.code == 2
     assert err.count("\n") == 1 and err.startswith(said)
     assert err.rstrip().endswith(f"(options: {said.split(':')[0]} --help)")
+
+
+def test_a_mesh_specs_count_beyond_a_float_is_named(capsys):
+    """(It was an OverflowError's traceback and exit 1.)"""
+    assert main(["info", "beam2d:nx=" + "9" * 400]) == 2
+    assert "skfem-modal info: error: beam2d: these parameters make about inf elements" in capsys.readouterr().err

@@ -218,6 +218,26 @@ def test_any_executor_builds_the_simulator_once_per_worker(local, tmp_path):
 def test_scene_toml_round_trip():
     text = scene_to_toml(TINY)
     assert tomllib.loads(text) == json.loads(json.dumps(TINY))
+    # keys that are not bare are quoted (a space made invalid TOML, a dot a table); numpy's bools; None left out
+    odd = {"name": "x", "a b": 1, "a.b": np.bool_(True), "mesh": {"params": {"nx": 3, "ny": None}}, "g": {"s.t": {}}}
+    expected = {"name": "x", "a b": 1, "a.b": True, "mesh": {"params": {"nx": 3}}, "g": {"s.t": {}}}
+    assert tomllib.loads(scene_to_toml(odd)) == expected
+    with pytest.raises(TypeError, match="cannot write NoneType to TOML"):
+        scene_to_toml({"muscles": {"signs": [1, None]}})
+
+
+def test_a_converged_search_stops_and_says_so(tmp_path, capsys):
+    """A long search's step size fell until its candidates were NaN, and it ended as bad input (exit 2)."""
+    from skfem_modal.transfer import transfer_search
+
+    result = run_search(TINY, tmp_path, generations=5, popsize=4, seed=3, steps=20, sigma0=1e-12, workers=1)
+    assert result["converged"] and result["generations"] == 1 and result["history"][0]["sigma"] < 1e-11
+    assert transfer_search(tmp_path, full_space_limit=0)["unfinished"] is None  # finished, not stopped
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(scene_to_toml(TINY))
+    argv = ["optimize", str(scene), "--out", str(tmp_path / "cli"), "--generations", "3", "--popsize", "4"]
+    assert main(argv + ["--steps", "20", "--sigma0", "1e-12", "--workers", "1"]) == 0
+    assert "converged after 1 of 3 generations: CMA-ES's steps fell below 1e-11" in capsys.readouterr().out
 
 
 def test_cli_optimize(tmp_path, capsys):

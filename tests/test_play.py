@@ -322,8 +322,11 @@ def test_bad_controls_are_named(crawl):
         player.set_slider(4, 0.1)
     with pytest.raises(ValueError, match=r"slider index must be an integer in \[0, 4\), got True"):
         player.set_slider(True, 0.1)  # (a bool is an int to Python: it moved muscle 1)
-    with pytest.raises(ValueError, match="slider 1 value must be finite, got nan"):
+    with pytest.raises(ValueError, match="slider 1 value must be a finite number, got nan"):
         player.set_slider(1, float("nan"))
+    for bad in ("abc", None, 10**400, True, "0.5"):  # (float() took "0.5" and True; 10**400 overflowed)
+        with pytest.raises(ValueError, match=r"slider 1 value must be a finite number, got "):
+            player.set_slider(1, bad)
     with pytest.raises(TypeError, match="gait must be a callable"):
         Player(sim, gait=[0.1, 0.2])
     with pytest.raises(ValueError, match="max_lag and step_budget must be positive"):

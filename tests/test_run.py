@@ -221,3 +221,9 @@ def test_progress_without_tqdm_writes_lines_to_a_log(monkeypatch, capsys):
     assert 10 <= len(lines) <= 14
     assert lines[-1] == "steps: 45/45"
     assert len(set(lines)) == len(lines)
+    # a resumed job's count starts far past 0: a line a tenth of the way still (it printed every update)
+    bar = Progress(100, "gen", initial=80)
+    for _ in range(20):
+        bar.update()
+    bar.close()
+    assert capsys.readouterr().err.splitlines() == ["gen: 81/100", "gen: 91/100", "gen: 100/100"]
