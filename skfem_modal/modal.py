@@ -434,9 +434,11 @@ def muscle_signs(signs, n_muscles: int, name: str = "muscle_signs"):
     if signs is None or not n_muscles:
         return None
     try:  # (a string, a dict or a ragged list is no array of numbers: the same message names the argument)
-        values = np.asarray(signs, dtype=np.float64) if not isinstance(signs, (str, dict)) else np.zeros(0)
+        values = np.asarray(signs) if not isinstance(signs, (str, dict)) else np.zeros(0)
     except (TypeError, ValueError):
         values = np.zeros(0)
+    # numbers only: True and "1" are not signs (they were taken as +1)
+    values = values.astype(np.float64) if values.dtype.kind in "iuf" else np.zeros(0)
     if values.shape != (n_muscles,) or not np.all(np.abs(values) == 1):
         raise ValueError(f"{name} must be {n_muscles} values of +1 or -1, got {signs!r}")
     return values

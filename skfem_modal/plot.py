@@ -105,10 +105,12 @@ def read_run(run_dir) -> dict:
     run_dir = os.fspath(run_dir)
     path = os.path.join(run_dir, "summary.json")
     try:
-        with open(path) as f:
+        with open(path, encoding="utf-8") as f:
             summary = json.load(f)
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:  # (the latter named no file)
         raise ValueError(f"cannot read {path}: {err} (not the JSON a run writes: cut or edited?)") from None
+    if not isinstance(summary, dict):  # (a JSON list was taken)
+        raise ValueError(f"cannot read {path}: not the JSON a run writes (an object of its keys), got {summary!r:.60}")
     # a row a step (and the rest state): a file cut short says fewer
     expected = summary.get("steps_completed", summary.get("steps")) if isinstance(summary, dict) else None
 

@@ -35,6 +35,9 @@ _SETTERS = (
 )
 
 
+_MOST_THREADS = 2**31 - 1
+
+
 def checked_thread_count(limit, name: str = "blas_threads") -> int | None:
     """A BLAS thread count: None (leave the libraries as they are) or a whole number >= 1; else a ValueError naming it.
 
@@ -60,12 +63,13 @@ def checked_thread_count(limit, name: str = "blas_threads") -> int | None:
     >>> checked_thread_count(0)
     Traceback (most recent call last):
     ...
-    ValueError: blas_threads must be None or a whole number of threads >= 1, got 0
+    ValueError: blas_threads must be None or a whole number of threads from 1 to 2147483647, got 0
     """
     if limit is None:
         return None
-    if not is_whole(limit) or limit < 1:
-        raise ValueError(f"{name} must be None or a whole number of threads >= 1, got {limit!r}")
+    # (at most 2^31 - 1: BLAS libraries take a C int, and 10**400 failed deep in ctypes)
+    if not is_whole(limit) or not 1 <= limit <= _MOST_THREADS:
+        raise ValueError(f"{name} must be None or a whole number of threads from 1 to {_MOST_THREADS}, got {limit!r}")
     return int(limit)
 
 

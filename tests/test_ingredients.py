@@ -82,7 +82,7 @@ def test_bad_stage_arguments_are_refused_before_any_work(mesh):
     with pytest.raises(ValueError, match="muscle_signs must be 2 values of \\+1 or -1"):
         ingredients(mesh, cluster_by="weights", contact_model="coulomb", **{**kw, "muscle_signs": [1, 2]})
     # nothing numpy cannot make an array of gets past the same message (a dict, a ragged list, a string)
-    for bad in ({"a": 1, "b": -1}, [[1], [1, -1]], "+-", [1, None]):
+    for bad in ({"a": 1, "b": -1}, [[1], [1, -1]], "+-", [1, None], [True, True], ["1", "-1"]):
         with pytest.raises(ValueError, match="muscle_signs must be 2 values of \\+1 or -1"):
             muscle_signs(bad, 2)
 

@@ -118,13 +118,17 @@ def test_the_smallest_sides_allowed_are_drawn(run_copy, backend, size):
     assert pixels(run_copy / "last_frame.png").shape == (size[1], size[0], 3)
 
 
-@pytest.mark.parametrize("damage", ["summary", "cut rows", "cut number", "cut series"])
+@pytest.mark.parametrize("damage", ["summary", "summary bytes", "summary list", "cut rows", "cut number", "cut series"])
 def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, damage):
     # a broken summary.json gave json's own message without the file; a com.csv cut to its first rows drew;
     # a frames.pvd cut to its first frames drew them, the last of them as the run's last frame
     summary, com, pvd = run_copy / "summary.json", run_copy / "com.csv", run_copy / "frames.pvd"
     if damage == "summary":
         summary.write_text(summary.read_text()[:40])
+    elif damage == "summary bytes":  # not UTF-8: a UnicodeDecodeError that named no file
+        summary.write_bytes(b"\xff\xfe" + summary.read_bytes())
+    elif damage == "summary list":  # JSON, but not a run's (it was taken)
+        summary.write_text("[1]")
     elif damage == "cut series":
         pvd.write_text(pvd.read_text()[:400])
     else:
@@ -136,6 +140,8 @@ def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, da
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     expected = {
         "summary": f"cannot read {summary}: ",
+        "summary bytes": f"cannot read {summary}: ",
+        "summary list": f"cannot read {summary}: not the JSON a run writes (an object of its keys), got [1]",
         "cut rows": f"{com} holds 1 rows, where summary.json's",
         "cut number": f"{com} ends in the middle of a row",
         "cut series": f"{pvd} lists 3 frames, where summary.json says the run wrote",
