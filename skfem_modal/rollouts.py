@@ -495,7 +495,11 @@ class Rollouts:
         ------
         skfem_modal.study.WorkersLost
             The executor lost its workers (:func:`~skfem_modal.study.lost_workers` says how).
+        TypeError
+            ``gaits`` is not a list of dicts (before any task is sent).
         """
+        if not (isinstance(gaits, (list, tuple)) and all(isinstance(gait, dict) for gait in gaits)):
+            raise TypeError(f"gaits must be a list of gait dicts (amplitude, period, phase), got {gaits!r:.80}")
         tasks = [
             {
                 "trial": self.handle,

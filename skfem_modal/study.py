@@ -534,6 +534,11 @@ def modal_convergence(cases=((40, 1), (80, 2), (160, 4)), length=40.0, height=1.
         Two a case (P1, then P2): ``element``, ``cells`` (``"NXxNY"``), ``dofs``, ``seconds`` (the
         eigen solve's), ``error_vs_euler_bernoulli`` and ``error_vs_refined_p2`` (largest relative
         frequency errors).
+
+    Raises
+    ------
+    ValueError
+        ``cases`` is not a non-empty list of (nx, ny) pairs of whole numbers >= 1.
     """
     from .mesh import beam2d, vertices_where
     from .modal import linear_modal_analysis
@@ -549,6 +554,10 @@ def modal_convergence(cases=((40, 1), (80, 2), (160, 4)), length=40.0, height=1.
         )
         return np.sqrt(values), time.perf_counter() - clock, modes.shape[0]
 
+    given = cases
+    cases = [tuple(case) for case in cases] if isinstance(cases, (list, tuple)) else None
+    if not cases or not all(len(case) == 2 and all(is_whole(n) and n >= 1 for n in case) for case in cases):
+        raise ValueError(f"cases must be a non-empty list of (nx, ny) pairs of whole numbers >= 1, got {given!r}")
     nx, ny = cases[-1]
     fine, _, _ = solve(2 * nx, 2 * ny, "P2")
     rows = []

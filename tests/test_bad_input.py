@@ -281,6 +281,9 @@ def test_overwrite_is_a_bool_before_any_file_goes(tmp_path):
 
 
 def test_study_and_gait_inputs_are_named():
+    for cases in ((), ((8.5, 1),), "ab", ((4, 1, 2),)):  # (an IndexError; 8.5 named as the doubled 17.0)
+        with pytest.raises(ValueError, match="cases must be a non-empty list of \\(nx, ny\\) pairs"):
+            sm.study.modal_convergence(cases)
     with pytest.raises(ValueError, match="rounds must be a whole number >= 1, got 0"):
         sm.study.time_steps([], rounds=0)
     with pytest.raises(ValueError, match="steps must be a whole number >= 1, got 0"):

@@ -568,3 +568,16 @@ def test_a_dask_client_itself_serves_as_the_executor(local, tmp_path):
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
         result = search(tmp_path, executor=client)
     assert result["best"] == local["best"]
+
+
+def test_rollouts_name_gaits_that_are_no_list_of_gaits():
+    """(A dict gave "string indices must be integers" from inside a task.)"""
+    from skfem_modal.rollouts import Rollouts
+
+    trial = Trial.from_scene(TINY, steps=5, direction=[1.0, 0.0])
+    with Rollouts(trial, workers=1) as rollouts:
+        for bad in (TINY["muscles"]["gait"], ["gait"]):
+            with pytest.raises(TypeError, match="gaits must be a list of gait dicts"):
+                rollouts.map(bad)
+        (score,) = rollouts.map([TINY["muscles"]["gait"]])
+    assert score["finite"] and np.isfinite(score["travel"])
