@@ -503,13 +503,15 @@ def _hint(mesh) -> str:
     return ""
 
 
-def body_size(mesh) -> float:
+def body_size(mesh, *, what: str = "mesh") -> float:
     """The size of a body ``mesh``: its largest extent along an axis, what relative lengths refer to.
+
+    Its points are checked first (:func:`check_points`), the errors naming it ``what``.
 
     >>> body_size(beam2d(2.0, 0.5, 4, 2))
     2.0
     """
-    check_points(mesh)
+    check_points(mesh, what=what)
     return float(np.ptp(mesh.p, axis=1).max())
 
 

@@ -341,7 +341,7 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin (mesh.normalize = true in a scene,
     skfem_modal.normalize_and_center in Python, or subtract its centre).
     """
-    size = body_size(mesh)
+    size = body_size(mesh, what=what)
     centre = 0.5 * (mesh.p.min(axis=1) + mesh.p.max(axis=1))
     distance = float(np.linalg.norm(centre)) / size if size > 0.0 else 0.0
     if not distance > FAR_FROM_ORIGIN:

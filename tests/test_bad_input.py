@@ -310,3 +310,11 @@ def test_submodules_are_attributes_of_the_package():
     code = "import skfem_modal as sm; print(sm.mesh.beam2d(2.0, 1.0, 4, 2).p.shape, hasattr(sm, 'no_such'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "(2, 15) False"
+
+
+def test_far_from_origin_names_the_mesh_as_its_caller_does():
+    """(Its points' checks said "mesh:" whatever ``what`` was.)"""
+    from skfem_modal.units import far_from_origin
+
+    with pytest.raises(MeshError, match="^the scene's mesh: 1 vertices have non-finite coordinates"):
+        far_from_origin(nan_mesh(), what="the scene's mesh")
