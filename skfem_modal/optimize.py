@@ -218,9 +218,13 @@ class GaitSpace:
 
         Raises
         ------
+        TypeError
+            ``gait`` is not a dict.
         ValueError
             A key missing, or not m values.
         """
+        if not isinstance(gait, dict):
+            raise TypeError(f"a gait is a dict of amplitude, period and phase, got {gait!r:.80}")
         for key in ("amplitude", "period"):
             if key not in gait:
                 raise ValueError(f"the gait has no {key!r} (a gait has amplitude, period and phase)")

@@ -297,6 +297,8 @@ def test_study_and_gait_inputs_are_named():
     space = sm.optimize.GaitSpace(2)
     with pytest.raises(ValueError, match="a point of the gait space must be finite"):
         space.gait([0.5, np.nan, 0.5, 0.5, 0.5, 0.5])  # (a gait of NaN: a collapsed search's candidates)
+    with pytest.raises(TypeError, match="a gait is a dict of amplitude, period and phase, got None"):
+        space.point(None)
     assert sm.play.window_size_problem((960.5, 600)).startswith("window size must be two whole numbers")
     assert sm.play.window_size_problem((True, True)).startswith("window size must be two whole numbers")
     assert sm.play.window_size_problem((960, 600)) is None
