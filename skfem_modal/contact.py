@@ -61,7 +61,7 @@ from ._fast import dot
 from .effects import Effect
 from .mesh import boundary_vertices, connected_labels, part_sizes, part_thicknesses
 from .solver import SimulationError
-from .values import is_finite_real, is_real
+from .values import checked_state, is_finite_real, is_real
 
 __all__ = [
     "CoulombContact",
@@ -372,7 +372,7 @@ class ReferenceContact(_Ground):
 
     def positions(self, z) -> np.ndarray:
         """Contact point positions of a state ``z`` (r,), shape (p, dim)."""
-        return (self.Je @ np.asarray(z, float)).reshape(-1, self.dim)
+        return (self.Je @ checked_state(z, self.Je.shape[1])).reshape(-1, self.dim)
 
     def start_step(self, z_start, z_dot=None, again=False) -> None:
         """Remember the contact positions at the step's start ``z_start`` (r,); ``again``: the same step once more.
@@ -723,7 +723,7 @@ class CoulombContact(_Ground):
 
     def positions(self, z) -> np.ndarray:
         """Positions of the candidate vertices in a state ``z`` (r,), shape (p, dim)."""
-        return self.space.positions(np.asarray(z, float))[self.vertices]
+        return self.space.positions(checked_state(z, self.space.r))[self.vertices]
 
     # ------------------------------------------------------------ a step
     def start_step(self, z_start, z_dot=None, again=False) -> None:

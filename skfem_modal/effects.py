@@ -29,6 +29,7 @@ import numpy as np
 from .modal import ceilings_of_gradients
 from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
 from .rotations import rotations2_flat, rotations3_flat
+from .values import checked_state
 
 __all__ = ["Effect", "Elasticity", "Inertia", "Muscles", "Gravity", "Pins", "Damping", "ORDER"]
 
@@ -235,6 +236,7 @@ class Muscles(Effect):
         (:class:`_BodyFrame`), so that a body that turned or moved is not read as muscle action; else of
         the displacement from the rest shape where it is (for a pinned body, whose frame the pins hold).
         """
+        u = checked_state(u, self.amplitude_rows.shape[1], "u")
         if body_frame:
             return self._body_frame.amplitudes(u)
         return self.amplitude_rows @ u - self.amplitude_rest

@@ -263,6 +263,17 @@ def stiffness_matrix(mesh, mu=1.0, lam=1.0, element: str = "P1") -> sps.csr_matr
 
 
 def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
+    mu, lam = _lame(mesh, mu, lam)
+    basis = scalar_basis(mesh, element)
+    J = _jacobian_from_basis(basis, mesh.p.shape[0])
+    C = _elasticity_tensor(basis.dx, mu, lam, mesh.p.shape[0])
+    # K = J^T C J: one sparse product instead of summing element matrices
+    # (no duplicate entries to sort and merge, several times faster)
+    return (J.T @ (C @ J)).tocsr()
+
+
+def _lame(mesh, mu, lam) -> tuple[np.ndarray, np.ndarray]:
+    """The Lame parameters per element, (nT,) each, or a ValueError naming the element whose are not elastic."""
     nT = mesh.t.shape[1]
     dim = mesh.p.shape[0]
     uniform = np.ndim(lam) == 0
@@ -277,12 +288,7 @@ def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
             f"lam must be above -2 mu / {dim} (a positive bulk modulus{ratio}), got {lam[bad[0]]} with mu "
             f"{mu[bad[0]]}, so above {-2.0 * mu[bad[0]] / dim:g}{where}"
         )
-    basis = scalar_basis(mesh, element)
-    J = _jacobian_from_basis(basis, dim)
-    C = _elasticity_tensor(basis.dx, mu, lam, dim)
-    # K = J^T C J: one sparse product instead of summing element matrices
-    # (no duplicate entries to sort and merge, several times faster)
-    return (J.T @ (C @ J)).tocsr()
+    return mu, lam
 
 
 def _elasticity_tensor(dx: np.ndarray, mu: np.ndarray, lam: np.ndarray, dim: int) -> sps.csr_matrix:

@@ -29,7 +29,7 @@ import warnings
 import numpy as np
 
 from .eigen import _group_end, canonical_eigenpairs, canonical_repeated, generic_weight, sign_convention
-from .fem import ELEMENTS, _jacobian, _mass, _stiffness, element_volumes, node_positions, vector_dofs
+from .fem import ELEMENTS, _jacobian, _lame, _mass, _positive, _stiffness, element_volumes, node_positions, vector_dofs
 from .mesh import check_mesh, validated
 from .motions import (
     _hinge_motions,
@@ -262,10 +262,15 @@ def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:
     ------
     TypeError, MeshError
         A mesh that cannot be used (:func:`~skfem_modal.mesh.check_mesh`).
+    ValueError
+        A material that is not elastic: ``mu`` or ``rho`` not positive, or a bulk modulus
+        ``lam + 2 mu / dim`` not positive (the error names the element).
     """
     volumes = element_volumes(mesh)  # (the mesh checked first)
+    mu, lam = _lame(mesh, mu, lam)
+    rho = _positive(rho, mesh.t.shape[1], "rho")
     size_squared = volumes ** (2.0 / mesh.p.shape[0])
-    return float(np.median((2.0 * np.asarray(mu) + np.asarray(lam)) / (np.asarray(rho) * size_squared)))
+    return float(np.median((2.0 * mu + lam) / (rho * size_squared)))
 
 
 def _check_elastic(values, scale: float, n_known: int) -> None:

@@ -118,6 +118,8 @@ def unit_direction(direction, dim: int) -> np.ndarray:
     -------
     direction : ndarray, shape (dim,)
     """
+    if not (is_whole(dim) and dim in (2, 3)):
+        raise ValueError(f"dim must be 2 or 3, the scene's dimension, got {dim!r}")
     try:
         vector = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
     except (TypeError, ValueError):

@@ -79,7 +79,7 @@ from .solver import MAX_ITERATIONS, TOL, LocalGlobal, SimulationError, make_back
 from .space import FullSpace, Subspace
 from .threads import checked_thread_count, limited_blas_threads
 from .units import outside_stacklevel, up_axis, warn_scale
-from .values import checked_flag, is_whole
+from .values import checked_flag, checked_state, is_whole
 
 __all__ = ["ModalMuscle", "SimulationError", "muscle_modes", "simulate", "StepRecord"]
 
@@ -1131,13 +1131,7 @@ class ModalMuscle(_GroundSettings):
 
     def _state(self, z, name: str = "z") -> np.ndarray:
         """A state or velocity as a float array, checked to have shape (r,)."""
-        z = _real(z, name)
-        r = self._space.r
-        if z.shape != (r,):
-            raise ValueError(f"{name} must have shape ({r},), the subspace's coordinates, got {z.shape}")
-        if not np.all(np.isfinite(z)):
-            raise ValueError(f"{name} must be finite, got NaN or infinity in it")
-        return z
+        return checked_state(z, self._space.r, name)
 
     def positions(self, z) -> np.ndarray:
         """Vertex positions of a state ``z``, shape (r,): returns shape (n, dim)."""

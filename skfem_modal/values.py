@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["is_whole", "is_real", "is_finite_real", "checked_flag"]
+__all__ = ["is_whole", "is_real", "is_finite_real", "checked_flag", "checked_state"]
 
 
 def is_whole(value) -> bool:
@@ -44,3 +44,37 @@ def checked_flag(value, name: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{name} must be True or False, got {value!r}")
     return bool(value)
+
+
+def checked_state(value, size: int, name: str = "z") -> np.ndarray:
+    """A state (or velocity) as a float array of shape (size,), finite; otherwise a ValueError naming ``name``.
+
+    A complex one is refused too (casting would drop its imaginary part).
+
+    Parameters
+    ----------
+    value : array_like, shape (size,)
+    size : int
+        The coordinates a state has (a subspace's ``r``).
+    name : str
+        What the error calls it.
+
+    Returns
+    -------
+    ndarray, shape (size,)
+
+    Examples
+    --------
+    >>> checked_state([0.0, 1.0], 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: z must have shape (3,), the subspace's coordinates, got (2,)
+    """
+    if np.iscomplexobj(value):
+        raise ValueError(f"{name} must be real, got complex values")
+    state = np.asarray(value, dtype=np.float64)
+    if state.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), the subspace's coordinates, got {state.shape}")
+    if not np.all(np.isfinite(state)):
+        raise ValueError(f"{name} must be finite, got NaN or infinity in it")
+    return state

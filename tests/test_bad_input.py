@@ -320,3 +320,33 @@ def test_far_from_origin_names_the_mesh_as_its_caller_does():
 
     with pytest.raises(MeshError, match="^the scene's mesh: 1 vertices have non-finite coordinates"):
         far_from_origin(nan_mesh(), what="the scene's mesh")
+
+
+def test_internal_readers_name_a_wrong_input():
+    """Helpers callers reach through ``sim.model``: their errors name what they got.
+
+    Before: ``unit_direction(dim=True)`` took a 1-vector, ``stiffness_scale`` returned a negative scale for a
+    negative material, and a state of the wrong length gave numpy's "mismatch in its core dimension".
+    """
+    from skfem_modal.modal import stiffness_scale
+    from skfem_modal.rollouts import unit_direction
+
+    with pytest.raises(ValueError, match="dim must be 2 or 3, the scene's dimension, got True"):
+        unit_direction(None, True)
+    beam = sm.mesh.beam2d(nx=4, ny=1)
+    with pytest.raises(ValueError, match="mu must be positive, got -1.0"):
+        stiffness_scale(beam, mu=-1.0)
+    with pytest.raises(ValueError, match="lam must be above -2 mu / 2"):
+        stiffness_scale(beam, lam=-5.0)
+    with pytest.raises(ValueError, match="rho must be positive"):
+        stiffness_scale(beam, rho=0.0)
+    assert stiffness_scale(beam) == pytest.approx(3.0 / 1.25)  # (2 mu + lam) / (rho l^2), elements of area 1.25 / 1
+    mesh = sm.mesh.caterpillar(nx=16, ny=4)
+    for model in ("coulomb", "reference"):
+        sim = sm.ModalMuscle.from_mesh(
+            mesh, n_muscles=2, n_weights=4, n_clusters=4, gravity=[0.0, -9.8], ground=-1.0, contact_model=model
+        )
+        r = sim.rest_state()[0].size
+        for reader, name in ((sim.model.muscles.amplitudes, "u"), (sim.model.contact.positions, "z")):
+            with pytest.raises(ValueError, match=f"^{name} must have shape \\({r},\\), the subspace's coordinates"):
+                reader(np.zeros(r + 1))
