@@ -154,6 +154,8 @@ class Picked:
     pushes : ndarray, shape (p dim, r)
         ``H^-1 J^T`` as rows: how a unit force on each row moves ``z``.
     dim, up : int
+    compliance : float or ndarray, shape (p dim,)
+        How far the ground gives per unit force on each row (the small solves' regularisation).
 
     Attributes
     ----------
@@ -170,8 +172,9 @@ class Picked:
         Changes with every :meth:`aim` (the operators take their targets again).
     """
 
-    def __init__(self, J, pushes, dim, up):
+    def __init__(self, J, pushes, dim, up, compliance):
         self.J, self.pushes, self.dim, self.up = J, pushes, dim, up
+        self.compliance = np.broadcast_to(np.asarray(compliance, dtype=float), (pushes.shape[0],))
         reach = J @ pushes.T
         self.reach = reach.toarray() if sps.issparse(reach) else np.asarray(reach)
         self.tangents = np.array([a for a in range(dim) if a != up], dtype=np.int64)
@@ -216,7 +219,7 @@ class SetOperator:
         Pushed vertices; those of them that stick, and that slide.
     direction : ndarray, shape (p, dim)
         The way friction pushes each sliding vertex (unit, tangent).
-    friction, compliance : float
+    friction : float
 
     Attributes
     ----------
@@ -226,8 +229,8 @@ class SetOperator:
         The pushed vertices that stick; ``stuck`` the same as indices into ``pushed``.
     """
 
-    def __init__(self, picked, active, stick, sliding, direction, friction, compliance):
-        self.friction, self.compliance, self.dim, self.tangents = friction, compliance, picked.dim, picked.tangents
+    def __init__(self, picked, active, stick, sliding, direction, friction):
+        self.friction, self.dim, self.tangents = friction, picked.dim, picked.tangents
         self.cone = friction * (1.0 + _CONE)  # a sticking vertex's tangential force over its normal force, at most
         self.pushed = pushed = active.nonzero()[0]
         self.slid = slid = sliding.nonzero()[0] if friction else np.zeros(0, np.int64)
@@ -257,8 +260,9 @@ class SetOperator:
             # squared, weighed by these, they sum to the tangential force squared less (cone normal)^2
             self.cone_weights = np.array([1.0] * (self.dim - 1) + [-self.cone * self.cone])
         K = reach[rows]
-        K.flat[:: rows.size + 1] += compliance
+        K.flat[:: rows.size + 1] += picked.compliance[rows]
         self.inverse = _inverse(K)
+        self.gives = picked.compliance[rows[:n]]  # how far each pushed height gives per unit force
         self.pushes, self.reach = pushes, reach
         self.free_rows = picked.up_rows[self.free]
         self._stamp = None
@@ -282,7 +286,7 @@ class SetOperator:
         refine : int
             Solves that take back the way the compliance lets the ground give (:meth:`refined`).
         quiet : float
-            The squared give that needs no more.
+            The squared give (a length squared) that needs no more.
 
         Returns
         -------
@@ -302,16 +306,17 @@ class SetOperator:
         """``lam`` with its targets moved by the compliance's give, at most ``count`` times.
 
         The compliance lets a pushed vertex give way by ``c`` times its force; each solve aims
-        that much further, leaving ``c^2`` times the force over a row's compliance.
+        that much further, leaving ``c^2`` times the force over a row's compliance. ``quiet``: the
+        squared give (a length squared) that needs no more.
         """
-        n = self.n_pushed
-        give = lam[:n]
+        force = lam[: self.n_pushed]
         for _ in range(count):
+            give = self.gives * force
             if give @ give <= quiet:
                 break
-            step = self.inverse[:, :n] @ (self.compliance * give)
+            step = self.inverse[:, : self.n_pushed] @ give
             lam = lam + step
-            give = step[:n]
+            force = step[: self.n_pushed]
         return lam
 
     def _backwards(self, x) -> np.ndarray:
@@ -525,10 +530,12 @@ class Aims(NamedTuple):
     enough: float
 
 
-def compliance_matrix(picked, rows, compliance) -> np.ndarray:
-    """How far a unit force on each of ``rows`` moves each, with the compliance on the diagonal, symmetric (k, k)."""
+def compliance_matrix(picked, rows) -> np.ndarray:
+    """How far a unit force on each of ``rows`` moves each, with the rows' compliance on the diagonal, symmetric (k, k)."""
     K = picked.reach[np.ix_(rows, rows)]
-    return (K + K.T) / 2 + compliance * np.eye(rows.size)
+    K = (K + K.T) / 2
+    K.flat[:: rows.size + 1] += picked.compliance[rows]
+    return K
 
 
 def given_back(solve, rows, heights, aims: Aims):
@@ -550,7 +557,7 @@ def given_back(solve, rows, heights, aims: Aims):
     return found
 
 
-def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, compliance, aims: Aims) -> np.ndarray:
+def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, aims: Aims) -> np.ndarray:
     """The projection over the near vertices as a least-distance problem, solved by NNLS (Lawson and Hanson).
 
     Each force is a non-negative combination of *generators*: a height's push, or for a
@@ -572,7 +579,7 @@ def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, compliance, a
         The global solution projected.
     z : ndarray, shape (r,)
         Set to the projection.
-    friction, compliance : float
+    friction : float
     aims : Aims
 
     Returns
@@ -596,7 +603,7 @@ def pyramid_projection(picked, near, stick, x_t, z_t, z, friction, compliance, a
     generators[at, column[edges.ravel()]] = friction * np.tile([1.0, -1.0], edges.size // 2)
     # NNLS decides by comparing its rows: K is brought near 1 by an even power of two before the
     # factoring (exact, the square root too), so that the forces are the same in any units
-    K = compliance_matrix(picked, rows, compliance)
+    K = compliance_matrix(picked, rows)
     half = np.frexp(K.diagonal().max())[1] // 2
     factor = generators @ np.linalg.cholesky(np.ldexp(K, -2 * half))  # times 2^-half
     pushes = generators @ picked.pushes[rows]  # (g, r): each generator's push on z

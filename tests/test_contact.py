@@ -796,7 +796,7 @@ def test_a_contact_sets_checks_read_each_vertex_as_coulomb_says():
     J = rng.standard_normal((p * dim, r))
     A = rng.standard_normal((r, r))
     pushes = np.linalg.solve(A @ A.T + r * np.eye(r), J.T).T
-    picked = Picked(J, pushes, dim, up)
+    picked = Picked(J, pushes, dim, up, 1e-3)
     start = rng.standard_normal(p * dim)
     target = start + 0.01 * rng.standard_normal(p * dim)
     picked.aim(start, target, target[up::dim] - tol)
@@ -807,7 +807,7 @@ def test_a_contact_sets_checks_read_each_vertex_as_coulomb_says():
         angle = rng.uniform(0, 2 * np.pi, p)
         direction = np.zeros((p, dim))
         direction[:, 0], direction[:, 2] = np.cos(angle), np.sin(angle)
-        op = SetOperator(picked, active, active & ~sliding, sliding, direction, mu, 1e-3)
+        op = SetOperator(picked, active, active & ~sliding, sliding, direction, mu)
         # the forces asked for (each rule broken by about one vertex in twenty): normal ones pushing,
         # tangential ones within the cone, free vertices above their floors, sliding ones going their way
         n, sticking = np.count_nonzero(active), np.flatnonzero(active & ~sliding)

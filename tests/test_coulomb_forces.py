@@ -105,16 +105,16 @@ def test_the_pyramid_fallback_and_the_exact_solve_agree_without_friction():
     J = rng.standard_normal((p * dim, r))
     A = rng.standard_normal((r, r))
     H = A @ A.T + r * np.eye(r)
-    picked = Picked(J, np.linalg.solve(H, J.T).T, dim, up)
+    pushes = np.linalg.solve(H, J.T).T
+    picked = Picked(J, pushes, dim, up, 1e-3 * np.einsum("ij,ij->i", J, pushes).mean())
     z_t = rng.standard_normal(r)
     x_t = picked.positions(z_t)
     target = x_t + 0.5 * rng.standard_normal(p * dim)  # some heights below their targets, some above
     picked.aim(x_t, target, target[up::dim])
-    compliance = 1e-3 * picked.reach.diagonal().mean()
     z = np.empty(r)
     near = np.ones(p, bool)
-    normal = pyramid_projection(picked, near, ~near, x_t, z_t, z, 0.0, compliance, Aims(target, 0, np.inf))
-    W = compliance_matrix(picked, np.arange(p * dim), compliance)
+    normal = pyramid_projection(picked, near, ~near, x_t, z_t, z, 0.0, Aims(target, 0, np.inf))
+    W = compliance_matrix(picked, np.arange(p * dim))
     lam = coulomb_forces(W, x_t - target, dim, up, 0.0, 1e-13)
     assert 0 < np.count_nonzero(normal) < p  # some pushed, some not
     assert normal == pytest.approx(lam[up::dim], rel=1e-9, abs=1e-12 * normal.max())
