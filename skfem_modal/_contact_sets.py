@@ -531,7 +531,7 @@ class Aims(NamedTuple):
 
 
 def compliance_matrix(picked, rows) -> np.ndarray:
-    """How far a unit force on each of ``rows`` moves each, with the rows' compliance on the diagonal, symmetric (k, k)."""
+    """How far a unit force on each of ``rows`` moves each, the rows' compliance on the diagonal, symmetric (k, k)."""
     K = picked.reach[np.ix_(rows, rows)]
     K = (K + K.T) / 2
     K.flat[:: rows.size + 1] += picked.compliance[rows]
