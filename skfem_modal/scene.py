@@ -1277,7 +1277,13 @@ def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:
         "gravity": ("gravity.acceleration", gravity),
     }
     problems = float_range_problems(
-        mesh, mu=material["mu"], rho=material["rho"], h=config["time"]["step"], gravity=gravity, gamma=m["gamma"]
+        mesh,
+        mu=material["mu"],
+        rho=material["rho"],
+        h=config["time"]["step"],
+        gravity=gravity,
+        gamma=m["gamma"],
+        free=config["pinned"] is None,
     )
     for names, text in problems:
         said = " and ".join(f"{keys[n][0]} = {_toml_value(keys[n][1])}" for n in names)

@@ -423,7 +423,7 @@ def warn_scale(
 
 
 def float_range_problems(
-    mesh, *, mu, rho, h=None, gravity=None, gamma=None, damping_mass=0.0, damping_stiffness=0.0
+    mesh, *, mu, rho, h=None, gravity=None, gamma=None, damping_mass=0.0, damping_stiffness=0.0, free=False
 ) -> list[tuple[tuple[str, ...], str]]:
     """What the simulator's operators could not hold in float64, by the arguments that make it so.
 
@@ -448,6 +448,10 @@ def float_range_problems(
     damping_mass, damping_stiffness : float
         Rayleigh damping's coefficients (0: none): with ``h``, its operators
         ``damping_mass x vertex mass / h`` and ``damping_stiffness x stiffness / h``.
+    free : bool
+        A body nothing pins: with ``h``, its inertia must also be told from its stiffness in
+        float64 (the largest inertia, vertex mass / h^2, above :data:`LEAST_INERTIA_SHARE` of the largest
+        stiffness), or its rigid motions are lost to round-off.
 
     Returns
     -------
@@ -510,7 +514,7 @@ def float_range_problems(
         g_log = np.log10(g.max()) + 0.5 * np.log10(np.sum((g / g.max()) ** 2))  # |g| without squaring 1e308
         quantities.append((("rho", "gravity"), "the weights, vertex mass x |gravity|", mass + g_log))
     info = np.finfo(np.float64)
-    problems = []
+    problems = _inertia_problems(mu, gamma, mass, size, dim, h) if free and h is not None else []
     for names, what, (lo, hi) in quantities:
         if any(names == named for named, _ in problems):
             continue  # one problem per set of arguments: the first says what to change
@@ -519,6 +523,35 @@ def float_range_problems(
         elif lo < np.log10(info.tiny):
             problems.append((names, f"{what}, would be 1e{lo:.0f}: beyond float64 (below {info.tiny:.2g})"))
     return problems
+
+
+#: a free body's largest inertia (vertex mass / h^2) below this share of its largest stiffness is refused up front:
+#: an estimate from the elements, within a few times the assembled system's own (the caterpillar with mu = 1e6 at
+#: h = 1e5: 1e-16, the system's 2.4e-16), whose factoring fails below about 1e-15 (it succeeded at 2.4e-14); a
+#: margin of 100 below that, so that what the estimate refuses the system could not have solved
+LEAST_INERTIA_SHARE = 1e-17
+
+
+def _inertia_problems(mu, gamma, mass, size, dim, h) -> list[tuple[tuple[str, ...], str]]:
+    """A free body's inertia lost beside its stiffness (:func:`float_range_problems`' ``free``), or nothing.
+
+    ``mass`` and ``size``: the log10 spans of the vertex masses and the element sizes.
+    """
+    muscles = gamma is not None and np.max(gamma) > np.max(mu)
+    stiffness = np.log10(np.max(gamma if muscles else mu)) + (dim - 2) * size[1]  # mu x size^(dim - 2)
+    inertia = mass[1] - 2 * np.log10(float(h))
+    if inertia - stiffness >= np.log10(LEAST_INERTIA_SHARE):
+        return []
+    names = ("gamma" if muscles else "mu", "rho", "h")
+    return [
+        (
+            names,
+            f"the inertia, vertex mass / h^2 (up to 1e{inertia:.0f}), would be 1e{inertia - stiffness:.0f} of the "
+            f"stiffness (up to 1e{stiffness:.0f}), below float64's round-off: the system matrix would be singular "
+            "to working precision and a free body's rigid motions undetermined; use a smaller time step or a softer "
+            "material, or pin the body",
+        )
+    ]
 
 
 def _log_span(values) -> np.ndarray:

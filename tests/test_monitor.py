@@ -186,12 +186,21 @@ def test_a_body_too_soft_for_its_weight_is_blamed_on_the_material_not_the_time_s
 
 
 def test_a_time_step_that_leaves_a_free_body_undetermined_is_refused_before_any_work(tmp_path, capsys):
-    # at h = 1e6 the inertia (mass / h^2) is 1e-17 of the stiffness: rigid motions are lost to round-off
+    # at h = 1e6 the inertia (mass / h^2) is 1e-17 of the stiffness: rigid motions are lost to round-off;
+    # the scene's check says so by the elements (1e-18 there), before the precompute
     path = tmp_path / "huge_step.toml"
     path.write_text(HUGE_STEP.format(h=1e6))
     assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 2
     err = capsys.readouterr().err
-    assert "singular to working precision: with h = 1e+06" in err and "use a smaller time step" in err
+    assert "material.mu = 1000000.0 and material.rho = 1000.0 and time.step = 1000000.0: the inertia" in err
+    assert "would be 1e-18 of the stiffness" in err and "singular to working precision" in err
+    assert "use a smaller time step" in err and "precompute" not in err
+    assert not (tmp_path / "out").exists()
+    # a step 10 times shorter passes the estimate (1e-16), and the assembled system says why it cannot be solved
+    path.write_text(HUGE_STEP.format(h=1e5))
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "singular to working precision: with h = 100000 the inertia term" in err and "use a smaller time step" in err
     assert not (tmp_path / "out" / "summary.json").exists()
 
 
