@@ -160,7 +160,7 @@ def cmd_modes(args) -> int:
         f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
         f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
     )
-    n_rigid = rigid_mode_count(mesh, fixed)
+    n_rigid, n_hinges = rigid_mode_count(mesh, fixed), hinge_count(mesh, fixed)
     k = args.k
     if k is None:
         if info["parts"] > MANY_PARTS:
@@ -169,7 +169,7 @@ def cmd_modes(args) -> int:
                 "any elastic mode (a triangle soup? --merge joins its coincident vertices); or ask for -k modes"
             )
         free = mesh.p.size - (0 if fixed is None else fixed.size * mesh.p.shape[0])
-        k = min(n_rigid + ELASTIC_MODES, free)  # a small mesh has fewer
+        k = min(n_rigid + n_hinges + ELASTIC_MODES, free)  # a small mesh has fewer
     start = time.perf_counter()
     values, modes = linear_modal_analysis(
         mesh, k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element
@@ -181,7 +181,6 @@ def cmd_modes(args) -> int:
     if k <= n_rigid:
         say(f"all {k} are rigid motions: ask for more than {n_rigid} (-k) to see elastic modes")
     say(f"{'mode':>5}  {'eigenvalue':>16}  {'frequency [Hz]':>15}  {'ceiling':>10}  kind")
-    n_hinges = hinge_count(mesh, fixed) if k > n_rigid else 0
     kinds = (["rigid"] * n_rigid + ["hinge"] * n_hinges + ["elastic"] * k)[:k]
     for i, (val, f, c, kind) in enumerate(zip(values, freqs, ceilings, kinds)):
         # a rigid motion is no muscle: its "ceiling" only measures a rotation's gradient, or is infinite
@@ -819,7 +818,8 @@ def _modes_options(p) -> None:
     p.add_argument(
         "-k",
         type=_positive_int,
-        help=f"number of modes, rigid ones included (default: the rigid motions and {ELASTIC_MODES} elastic modes)",
+        help="number of modes, rigid ones included "
+        f"(default: the rigid motions, any hinges and {ELASTIC_MODES} elastic modes)",
     )
     # (checked as the options are read, before the mesh is: a bad --rho was named 'rho' after loading it)
     p.add_argument("--mu", type=_positive_float, help="Lame shear modulus (default 1)")

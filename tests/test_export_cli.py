@@ -143,6 +143,14 @@ def test_cli_modes_labels_a_hinge_and_prints_no_frequency_for_round_off(tmp_path
     assert float(rows[0][2]) == 0.0 and float(rows[1][2]) > 0.0
 
 
+def test_cli_modes_without_k_gives_six_elastic_modes_past_the_hinges(tmp_path, capsys):
+    # the coarse caterpillar's 4 hinges took the slots of 4 elastic modes: 3 rigid, 4 hinges, 2 elastic
+    assert main(["modes", "caterpillar:nx=8,ny=5", "--out", str(tmp_path / "m.vtu")]) == 0
+    kinds = [line.split()[-1] for line in capsys.readouterr().out.splitlines() if line.split()[-1:] and
+             line.split()[-1] in ("rigid", "hinge", "elastic")]  # fmt: skip
+    assert kinds == ["rigid"] * 3 + ["hinge"] * 4 + ["elastic"] * 6
+
+
 def test_a_scene_is_known_by_its_suffix_in_any_case(tmp_path, capsys):
     upper = tmp_path / "CREATURE.TOML"
     upper.write_text(open("examples/creature_crawl.toml").read())
