@@ -226,9 +226,10 @@ SCHEMA: dict[str, Any] = {
             "float",
             None,
             "First Lame parameter of the linear (muscle) modes only: the simulated material has no volume term "
-            "(default: mu; from young and poisson, lambda scaled as mu is, so the modes keep their shapes).",
+            "(default: mu; from young and poisson, lambda scaled as mu is, so the modes keep their shapes). "
+            "Above -2 mu / dim (a positive bulk modulus: a negative Poisson's ratio has a negative lam).",
             "stress",
-            _non_negative,
+            None,
         ),
         "young": Key(
             "float",
@@ -1264,6 +1265,18 @@ def _material(m: dict) -> dict:
     return {"mu": mu, "gamma": gamma, "lam": lam, "rho": m["rho"]}
 
 
+def _check_bulk_modulus(config: dict, mesh, errors: list[str]) -> None:
+    """A ``material.lam`` given must leave the modes' material a positive bulk modulus (the stiffness's own check)."""
+    from .fem import _lame
+
+    material = _material(config["material"])
+    if config["material"]["lam"] is not None:
+        try:
+            _lame(mesh, material["mu"], material["lam"])
+        except ValueError as err:
+            errors.append(f"material.lam = {_toml_value(material['lam'])}: {err}")
+
+
 def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:
     """The material, time step and gravity must make operators float64 can hold on this mesh, named by key."""
     m = config["material"]
@@ -1487,6 +1500,7 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
         elif selected and (everything := nothing_free(selected, mesh.p.shape[1], "pinned: the selection", "pin fewer")):
             errors.append(everything)
     if not any(e.startswith(("material", "time.step", "gravity")) for e in errors):
+        _check_bulk_modulus(config, mesh, errors)
         _check_float_range(config, mesh, acc, errors)
     _check_counts(config, mesh, errors, valid)
 

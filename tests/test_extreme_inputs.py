@@ -60,6 +60,16 @@ def test_numbers_beyond_float64_are_scene_errors_naming_the_keys(sections, messa
         Scene.from_dict(scene(**sections))
 
 
+def test_a_negative_lam_is_taken_as_from_young_and_poisson_and_refused_below_the_bulk_bound():
+    """``lam = -5e4`` was refused ("expected a number >= 0") while ``poisson = -0.5`` gave the same lam; the
+    modes' own bound is a positive bulk modulus, lam > -2 mu / dim."""
+    negative = Scene.from_dict(scene(material={"mu": 1e5, "lam": -5e4}))
+    from_ratio = Scene.from_dict(scene(material={"young": 1e5, "poisson": -0.5}))
+    assert negative.material()["lam"] == -5e4 == pytest.approx(from_ratio.material()["lam"])
+    with pytest.raises(SceneError, match=r"material.lam = -200000.0: lam must be above -2 mu / 2 \(a positive bulk"):
+        Scene.from_dict(scene(material={"mu": 1e5, "lam": -2e5}))
+
+
 @pytest.mark.parametrize(
     "material, key",
     [({"mu": 1e200}, "material.mu = 1e+200"), ({"gamma": 1e300}, "material.gamma = 1e+300")],
