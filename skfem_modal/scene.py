@@ -14,6 +14,7 @@ import copy
 import csv
 import math
 import os
+import re
 import tomllib
 import warnings
 from collections.abc import Callable
@@ -892,7 +893,7 @@ class Scene:
         message = scene.scale_warning()
         if message:
             warnings.warn(message, ScaleWarning, stacklevel=2)
-        for message in (scene.duration_warning(), scene.unused_warning()):
+        for message in (scene.duration_warning(), scene.unused_warning(), *scene.idle_warnings()):
             if message:
                 warnings.warn(message, UserWarning, stacklevel=2)
         return scene
@@ -929,6 +930,18 @@ class Scene:
             f"{n} steps, to t = {n * t['step']:g} (the duration rounded up to a whole step; give time.steps "
             "for an exact count)"
         )
+
+    def idle_warnings(self) -> list[str]:
+        """Why each of ``time.warm_start`` and ``time.acceleration`` that is on does nothing under the scene's ground.
+
+        The simulator says the same as it is built (:func:`~skfem_modal.sim.idle_settings`); the scene says it
+        to a command that builds none (``skfem-modal info``).
+        """
+        from .sim import idle_settings
+
+        c = self.config
+        model = None if c["ground"] is None else c["ground"]["model"]
+        return idle_settings(c["time"]["acceleration"], c["time"]["warm_start"], model)
 
     def unused_warning(self) -> str | None:
         """Which muscle settings a scene without muscles (``muscles.count = 0``) gives for nothing, or None."""
@@ -1097,7 +1110,9 @@ class Scene:
 
         c = self.config
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ScaleWarning)  # said when the scene was loaded
+            warnings.simplefilter("ignore", ScaleWarning)  # said when the scene was loaded, as are these
+            for message in self.idle_warnings():
+                warnings.filterwarnings("ignore", message=re.escape(message), category=UserWarning)
             return ModalMuscle.from_mesh(
                 self.mesh,
                 n_muscles=c["muscles"]["count"],

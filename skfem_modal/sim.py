@@ -167,12 +167,14 @@ def _checked_activation(a, m: int) -> np.ndarray:
     return a
 
 
+#: the contact effect of each model
+_CONTACTS = {"coulomb": CoulombContact, "reference": ReferenceContact}
+
+
 def _contact_effect(space, settings: dict, vertices, ground: float, up: int):
     """The contact effect of a contact model's settings (``_contact_settings``)."""
     settings = dict(settings)
-    if settings.pop("model") == "coulomb":
-        return CoulombContact(space, vertices, ground, up, **settings)
-    return ReferenceContact(space, vertices, ground, up, **settings)
+    return _CONTACTS[settings.pop("model")](space, vertices, ground, up, **settings)
 
 
 def _new_contact(sim, setting, vertices=None, settings=None, **changes) -> None:
@@ -496,24 +498,45 @@ def _warn_if_idle(solver, contact, *settings) -> None:
     A setting that does nothing must say so: ``solver`` is the simulator's driver, ``contact`` its
     model's contact effect (None: no ground, every setting works).
     """
-    if contact is None:
-        return
-    if "acceleration" in settings and solver.acceleration != "none":
-        warnings.warn(
-            f"acceleration={solver.acceleration!r} has no effect under ground contact (a projection, not "
+    model = None if contact is None else contact.model
+    acceleration = solver.acceleration if "acceleration" in settings else "none"
+    for message in idle_settings(acceleration, "warm_start" in settings and solver.warm_start, model):
+        warnings.warn(message, UserWarning, stacklevel=outside_stacklevel())
+
+
+def idle_settings(acceleration: str, warm_start: bool, contact_model: str | None) -> list[str]:
+    """Why each of the solver's settings that is on does nothing under a contact model, one message each.
+
+    Parameters
+    ----------
+    acceleration : str
+        ``none``, ``anderson`` or ``newton``.
+    warm_start : bool
+    contact_model : {"coulomb", "reference"} or None
+        None: no ground (every setting works).
+
+    Returns
+    -------
+    list of str
+        Empty when every setting on works.
+    """
+    if contact_model is None:
+        return []
+    reads_iterates = _CONTACTS[contact_model].reads_iterates
+    said = []
+    if acceleration != "none":
+        said.append(
+            f"acceleration={acceleration!r} has no effect under ground contact (a projection, not "
             "an energy, holds the body up, so no accelerated iterate can be checked): the iterations stay plain"
-            + ("" if contact.reads_iterates else "; warm_start=True speeds them up there (docs/contact.md)"),
-            UserWarning,
-            stacklevel=outside_stacklevel(),
+            + ("" if reads_iterates else "; warm_start=True speeds them up there (docs/contact.md)")
         )
-    if "warm_start" in settings and solver.warm_start and contact.reads_iterates:
-        warnings.warn(
+    if warm_start and reads_iterates:
+        said.append(
             "warm_start=True has no effect under the reference contact (its rule reads the iterates, so they "
             "start from the step's start state): the iterations are those without it; contact_model='coulomb' "
-            "warm-starts them (docs/contact.md)",
-            UserWarning,
-            stacklevel=outside_stacklevel(),
+            "warm-starts them (docs/contact.md)"
         )
+    return said
 
 
 class _GroundSettings:

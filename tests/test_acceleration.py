@@ -286,6 +286,31 @@ def test_a_warm_start_under_the_reference_contact_is_said_to_do_nothing():
     assert "has no effect under ground contact" in str(said[0].message)
 
 
+def test_a_scene_says_its_idle_settings_once_as_loaded_and_info_says_them(tmp_path, capsys):
+    """``skfem-modal info`` built no simulator, so it said nothing of them (an audit); ``run`` said them."""
+    from skfem_modal.cli import main
+    from skfem_modal.scene import Scene
+
+    data = Scene.default().config | {"time": {**Scene.default().config["time"], "warm_start": True, "steps": 3}}
+    idle = "warm_start=True has no effect under the reference contact"
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        scene = Scene.from_dict(data)
+        scene.build()  # (the simulator's own warning of it is not said again)
+    assert [str(w.message).startswith(idle) for w in said] == [True]
+    path = tmp_path / "warm.toml"
+    path.write_text(sm.optimize.scene_to_toml(data))
+    assert main(["info", str(path)]) == 0
+    assert f"skfem-modal info: warning: {idle}" in capsys.readouterr().err
+    coulomb = {**data, "ground": {**data["ground"], "model": "coulomb", "contacts": None, "stickiness": None}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the Coulomb contact takes a warm start: nothing said
+        Scene.from_dict(coulomb)
+    accelerated = {**data, "time": {**data["time"], "warm_start": False, "acceleration": "anderson"}}
+    with pytest.warns(UserWarning, match="acceleration='anderson' has no effect under ground contact"):
+        Scene.from_dict(accelerated)
+
+
 def test_a_setting_s_warning_names_the_line_that_assigned_it():
     """Behind ``__setattr__`` and a property setter, the warning still points at the user's line, not at sim.py."""
     mesh = sm.caterpillar(nx=16, ny=8)
