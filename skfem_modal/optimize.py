@@ -36,6 +36,7 @@ dask, whatever the BLAS threads of the calling process.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -722,6 +723,17 @@ def _resumed_state(out_dir: str, checkpoint: str, settings: dict, generations: i
     return state
 
 
+@contextlib.contextmanager
+def _as_made(es):
+    """CMA-ES as quiet as its options made it (``verbose`` -9): cma keeps that in a module global, which an
+    unpickled search in a new process does not have, and a resumed search printed cma's own warnings (a
+    misleading "popsize 3 will be used" of a search of 2 candidates, which used 2)."""
+    with warnings.catch_warnings():
+        if es.opts["verbose"] < -2:  # (cma's own threshold for its warnings)
+            warnings.filterwarnings("ignore", module=r"cma(\.|$)")
+        yield
+
+
 def _new_state(settings: dict, x0, data: dict) -> dict:
     """A new search's state: CMA-ES at ``x0``, seeded by the settings' seed; ``data`` the scene searched."""
     cma = _cma()
@@ -867,7 +879,8 @@ def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
     clock = time.perf_counter()
     es = pickle.loads(pickle.dumps(state["es"]))  # an interruption leaves the state as checkpointed
     done = state["generation"]
-    points = es.ask()
+    with _as_made(es):
+        points = es.ask()
     gaits = [space.gait(u) for u in points]
     start = [state["start_gait"]] if state.get("start_gait") and not state.get("start") else []
     groups, fitness = _roll_out(rollouts, gaits + start, state["settings"], done)
@@ -877,7 +890,8 @@ def _generation(state: dict, rollouts, space: GaitSpace) -> dict:
         extra["start"] = {**_row(0, start, groups[-1:], fitness[-1:]), "sigma": state["settings"]["sigma0"]}
         extra["start"]["seconds"] = 0.0  # timed with the generation
         groups, fitness = groups[:-1], fitness[:-1]
-    es.tell(points, [-f for f in fitness])  # CMA-ES minimises
+    with _as_made(es):
+        es.tell(points, [-f for f in fitness])  # CMA-ES minimises
     row = {**_row(done + 1, gaits, groups, fitness), "sigma": float(es.sigma)}
     row["seconds"] = time.perf_counter() - clock
     return {

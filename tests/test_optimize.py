@@ -532,6 +532,21 @@ def test_a_resumed_search_is_the_same_scene_by_meaning_and_by_its_files(tmp_path
         run_search(data, out, generations=2, popsize=2, seed=3, steps=20, workers=1, resume=True)
 
 
+def test_a_resumed_search_in_a_new_process_says_none_of_cma_s_own_warnings(tmp_path, recwarn):
+    """cma keeps its verbosity (-9 here) in a module global: a resumed search of 2 candidates in a new process
+    printed "1 special injected samples with popsize 2, popsize 3 will be used" (and used 2; an audit)."""
+    import cma.utilities.utils as cma_utils
+
+    out = tmp_path / "search"
+    run_search(copy.deepcopy(TINY), out, generations=1, popsize=2, seed=3, steps=10, workers=1)
+    made, cma_utils.global_verbosity = cma_utils.global_verbosity, 1  # as a new process has it
+    try:
+        run_search(copy.deepcopy(TINY), out, generations=2, popsize=2, seed=3, steps=10, workers=1, resume=True)
+    finally:
+        cma_utils.global_verbosity = made
+    assert [str(w.message) for w in recwarn if "cma" in w.filename] == []
+
+
 @pytest.mark.slow
 def test_rollouts_go_on_when_dask_loses_the_scattered_trial():
     """An audit: one of two workers killed stopped a search (1 in 4 tries): dask lost the scattered trial
