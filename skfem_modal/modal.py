@@ -30,7 +30,7 @@ import numpy as np
 
 from .eigen import _group_end, canonical_eigenpairs, canonical_repeated, generic_weight, sign_convention
 from .fem import ELEMENTS, _jacobian, _lame, _mass, _positive, _stiffness, element_volumes, node_positions, vector_dofs
-from .mesh import check_mesh, validated
+from .mesh import check_mesh, connected_labels, validated
 from .motions import (
     _hinge_motions,
     _node_parts,
@@ -40,6 +40,7 @@ from .motions import (
     rigid_mode_count,
     rigid_motions,
 )
+from .units import outside_stacklevel
 from .values import is_whole
 
 __all__ = [
@@ -412,7 +413,36 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
             mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
         )
     D = found[:, n_rigid:]
+    _warn_of_parts_without_muscles(mesh, D, rho)
     return D if signs is None else D * signs
+
+
+def _warn_of_parts_without_muscles(mesh, D, rho) -> None:
+    """Warn when a part of a mesh of several bodies holding a tenth of its mass or more gets no muscle.
+
+    The muscles are the lowest modes of the whole mesh: a thin plate beside a creature took all four
+    (an audit), and a gait written for the creature drove the plate.
+    """
+    parts = connected_labels(mesh)
+    if parts.max() == 0 or not D.shape[1]:
+        return
+    dim = mesh.p.shape[0]
+    mass = _mass(mesh, rho, True, "P1", False).diagonal()  # (n,)
+    weight = np.bincount(parts, weights=mass) / mass.sum()
+    # each muscle's share of its (mass-weighted) motion on each part
+    moved = np.stack([np.bincount(parts, weights=mass * (D[a::dim] ** 2)[:, k]) for a in range(dim) for k in
+                      range(D.shape[1])]).reshape(dim, D.shape[1], -1).sum(axis=0)  # fmt: skip
+    share = moved / moved.sum(axis=1, keepdims=True)  # (m, parts)
+    idle = np.flatnonzero((weight >= 0.1) & (share.max(axis=0) < 0.01))
+    if idle.size:
+        which = ", ".join(f"part {q} ({100 * weight[q]:.0f} % of the mass)" for q in idle)
+        warnings.warn(
+            f"the mesh's {parts.max() + 1} bodies share its {D.shape[1]} muscles, the lowest modes of the whole "
+            f"mesh, and {which} gets none of them (the softest body's modes come first): a gait moves only the "
+            "others; simulate the bodies apart to give each its own muscles",
+            UserWarning,
+            stacklevel=outside_stacklevel(),
+        )
 
 
 def muscle_signs(signs, n_muscles: int, name: str = "muscle_signs"):

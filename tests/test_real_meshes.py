@@ -526,6 +526,21 @@ def test_a_unit_square_with_a_tiny_one_beside_it_gains_nothing():
 
 
 @needs_shared
+def test_a_body_left_without_muscles_by_a_thin_plate_beside_it_is_warned_of():
+    """The muscles are the lowest modes of the whole mesh: a thin plate's came first and took all four (an audit)."""
+    from skfem_modal.modal import muscle_modes
+
+    ghost = _outline("ghost.obj", 0.0)
+    plate = MeshTri.init_tensor(np.linspace(3.0, 7.0, 161), np.linspace(0.0, 0.01, 2))
+    with pytest.warns(UserWarning, match=r"share its 4 muscles.* and part 0 \(97 % of the mass\) gets none of them"):
+        D = muscle_modes(_side_by_side(ghost, plate), 4, mu=1e5, rho=1e3)
+    assert np.abs(D[: 2 * ghost.p.shape[1]]).max() < 1e-8 * np.abs(D).max()  # (it does get none)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # two creatures share them: each gets some, nothing said
+        muscle_modes(_side_by_side(ghost, _outline("batsy.obj", 3.0)), 4, mu=1e5, rho=1e3)
+
+
+@needs_shared
 @pytest.mark.slow
 def test_the_seal_with_a_copy_a_fiftieth_its_size_beside_it_lands():
     """(It raised "1 vertices stay below the ground after 8 tries" in its first step at h = 0.3: the seal sank 30 %
