@@ -25,6 +25,7 @@ from .values import checked_flag, is_finite_real, is_whole
 __all__ = [
     "MeshError",
     "body_size",
+    "part_boxes",
     "part_sizes",
     "part_thicknesses",
     "make_mesh",
@@ -548,11 +549,30 @@ def part_sizes(mesh, labels=None) -> np.ndarray:
     [1.0, 1.0, 1.0, 2.0, 2.0, 2.0]
     """
     labels = connected_labels(mesh) if labels is None else labels
+    low, high = part_boxes(mesh, labels)
+    return (high - low).max(axis=1)[labels]
+
+
+def part_boxes(mesh, labels=None) -> tuple[np.ndarray, np.ndarray]:
+    """Each connected part's bounding box: its lowest and highest corners, shape (parts, dim) each.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+        Not checked.
+    labels : ndarray of int, shape (n,), optional
+        The parts (:func:`connected_labels`), if already known.
+
+    Returns
+    -------
+    low, high : ndarray, shape (parts, dim)
+    """
+    labels = connected_labels(mesh) if labels is None else labels
     low = np.full((labels.max() + 1, mesh.p.shape[0]), np.inf)
     high = np.full_like(low, -np.inf)
     np.minimum.at(low, labels, mesh.p.T)
     np.maximum.at(high, labels, mesh.p.T)
-    return (high - low).max(axis=1)[labels]
+    return low, high
 
 
 def part_thicknesses(mesh, labels=None) -> np.ndarray:

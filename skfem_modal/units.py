@@ -18,7 +18,7 @@ import warnings
 
 import numpy as np
 
-from .mesh import body_size
+from .mesh import body_size, part_boxes
 from .values import is_whole
 
 __all__ = [
@@ -247,7 +247,14 @@ def scale_mismatch(
             raise ValueError(f"{name} must be positive and finite, got {value.tolist()}")
     if not (isinstance(damping_stiffness, (int, float, np.number)) and 0 <= damping_stiffness < math.inf):
         raise ValueError(f"damping_stiffness must be non-negative and finite, got {damping_stiffness!r}")
-    size = body_size(mesh)
+    body_size(mesh)  # (its points checked)
+    sizes, _ = _bodies(mesh)
+    # a mesh of several bodies: the largest is what its weight or a run's waves are measured by (not the
+    # gaps between them), the smallest what a step's elastic wave crosses (a copy 1/1000 the size of a
+    # body beside it was not warned, and drifted as when warned alone: an audit)
+    size, what_large, what_small = sizes.max(), what, what
+    if sizes.size > 1:
+        what_large, what_small = f"{what}'s largest body", f"{what}'s smallest body"
     scales = material_length_scales(mu, rho, gravity, duration, h, damping_stiffness)
     step = scales.pop("step", None)
     meaning = {
@@ -268,11 +275,12 @@ def scale_mismatch(
             )
             ratio = size / length if length > 0.0 else math.inf
             return (
-                f"{what} is {size:.4g} length units across, {ratio:.3g}x the material's length scale "
+                f"{what_large} is {size:.4g} length units across, {ratio:.3g}x the material's length scale "
                 f"{length:.3g} ({definition}): it would {effect}. {cause} "
                 "(mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python: largest extent 2), "
                 "scale it (mesh.scale), or give a stiffer material."
             )
+    size = sizes.min()
     if step is not None and step > CROSSING * size:
         damped = (
             f" with the stiffness damping's 1 + beta / h = {1.0 + damping_stiffness / float(h):.3g} times the "
@@ -282,9 +290,9 @@ def scale_mismatch(
         )
         crossing = "sqrt(mu (1 + beta / h) / rho) h" if damping_stiffness else "sqrt(mu / rho) h"
         return (
-            f"{what} is {size:.4g} length units across, and an elastic wave crosses {step / size:.2g} of it in one "
-            f"time step{damped} ({crossing} = {step:.3g}, above {CROSSING}): the local/global iterations turn it too "
-            "slowly, so its rotations lag and a spinning or tipping body slows down unphysically (a unit square "
+            f"{what_small} is {size:.4g} length units across, and an elastic wave crosses {step / size:.2g} of it in "
+            f"one time step{damped} ({crossing} = {step:.3g}, above {CROSSING}): the local/global iterations turn it "
+            "too slowly, so its rotations lag and a spinning or tipping body slows down unphysically (a unit square "
             "with mu = 1e6 and h = 0.02 lost all its spin in half a second), and a step on the ground can gain "
             "energy (a caterpillar with mu = 1e6 landing at h = 0.3: 0.5 % in a step with 10 iterations, none with "
             f"30). Use a smaller time step{' or damping' if damping_stiffness else ''} "
@@ -341,18 +349,27 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin (mesh.normalize = true in a scene,
     skfem_modal.normalize_and_center in Python, or subtract its centre).
     """
-    size = body_size(mesh, what=what)
-    centre = 0.5 * (mesh.p.min(axis=1) + mesh.p.max(axis=1))
-    distance = float(np.linalg.norm(centre)) / size if size > 0.0 else 0.0
+    body_size(mesh, what=what)  # (its points checked)
+    sizes, centres = _bodies(mesh)  # each body's own: a small one far out is no nearer for a large one
+    distances = np.linalg.norm(centres, axis=1) / np.where(sizes > 0.0, sizes, np.inf)
+    far = int(np.argmax(distances))
+    distance, size = float(distances[far]), float(sizes[far])
     if not distance > FAR_FROM_ORIGIN:
         return None
+    whose = f"{what}'s" if sizes.size == 1 else f"{what}'s body {far} (of {sizes.size}): its"
     return (
-        f"{what}'s centre is {distance:.3g} of its sizes ({size:.4g}) from the origin, more than "
+        f"{whose} centre is {distance:.3g} of its sizes ({size:.4g}) from the origin, more than "
         f"{FAR_FROM_ORIGIN:g}: a step's deformation gradients and energies are differences of coordinates that "
         "large, and their round-off grows with the distance (a body moved by 1e4 sizes along x and y, floating at "
         "rest, read an energy of 63 instead of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin "
         "(mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python, or subtract its centre)."
     )
+
+
+def _bodies(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Each connected part's size (its largest extent, (parts,)) and bounding-box centre, (parts, dim)."""
+    low, high = part_boxes(mesh)
+    return (high - low).max(axis=1), 0.5 * (low + high)
 
 
 def _largest_step(size: float, mu: float, rho: float, damping_stiffness: float = 0.0) -> float:

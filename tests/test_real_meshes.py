@@ -526,6 +526,28 @@ def test_a_unit_square_with_a_tiny_one_beside_it_gains_nothing():
 
 
 @needs_shared
+def test_a_small_body_beside_a_large_one_is_warned_of_as_alone():
+    """The scale checks took the whole mesh's size: a copy 1/1000 the size, small for the step (warned alone),
+    and a copy 1/50 the size 1500 of its sizes from the origin, were not warned of beside the ghost (an audit)."""
+    from skfem_modal.units import far_from_origin, scale_mismatch
+
+    ghost = _outline("ghost.obj", 0.0)
+    tiny = MeshTri(ghost.p * 1e-3 + np.array([[2.2], [0.0]]), ghost.t)
+    alone = scale_mismatch(tiny, 1e5, 1e3, h=0.01)
+    assert alone.startswith("mesh is 0.002 length units across, and an elastic wave crosses 50 of it")
+    both = scale_mismatch(_side_by_side(ghost, tiny), 1e5, 1e3, h=0.01)
+    assert both.startswith("mesh's smallest body is 0.002 length units across, and an elastic wave crosses 50")
+    assert scale_mismatch(ghost, 1e5, 1e3, h=0.01) is None
+    far = MeshTri(ghost.p * 0.02 + np.array([[60.0], [0.0]]), ghost.t)
+    said = far_from_origin(_side_by_side(ghost, far))
+    assert said.startswith("mesh's body 1 (of 2): its centre is 1.5e+03 of its sizes (0.04) from the origin")
+    # bodies apart are not one large body: the ghost and a square 200 away weigh as themselves (the whole
+    # mesh, 201 across, was said to collapse under its own weight, "in other units (pixels)?")
+    square = MeshTri.init_tensor(np.linspace(200.0, 201.0, 5), np.linspace(0.0, 1.0, 5))
+    assert scale_mismatch(_side_by_side(ghost, square), 1e5, 1e3, [0.0, -9.8], h=0.001) is None
+
+
+@needs_shared
 def test_a_body_left_without_muscles_by_a_thin_plate_beside_it_is_warned_of():
     """The muscles are the lowest modes of the whole mesh: a thin plate's came first and took all four (an audit)."""
     from skfem_modal.modal import muscle_modes
