@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mesh import connected_labels
 from .modal import ceilings_of_gradients
 from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
 from .rotations import rotations2_flat, rotations3_flat
@@ -199,7 +200,7 @@ class Muscles(Effect):
         scale = 1.0 / np.einsum("ik,ik->k", MD, modes)
         self.amplitude_rows = np.asarray(space.force(MD)).T * scale[:, None]
         self.amplitude_rest = (MD.T @ space.rest) * scale
-        self._body_frame = _BodyFrame(space, modes, mass, scale)
+        self._body_frames = (space, modes, mass, scale)  # made when first asked for (amplitudes)
 
     @property
     def max_s(self) -> float:
@@ -238,8 +239,19 @@ class Muscles(Effect):
         """
         u = checked_state(u, self.amplitude_rows.shape[1], "u")
         if body_frame:
-            return self._body_frame.amplitudes(u)
+            if isinstance(self._body_frames, tuple):
+                self._body_frames = _part_frames(*self._body_frames)
+            # each body of the mesh in its own frame (one for all: a part that turned read as muscle action)
+            return sum(frame.amplitudes(u) for frame in self._body_frames)
         return self.amplitude_rows @ u - self.amplitude_rest
+
+
+def _part_frames(space, modes, mass, scale) -> list:
+    """A :class:`_BodyFrame` per connected part of the mesh, each of its part's masses (the others' zero)."""
+    parts = np.repeat(connected_labels(space.mesh), space.dim)  # (N,): each DOF's part
+    if parts.max() == 0:
+        return [_BodyFrame(space, modes, mass, scale)]
+    return [_BodyFrame(space, modes, np.where(parts == q, mass, 0.0), scale) for q in range(parts.max() + 1)]
 
 
 class _BodyFrame:

@@ -548,6 +548,26 @@ def test_a_small_body_beside_a_large_one_is_warned_of_as_alone():
 
 
 @needs_shared
+def test_a_body_turned_beside_another_reads_no_muscle_action():
+    """The realised amplitudes took one rigid motion for the whole mesh: the bat turned by 2 rad beside the ghost
+    read -1.82 of a muscle's ceiling (an audit); each body now has its own frame."""
+    from skfem_modal import ModalMuscle
+
+    ghost, bat = _outline("ghost.obj", 0.0), _outline("batsy.obj", 3.0)
+    mesh, n = _side_by_side(ghost, bat), ghost.p.shape[1]
+    sim = ModalMuscle.from_mesh(mesh, n_muscles=4, mu=1e5, rho=1e3, h=0.01)
+    basis = sim.model.space.B
+    for angle in (0.5, 2.0):
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        x = mesh.p.T.copy()
+        centre = x[n:].mean(axis=0)
+        x[n:] = (x[n:] - centre) @ turn.T + centre + [0.3, 1.0]  # the bat turned and moved, the ghost still
+        z = np.linalg.lstsq(basis, x.ravel(), rcond=None)[0]
+        assert np.abs(sim.positions(z) - x).max() < 1e-9  # (rigid motions are in the subspace)
+        assert np.abs(sim.muscle_amplitudes(z) / sim.ceilings).max() < 1e-9
+
+
+@needs_shared
 def test_a_body_left_without_muscles_by_a_thin_plate_beside_it_is_warned_of():
     """The muscles are the lowest modes of the whole mesh: a thin plate's came first and took all four (an audit)."""
     from skfem_modal.modal import muscle_modes
