@@ -751,7 +751,9 @@ class ModalMuscle(_GroundSettings):
         Local/global iterations per step, at most.
     tol : float
         Stop when the last iteration moved the body by less than ``tol`` of
-        its size: ``|z_k - z_{k-1}| < tol * motion_scale`` (the same in any
+        its size (of a mesh of several bodies, the least body's:
+        :func:`~skfem_modal.model.motion_scale`):
+        ``|z_k - z_{k-1}| < tol * motion_scale`` (the same in any
         units; the reference's rule, an absolute ``1e-6`` on ``z``, is
         ``tol = 1e-6 / sim.motion_scale``); 0 runs exactly ``max_iter``
         iterations.
