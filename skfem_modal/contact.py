@@ -226,6 +226,10 @@ class _Ground(Effect):
         self.parts = connected_labels(space.mesh)  # (n,): the connected part each vertex is in
         self.sizes = part_sizes(space.mesh, self.parts)  # (n,): what each vertex's depth is relative to
         self.boundary_sizes = self.sizes[boundary]
+        self.boundary_parts = self.parts[boundary]
+        # the boundary vertices body by body (for each body's deepest: one gather and one reduceat)
+        self._by_part = np.argsort(self.boundary_parts, kind="stable")
+        self._part_starts = np.flatnonzero(np.r_[True, np.diff(self.boundary_parts[self._by_part]) != 0])
         # (n,): what the depth a vertex is allowed (or let sink, by the reference) is a share of
         self.lengths = allowance_lengths(space.mesh, self.parts) if thin else self.sizes
         self.boundary_lengths = self.lengths[boundary]
@@ -236,6 +240,13 @@ class _Ground(Effect):
         ``boundary_sizes`` (nb,) has the size of each one's own part (:func:`~skfem_modal.mesh.part_sizes`).
         """
         return self.ground - self.boundary(np.asarray(z, float))
+
+    def deepest_of_each_body(self, depths) -> np.ndarray:
+        """Each body's (connected part's) deepest boundary vertex, given :meth:`depths` (nb,) or (nb, T): (bodies,)
+        or (bodies, T)."""
+        if self._part_starts.size == 1:
+            return np.max(depths, axis=0, keepdims=True)
+        return np.maximum.reduceat(depths[self._by_part], self._part_starts)
 
     def penetration(self, z, relative: bool = False) -> float:
         """How deep the lowest boundary vertex is below the ground (0 when none is), for a state ``z``.

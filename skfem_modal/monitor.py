@@ -75,7 +75,7 @@ import warnings
 import numpy as np
 
 from .contact import THIN_WORDS, thin
-from .mesh import _signed_measures
+from .mesh import _signed_measures, connected_labels
 from .units import FAR
 
 __all__ = [
@@ -159,6 +159,15 @@ def _ground_holds(contact, gravity_step):
     return np.array([d for d, _ in held]), np.array([m for _, m in held])
 
 
+def _body_com_rows(sim, parts, bodies: int) -> np.ndarray:
+    """Each body's centre of mass as a linear map of the state, its rows stacked, shape (bodies * dim, r)."""
+    if bodies == 1:
+        return np.asarray(sim.com_rows)
+    dofs = np.repeat(parts, sim.dim)  # (N,): each DOF's body
+    space = sim.model.space
+    return np.vstack([np.asarray(space.com_rows(np.where(dofs == q, sim.mass, 0.0))) for q in range(bodies)])
+
+
 class MotionMonitor:
     """Spread and push of a run's body, fed one reduced state a step.
 
@@ -205,16 +214,24 @@ class MotionMonitor:
             n = B.shape[0] // dim
             self._mean = B.reshape(n, dim, -1).mean(axis=0)  # (dim, r): the vertices' mean position
             self._gram = B.T @ B / n  # (r, r): z^T G z is the mean squared distance from the origin
-        self._com_rows = np.asarray(sim.com_rows)  # (dim, r)
+        # each body of the mesh (connected part) watched as one alone: of the whole mesh, a copy 1/1000 the
+        # size of a body beside it was pushed 2.62 of its sizes in a step unreported (0.0013 of the whole mesh's)
+        self._parts = connected_labels(sim.mesh)
+        self.bodies = int(self._parts.max()) + 1
+        self._com_rows = _body_com_rows(sim, self._parts, self.bodies)  # (bodies * dim, r)
         self.h = float(sim.h)
         z_rest = sim.rest_state()[0]
         rest = sim.positions(z_rest)
-        self.size = float(np.ptp(rest, axis=0).max())
+        low, high = np.full((self.bodies, dim), np.inf), np.full((self.bodies, dim), -np.inf)
+        np.minimum.at(low, self._parts, rest)
+        np.maximum.at(high, self._parts, rest)
+        self.sizes = (high - low).max(axis=1)  # (bodies,): each one's largest extent
+        self.size = float(self.sizes.max())  # the largest body's: what the messages and the material compare
         self.rest_spread = self._spread(z_rest)
         g = np.zeros(dim) if gravity is None else np.asarray(gravity, dtype=np.float64)
         self._gravity_step = self.h**2 * g  # the second difference of free fall
-        self._previous = self._com_rows @ z_rest
-        self._velocity_step = np.zeros(dim)  # the last step's change of the centre of mass
+        self._previous = self._coms(z_rest)  # (bodies, dim)
+        self._velocity_step = np.zeros((self.bodies, dim))  # the last step's change of each centre of mass
         self.spread_ratio = [1.0, 1.0]  # least and largest
         self._push = 0.0  # largest, in body sizes, of the steps measured (the property measures the others)
         self._steps = []  # (step, on the ground, excess over free fall) of the steps whose push is not measured yet
@@ -232,7 +249,7 @@ class MotionMonitor:
         self._ground_held = _ground_holds(sim.model.contact, self._gravity_step)
         if self._aliases(gait_period):
             self.first_problem_step["gait"] = 1
-        self._hovering = 0  # steps in a row held still in the air
+        self._hovering = np.zeros(self.bodies, np.int64)  # steps in a row each body was held still in the air
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
         self._elements = sim.mesh.t
@@ -278,9 +295,9 @@ class MotionMonitor:
         z : ndarray, shape (r,)
         a : ndarray, shape (m,), optional
             The step's muscle activations (mode amplitudes), to compare with the ceilings.
-        clearance : float, optional
-            How far the lowest boundary vertex is above the ground (negative: below it), with a
-            ground: to tell a body held in the air.
+        clearance : float or ndarray of shape (bodies,), optional
+            How far the lowest boundary vertex (of each body of the mesh) is above the ground
+            (negative: below it), with a ground: to tell a body held in the air.
         depth : float, optional
             How far the deepest boundary vertex is below the ground, of its body's size (0 if
             none is), with a ground.
@@ -296,13 +313,16 @@ class MotionMonitor:
             Whether the state is one of the :data:`JOLT_STEPS` after a jolt (:data:`JOLT`).
         """
         self._commanded(step, a)
-        com = self._com_rows @ z
+        com = self._coms(z)
         change = com - self._previous
-        excess = change - self._velocity_step - self._gravity_step
-        if self._jolted(excess):
+        excess = change - self._velocity_step - self._gravity_step  # (bodies, dim)
+        if np.any(self._jolted(excess)):
             self._watched_until = step + JOLT_STEPS
+        if clearance is not None:
+            clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (self.bodies,))
+        touching = np.zeros(self.bodies, bool) if clearance is None else clearance < HOVER_CLEARANCE * self.sizes
         # the pushes are measured in batches (what holds the weight, for all steps at once: :meth:`_pushes`)
-        self._steps.append((step, clearance is not None and clearance < HOVER_CLEARANCE * self.size, excess))
+        self._steps.append((step, touching, excess))
         if len(self._steps) >= _PUSH_BATCH:  # (a long run holds no more than a batch)
             self._measure_pushes()
         self._previous, self._velocity_step = com, change
@@ -314,7 +334,7 @@ class MotionMonitor:
         if _spread_beyond(ratio):
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
-            self._watch_hovering(step, clearance / self.size, float(excess @ self._up), change)
+            self._watch_hovering(step, clearance / self.sizes, excess @ self._up, change)
         if depth is not None and depth > self.deepest:
             self.deepest = depth
         sunk = depth if sunk is None else sunk
@@ -360,8 +380,12 @@ class MotionMonitor:
         return inverted
 
     def _jolted(self, excess):
-        """Whether steps of these excesses over free fall (..., dim) are jolts (:data:`JOLT`)."""
-        return np.sqrt(np.einsum("...i,...i->...", excess, excess)) - self._fall > JOLT * self.size
+        """Whether steps of these excesses over free fall (..., bodies, dim) are jolts (:data:`JOLT`), (..., bodies)."""
+        return np.sqrt(np.einsum("...i,...i->...", excess, excess)) - self._fall > JOLT * self.sizes
+
+    def _coms(self, z) -> np.ndarray:
+        """Each body's centre of mass in a state ``z`` (r,), shape (bodies, dim)."""
+        return (self._com_rows @ z).reshape(self.bodies, self.dim)
 
     def _inverted(self, positions) -> int:
         """Elements inside out in positions (n, dim)."""
@@ -393,19 +417,21 @@ class MotionMonitor:
             it was first seen; empty if none was.
         """
         states = np.asarray(states, dtype=np.float64)
-        change = np.diff(states @ self._com_rows.T, axis=0)  # (T, dim): the centre of mass's motion a step
+        coms = (states @ self._com_rows.T).reshape(states.shape[0], self.bodies, self.dim)
+        change = np.diff(coms, axis=0)  # (T, bodies, dim): each centre of mass's motion a step
         excess = change - self._gravity_step
         excess[1:] -= change[:-1]
-        touching = False
-        if self._plane is not None:  # the lowest boundary vertex within HOVER_CLEARANCE of the ground
-            lowest = self._plane.boundary(np.ascontiguousarray(states[1:].T)).min(axis=0)
-            touching = lowest - self._plane.ground < HOVER_CLEARANCE * self.size
+        touching = np.zeros(excess.shape[:2], bool)
+        if self._plane is not None:  # each body's lowest boundary vertex within HOVER_CLEARANCE of the ground
+            heights = self._plane.boundary(np.ascontiguousarray(states[1:].T))  # (boundary, T)
+            lowest = -self._plane.deepest_of_each_body(-heights)  # (bodies, T)
+            touching = (lowest.T - self._plane.ground) < HOVER_CLEARANCE * self.sizes
         push = self._pushes(excess, touching)
         ratio = self._spreads(states[1:]) / self.rest_spread
         found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(_spread_beyond(ratio))}
         found = {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
         if positions is not None:
-            jolts = np.flatnonzero(self._jolted(excess))
+            jolts = np.flatnonzero(np.any(self._jolted(excess), axis=1))
             watched = {min(int(j) + 1 + k, len(excess)) for j in jolts for k in range(JOLT_STEPS + 1)}
             limit = INVERTED_LIMIT * self._elements.shape[1]
             inverted = [
@@ -422,26 +448,29 @@ class MotionMonitor:
         return gait_period is not None and self.h > GAIT_STEPS * gait_period
 
     def _pushes(self, excess, touching) -> np.ndarray:
-        """How far forces other than gravity moved the centre of mass, of the body's size, for steps' ``excess``
-        (T, dim) over free fall; in the steps ending on the ground (``touching``, (T,) bool), what it may hold
-        of the weight (:func:`_ground_holds`) left out, and in every step what pins or drag may."""
+        """How far forces other than gravity moved a centre of mass, of its body's size, at most, for steps'
+        ``excess`` (T, bodies, dim) over free fall, shape (T,); for the bodies ending a step on the ground
+        (``touching``, (T, bodies) bool), what it may hold of the weight (:func:`_ground_holds`) left out,
+        and in every step what pins or drag may."""
         for holds, where in ((self._always_held, True), (self._ground_held, touching)):
             if holds is not None:
                 directions, most = holds
-                held = np.clip(excess @ directions.T, 0.0, most) * np.reshape(where, (-1, 1))
+                held = np.clip(excess @ directions.T, 0.0, most) * np.expand_dims(where, -1)
                 excess = excess - held @ directions
-        return np.sqrt(np.einsum("ij,ij->i", excess, excess)) / self.size
+        return (np.sqrt(np.einsum("tbi,tbi->tb", excess, excess)) / self.sizes).max(axis=1)
 
-    def _watch_hovering(self, step: int, clear: float, lift: float, change) -> None:
-        """Count the steps in a row the body stays still, clear of the ground, held up by something."""
-        still = math.sqrt(float(change @ change)) < self._fall
-        if clear > HOVER_CLEARANCE and still and lift > 0.5 * self._fall:
-            self._hovering += 1
-            if self._hovering == HOVER_STEPS and "hover" not in self.first_problem_step:
-                self.first_problem_step["hover"] = step - HOVER_STEPS + 1
-                self.hover_clearance = clear
-        else:
-            self._hovering = 0
+    def _watch_hovering(self, step: int, clear, lift, change) -> None:
+        """Count the steps in a row each body stays still, clear of the ground, held up by something.
+
+        ``clear`` (bodies,): of each body's size; ``lift`` (bodies,) and ``change`` (bodies, dim).
+        """
+        still = np.sqrt(np.einsum("bi,bi->b", change, change)) < self._fall
+        hovering = (clear > HOVER_CLEARANCE) & still & (lift > 0.5 * self._fall)
+        self._hovering = np.where(hovering, self._hovering + 1, 0)
+        held = np.flatnonzero(self._hovering == HOVER_STEPS)
+        if held.size and "hover" not in self.first_problem_step:
+            self.first_problem_step["hover"] = step - HOVER_STEPS + 1
+            self.hover_clearance = float(clear[held[0]])
 
     def _sinking(self) -> str:
         """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""
@@ -525,7 +554,9 @@ class MotionMonitor:
             step = self.first_problem_step["push"]
             texts.append(
                 f"from step {step} (t = {step * self.h:g}) forces other than gravity moved the centre of mass up to "
-                f"{self.push:.3g} body sizes in one step: the motion is not resolved"
+                f"{self.push:.3g} body sizes in one step"
+                + (" (of a body of the mesh, in its own sizes)" if self.bodies > 1 else "")
+                + ": the motion is not resolved"
             )
         if "inverted" in self.first_problem_step:
             step, n = self.first_problem_step["inverted"], self._elements.shape[1]
@@ -601,8 +632,8 @@ class MotionMonitor:
         report : dict
             ``physical``, ``warnings`` (sentences), ``largest_ceiling_fraction``
             (the largest activation over its ceiling), ``body_size`` (largest
-            rest extent), ``spread_ratio`` (least and largest),
-            ``largest_push_body_sizes``, ``deepest_body_sizes`` (the deepest any boundary
+            rest extent; of the largest body, in a mesh of several), ``spread_ratio`` (least and largest),
+            ``largest_push_body_sizes`` (of each body's own size), ``deepest_body_sizes`` (the deepest any boundary
             vertex went into the ground after a step, or any vertex in a state checked, of its
             part's size: the summary's ``worst_penetration_relative``), ``inverted_elements`` (the
             most inside out in a state checked) and ``first_problem_step``.

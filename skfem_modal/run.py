@@ -374,7 +374,8 @@ def _record(sim, log: dict, files, step: int, z, a, done=None) -> None:
     contact = sim.model.contact
     if done is not None and contact is not None:
         depths = contact.depths(z)  # every boundary vertex: one pass for all four
-        depth, clearance = max(0.0, float(depths.max())), -float(depths.max())
+        clearance = -contact.deepest_of_each_body(depths)  # each body's lowest vertex above the ground
+        depth = max(0.0, -float(clearance.min()))
         relative = max(0.0, float((depths / contact.boundary_sizes).max()))  # of each vertex's own part
         sunk = max(0.0, float((depths / contact.boundary_lengths).max()))  # of what its allowance is a share of
     if files is not None:

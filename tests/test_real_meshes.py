@@ -600,6 +600,38 @@ def test_a_small_body_spinning_beside_a_still_one_keeps_its_spin():
 
 
 @needs_shared
+def test_the_monitor_watches_each_body_of_a_mesh(tmp_path):
+    """Of the whole mesh, a ghost hanging over its ground beside a copy 1/1000 its size standing on it was not
+    said to hover (reference contact, h = 0.3), and that copy pushed 2.6 of its sizes in a step was not reported
+    (Coulomb contact, h = 0.01): physical, no warning (an audit). Each body is watched as one alone."""
+    ghost = _outline("ghost.obj", -1.0)
+    tiny = _outline("ghost.obj", 0.0)
+    tiny = MeshTri(tiny.p * 1e-3 + np.array([[1.2], [-0.05]]), tiny.t)  # its base 0.05 below the ghost's
+
+    def motion(mesh, step, steps, ground):
+        meshio.write(tmp_path / "two.vtu", meshio.Mesh(mesh.p.T, [("triangle", mesh.t.T)]))
+        scene = {
+            "mesh": {"file": str(tmp_path / "two.vtu")},
+            "material": {"mu": 1e5, "rho": 1e3},
+            "subspace": {"weights": 8, "clusters": 20},
+            "time": {"step": step, "steps": steps},
+            "gravity": {"acceleration": [0.0, -9.8]},
+            "ground": ground,
+        }
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # (ScaleWarnings, and the MotionWarnings checked below)
+            run_scene(Scene.from_dict(scene), tmp_path / "out", overwrite=True)
+        return json.loads((tmp_path / "out" / "summary.json").read_text())["motion"]
+
+    hanging = motion(_side_by_side(ghost, tiny), 0.3, 10, {"offset": 0.0, "model": "reference"})
+    assert not hanging["physical"] and hanging["first_problem_step"] == {"hover": 1}
+    # dropped 0.02, ten of the copy's sizes: it lands at 0.6 a second, stopped within a step (3 of its sizes)
+    landing = motion(_side_by_side(ghost, MeshTri(tiny.p + [[0.0], [0.05]], tiny.t)), 0.01, 15, {"offset": 0.02})
+    assert not landing["physical"] and "push" in landing["first_problem_step"]
+    assert landing["largest_push_body_sizes"] > 1.0
+
+
+@needs_shared
 def test_a_body_left_without_muscles_by_a_thin_plate_beside_it_is_warned_of():
     """The muscles are the lowest modes of the whole mesh: a thin plate's came first and took all four (an audit)."""
     from skfem_modal.modal import muscle_modes
