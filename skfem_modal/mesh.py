@@ -553,7 +553,7 @@ def part_sizes(mesh, labels=None) -> np.ndarray:
     return (high - low).max(axis=1)[labels]
 
 
-def part_boxes(mesh, labels=None) -> tuple[np.ndarray, np.ndarray]:
+def part_boxes(mesh, labels=None, points=None) -> tuple[np.ndarray, np.ndarray]:
     """Each connected part's bounding box: its lowest and highest corners, shape (parts, dim) each.
 
     Parameters
@@ -562,16 +562,19 @@ def part_boxes(mesh, labels=None) -> tuple[np.ndarray, np.ndarray]:
         Not checked.
     labels : ndarray of int, shape (n,), optional
         The parts (:func:`connected_labels`), if already known.
+    points : ndarray, shape (n, dim), optional
+        The vertices where they are (default: the mesh's own, ``mesh.p.T``).
 
     Returns
     -------
     low, high : ndarray, shape (parts, dim)
     """
     labels = connected_labels(mesh) if labels is None else labels
+    points = mesh.p.T if points is None else points
     low = np.full((labels.max() + 1, mesh.p.shape[0]), np.inf)
     high = np.full_like(low, -np.inf)
-    np.minimum.at(low, labels, mesh.p.T)
-    np.maximum.at(high, labels, mesh.p.T)
+    np.minimum.at(low, labels, points)
+    np.maximum.at(high, labels, points)
     return low, high
 
 

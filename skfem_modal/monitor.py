@@ -75,7 +75,7 @@ import warnings
 import numpy as np
 
 from .contact import THIN_WORDS, thin
-from .mesh import _signed_measures, connected_labels
+from .mesh import _signed_measures, connected_labels, part_boxes
 from .units import FAR
 
 __all__ = [
@@ -222,9 +222,7 @@ class MotionMonitor:
         self.h = float(sim.h)
         z_rest = sim.rest_state()[0]
         rest = sim.positions(z_rest)
-        low, high = np.full((self.bodies, dim), np.inf), np.full((self.bodies, dim), -np.inf)
-        np.minimum.at(low, self._parts, rest)
-        np.maximum.at(high, self._parts, rest)
+        low, high = part_boxes(sim.mesh, self._parts, rest)
         self.sizes = (high - low).max(axis=1)  # (bodies,): each one's largest extent
         self.size = float(self.sizes.max())  # the largest body's: what the messages and the material compare
         self.rest_spread = self._spread(z_rest)
