@@ -348,7 +348,8 @@ SCHEMA: dict[str, Any] = {
             "float",
             TOL,
             "Stop a step's iterations when the last one moved the body by less than tol of its size "
-            "(0: always run all iterations).",
+            "(0: always run all iterations; use 0 for vibrations, damping and slow motions, whose steps the "
+            "default stops after one or two iterations, damping them: docs/accuracy.md).",
             "",
             _non_negative,
         ),
@@ -511,7 +512,8 @@ SCHEMA: dict[str, Any] = {
             0.0,
             "Stiffness-proportional damping beta (damps the rate of deformation). Corotated: rigid motion, "
             "turning included, goes undamped; near rest it is Rayleigh damping beta K, a mode of frequency "
-            "omega damped with the ratio beta omega / 2. It stiffens each step by 1 + beta / h: where that "
+            "omega damped with the ratio beta omega / 2 (with converged steps: time.tol = 0 for a slow "
+            "vibration). It stiffens each step by 1 + beta / h: where that "
             "makes an elastic wave cross more than 0.2 of the body a step (warned), the iterations turn it too "
             "slowly and a spin is damped after all (beta = 1, h = 0.005: stopped dead at 10 iterations a step; "
             "kept with warm_start or 50 iterations).",
