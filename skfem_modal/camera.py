@@ -116,8 +116,8 @@ class Camera:
         return points @ self.towards[: points.shape[1]]
 
 
-def deformation(rest, positions) -> np.ndarray:
-    """Each vertex's distance from the best rigid motion of the rest shape.
+def deformation(rest, positions, parts=None) -> np.ndarray:
+    """Each vertex's distance from the best rigid motion of the rest shape (of its body's, with ``parts``).
 
     The rigid motion (rotation and translation) is the least-squares fit of
     the rest shape onto ``positions`` (Kabsch), so a body that only moves
@@ -126,6 +126,9 @@ def deformation(rest, positions) -> np.ndarray:
     Parameters
     ----------
     rest, positions : ndarray, shape (n, dim)
+    parts : ndarray of int, shape (n,), optional
+        Each vertex's body (connected part, :func:`~skfem_modal.mesh.connected_labels`): each body is
+        fitted alone (one fit for all coloured a still body beside a turning one as deformed).
 
     Returns
     -------
@@ -137,9 +140,21 @@ def deformation(rest, positions) -> np.ndarray:
     >>> turned = rest @ np.array([[0.0, 1.0], [-1.0, 0.0]]) + 5.0
     >>> bool(deformation(rest, turned).max() < 1e-12)
     True
+
+    Two bodies, one still and one turned: each fitted alone, neither is deformed.
+
+    >>> two, moved = np.vstack([rest, rest + 3.0]), np.vstack([rest, turned + 3.0])
+    >>> bool(deformation(two, moved).max() > 0.1), bool(deformation(two, moved, np.repeat([0, 1], 3)).max() < 1e-12)
+    (True, True)
     """
     rest = np.asarray(rest, float)
     positions = np.asarray(positions, float)
+    if parts is not None and parts.max() > 0:
+        distance = np.empty(rest.shape[0])
+        for part in range(parts.max() + 1):
+            inside = parts == part
+            distance[inside] = deformation(rest[inside], positions[inside])
+        return distance
     rest_c = rest - rest.mean(axis=0)
     pos_c = positions - positions.mean(axis=0)
     u, _, vt = np.linalg.svd(rest_c.T @ pos_c)

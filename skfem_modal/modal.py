@@ -413,21 +413,24 @@ def muscle_modes(mesh, n_muscles: int, *, mu=1.0, lam=None, rho=1.0, pinned=None
             mesh, n_rigid + n_muscles, mu=mu, lam=mu if lam is None else lam, rho=rho, fixed=pinned
         )
     D = found[:, n_rigid:]
-    _warn_of_parts_without_muscles(mesh, D, rho)
+    _warn_of_parts_without_muscles(mesh, D, rho, pinned)
     return D if signs is None else D * signs
 
 
-def _warn_of_parts_without_muscles(mesh, D, rho) -> None:
-    """Warn when a part of a mesh of several bodies holding a tenth of its mass or more gets no muscle.
+def _warn_of_parts_without_muscles(mesh, D, rho, pinned=None) -> None:
+    """Warn when a body of a mesh of several holding a tenth of its free mass or more gets no muscle.
 
     The muscles are the lowest modes of the whole mesh: a thin plate beside a creature took all four
-    (an audit), and a gait written for the creature drove the plate.
+    (an audit), and a gait written for the creature drove the plate. Pinned vertices are no mass a
+    muscle could move (a body pinned whole is an obstacle).
     """
     parts = connected_labels(mesh)
     if parts.max() == 0 or not D.shape[1]:
         return
     dim = mesh.p.shape[0]
-    mass = _mass(mesh, rho, True, "P1", False).diagonal()  # (n,)
+    mass = _mass(mesh, rho, True, "P1", False).diagonal().copy()  # (n,)
+    if pinned is not None:
+        mass[fixed_nodes(mesh, pinned)] = 0.0
     weight = np.bincount(parts, weights=mass) / mass.sum()
     # each muscle's share of its (mass-weighted) motion on each part
     moved = np.stack([np.bincount(parts, weights=mass * (D[a::dim] ** 2)[:, k]) for a in range(dim) for k in
@@ -435,7 +438,7 @@ def _warn_of_parts_without_muscles(mesh, D, rho) -> None:
     share = moved / moved.sum(axis=1, keepdims=True)  # (m, parts)
     idle = np.flatnonzero((weight >= 0.1) & (share.max(axis=0) < 0.01))
     if idle.size:
-        which = ", ".join(f"part {q} ({100 * weight[q]:.0f} % of the mass)" for q in idle)
+        which = ", ".join(f"body {q} ({100 * weight[q]:.0f} % of the free mass)" for q in idle)
         warnings.warn(
             f"the mesh's {parts.max() + 1} bodies share its {D.shape[1]} muscles, the lowest modes of the whole "
             f"mesh, and {which} gets none of them (the softest body's modes come first): a gait moves only the "

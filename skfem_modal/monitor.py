@@ -248,6 +248,7 @@ class MotionMonitor:
         if self._aliases(gait_period):
             self.first_problem_step["gait"] = 1
         self._hovering = np.zeros(self.bodies, np.int64)  # steps in a row each body was held still in the air
+        self._aloft = np.zeros(self.bodies, bool)  # (touching the ground: no body, without one)
         self.hover_clearance = 0.0  # how far above the ground, in body sizes, when it counted
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
         self._elements = sim.mesh.t
@@ -314,11 +315,9 @@ class MotionMonitor:
         com = self._coms(z)
         change = com - self._previous
         excess = change - self._velocity_step - self._gravity_step  # (bodies, dim)
-        if np.any(self._jolted(excess)):
+        if self._jolted(excess).any():
             self._watched_until = step + JOLT_STEPS
-        if clearance is not None:
-            clearance = np.broadcast_to(np.asarray(clearance, dtype=np.float64), (self.bodies,))
-        touching = np.zeros(self.bodies, bool) if clearance is None else clearance < HOVER_CLEARANCE * self.sizes
+        touching = self._aloft if clearance is None else clearance < HOVER_CLEARANCE * self.sizes
         # the pushes are measured in batches (what holds the weight, for all steps at once: :meth:`_pushes`)
         self._steps.append((step, touching, excess))
         if len(self._steps) >= _PUSH_BATCH:  # (a long run holds no more than a batch)
@@ -379,7 +378,7 @@ class MotionMonitor:
 
     def _jolted(self, excess):
         """Whether steps of these excesses over free fall (..., bodies, dim) are jolts (:data:`JOLT`), (..., bodies)."""
-        return np.sqrt(np.einsum("...i,...i->...", excess, excess)) - self._fall > JOLT * self.sizes
+        return np.sqrt((excess * excess).sum(axis=-1)) - self._fall > JOLT * self.sizes
 
     def _coms(self, z) -> np.ndarray:
         """Each body's centre of mass in a state ``z`` (r,), shape (bodies, dim)."""
@@ -462,13 +461,12 @@ class MotionMonitor:
 
         ``clear`` (bodies,): of each body's size; ``lift`` (bodies,) and ``change`` (bodies, dim).
         """
-        still = np.sqrt(np.einsum("bi,bi->b", change, change)) < self._fall
+        still = (change * change).sum(axis=1) < self._fall * self._fall
         hovering = (clear > HOVER_CLEARANCE) & still & (lift > 0.5 * self._fall)
-        self._hovering = np.where(hovering, self._hovering + 1, 0)
-        held = np.flatnonzero(self._hovering == HOVER_STEPS)
-        if held.size and "hover" not in self.first_problem_step:
+        self._hovering = (self._hovering + 1) * hovering
+        if "hover" not in self.first_problem_step and self._hovering.max() == HOVER_STEPS:
             self.first_problem_step["hover"] = step - HOVER_STEPS + 1
-            self.hover_clearance = float(clear[held[0]])
+            self.hover_clearance = float(np.broadcast_to(clear, hovering.shape)[self._hovering.argmax()])
 
     def _sinking(self) -> str:
         """What :meth:`finish` says of a body that went deeper into the ground than its contact holds."""

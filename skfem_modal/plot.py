@@ -355,7 +355,8 @@ class _Frame:
     points: np.ndarray  # (n, dim)
     rest: np.ndarray  # (n, dim)
     cells: np.ndarray  # (nT, dim + 1)
-    deformation: np.ndarray  # (n,) distance from the best rigid motion of the rest shape
+    deformation: np.ndarray  # (n,) distance from the best rigid motion of the rest shape (of its body's)
+    parts: np.ndarray | None = None  # (n,) each vertex's body
 
 
 def _read_frame(time: float, path: str, first: _Frame | None = None) -> _Frame:
@@ -363,7 +364,7 @@ def _read_frame(time: float, path: str, first: _Frame | None = None) -> _Frame:
 
     Frames after ``first`` must have its cells and rest shape, and share its arrays (read once, held once).
     """
-    from .mesh import _read_meshio
+    from .mesh import _parts, _read_meshio
 
     if not os.path.isfile(path):
         raise FileNotFoundError(f"frame file {path!r} (listed in frames.pvd) is missing")
@@ -384,7 +385,8 @@ def _read_frame(time: float, path: str, first: _Frame | None = None) -> _Frame:
         if not np.allclose(rest, first.rest, rtol=0.0, atol=1e-9 * max(np.ptp(first.rest), 1.0)):
             raise ValueError(f"frame file {path!r} has another rest shape than the run's first frame")
         cells, rest = first.cells, first.rest
-    return _Frame(time, points, rest, cells, deformation(rest, points))
+    parts = first.parts if first is not None else _parts(cells.T, points.shape[0])
+    return _Frame(time, points, rest, cells, deformation(rest, points, parts), parts)
 
 
 def _surface(tets):

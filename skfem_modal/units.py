@@ -357,12 +357,19 @@ def far_from_origin(mesh, what: str = "mesh") -> str | None:
     if not distance > FAR_FROM_ORIGIN:
         return None
     whose = f"{what}'s" if sizes.size == 1 else f"{what}'s body {far} (of {sizes.size}): its"
+    # (centring a mesh of several bodies cannot bring a small one far from the others near the origin)
+    remedy = (
+        "Move it near the origin (mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python, or "
+        "subtract its centre)."
+        if sizes.size == 1
+        else "Move the bodies nearer each other (centring the whole mesh leaves a small body far from the others "
+        "as far in its own sizes), or simulate that body apart."
+    )
     return (
         f"{whose} centre is {distance:.3g} of its sizes ({size:.4g}) from the origin, more than "
         f"{FAR_FROM_ORIGIN:g}: a step's deformation gradients and energies are differences of coordinates that "
         "large, and their round-off grows with the distance (a body moved by 1e4 sizes along x and y, floating at "
-        "rest, read an energy of 63 instead of 0 and drifted 8.4e-5 of its size in 10 s). Move it near the origin "
-        "(mesh.normalize = true in a scene, skfem_modal.normalize_and_center in Python, or subtract its centre)."
+        f"rest, read an energy of 63 instead of 0 and drifted 8.4e-5 of its size in 10 s). {remedy}"
     )
 
 

@@ -541,6 +541,8 @@ def test_a_small_body_beside_a_large_one_is_warned_of_as_alone():
     far = MeshTri(ghost.p * 0.02 + np.array([[60.0], [0.0]]), ghost.t)
     said = far_from_origin(_side_by_side(ghost, far))
     assert said.startswith("mesh's body 1 (of 2): its centre is 1.5e+03 of its sizes (0.04) from the origin")
+    assert said.endswith("Move the bodies nearer each other (centring the whole mesh leaves a small body far "
+                         "from the others as far in its own sizes), or simulate that body apart.")  # fmt: skip
     # bodies apart are not one large body: the ghost and a square 200 away weigh as themselves (the whole
     # mesh, 201 across, was said to collapse under its own weight, "in other units (pixels)?")
     square = MeshTri.init_tensor(np.linspace(200.0, 201.0, 5), np.linspace(0.0, 1.0, 5))
@@ -638,9 +640,16 @@ def test_a_body_left_without_muscles_by_a_thin_plate_beside_it_is_warned_of():
 
     ghost = _outline("ghost.obj", 0.0)
     plate = MeshTri.init_tensor(np.linspace(3.0, 7.0, 161), np.linspace(0.0, 0.01, 2))
-    with pytest.warns(UserWarning, match=r"share its 4 muscles.* and part 0 \(97 % of the mass\) gets none of them"):
+    with pytest.warns(UserWarning, match=r"share its 4 muscles.* and body 0 \(97 % of the free mass\) gets none of"):
         D = muscle_modes(_side_by_side(ghost, plate), 4, mu=1e5, rho=1e3)
     assert np.abs(D[: 2 * ghost.p.shape[1]]).max() < 1e-8 * np.abs(D).max()  # (it does get none)
+    # a body pinned whole is an obstacle, no body a gait could move: nothing said of it
+    square = MeshTri.init_tensor(np.linspace(3.0, 3.6, 7), np.linspace(0.0, 0.6, 7))
+    both = _side_by_side(ghost, square)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        D = muscle_modes(both, 4, mu=1e5, rho=1e3, pinned=np.arange(ghost.p.shape[1], both.p.shape[1]))
+    assert np.abs(D[2 * ghost.p.shape[1] :]).max() == 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # two creatures share them: each gets some, nothing said
         muscle_modes(_side_by_side(ghost, _outline("batsy.obj", 3.0)), 4, mu=1e5, rho=1e3)
