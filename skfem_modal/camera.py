@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .units import up_axis
+
 __all__ = ["up_vector", "Camera", "deformation", "frame_windows", "grid_spacing", "AZIMUTH", "ELEVATION"]
 
 #: Degrees the 3D camera is turned about the up axis, from straight in front.
@@ -37,8 +39,10 @@ STILL_CAMERA_LIMIT = 1.6
 def up_vector(summary: dict) -> np.ndarray:
     """The scene's up direction, a unit vector of length ``dim``.
 
-    The ground's up axis when there is a ground, else against gravity, else
-    the last axis (y in 2D, z in 3D).
+    The ground's up axis when there is a ground (the run's ``settings.up``,
+    which gravity chose when the scene left ``ground.up`` out: on an incline
+    not gravity's own direction), else against gravity, else the last axis
+    (y in 2D, z in 3D).
 
     Parameters
     ----------
@@ -52,10 +56,13 @@ def up_vector(summary: dict) -> np.ndarray:
     dim = summary["mesh"]["dim"]
     scene = summary["scene"]
     up = np.zeros(dim)
-    ground = scene.get("ground") or {}
+    ground = scene.get("ground")
     gravity = (scene.get("gravity") or {}).get("acceleration")
-    if ground.get("up") is not None:
-        up[ground["up"]] = 1.0
+    if ground is not None:
+        # the ground's axis as the run had it (a scene's ground.up is null when gravity says it: on an
+        # incline, gravity's own direction would tilt the floor away from the simulated one)
+        axis = (summary.get("settings") or {}).get("up", ground.get("up"))
+        up[up_axis(gravity, dim) if axis is None else axis] = 1.0
     elif gravity is not None and np.any(gravity):
         up = -np.asarray(gravity, float) / np.linalg.norm(gravity)
     else:

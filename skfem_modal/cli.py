@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import json
 import os
 import re
 import sys
@@ -227,6 +228,17 @@ def cmd_run(args) -> int:
     except SimulationError as err:
         print(f"skfem-modal run: simulation failed: {err}", file=sys.stderr)
         return EXIT_NUMERICAL
+    except KeyboardInterrupt as stop:
+        if _written_status(args.out) != "completed":
+            raise
+        # the signal came while the last step's records were written (held until they were whole)
+        skipped = "the closing lines and --render skipped" if args.render else "the closing lines skipped"
+        print(
+            f"skfem-modal run: {_stopped(stop)} after the last step: the run is whole (summary.json says "
+            f"completed); {skipped}",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     for text in summary["motion"]["warnings"]:
         print(f"skfem-modal run: warning: {text}", file=sys.stderr)
     step = summary["timings"]["step_ms"]
@@ -1140,9 +1152,22 @@ def main(argv=None) -> int:
         return EXIT_NUMERICAL
     except KeyboardInterrupt as stop:
         # Ctrl-C, or SIGTERM (e.g. from timeout): the command has stopped as it does on Ctrl-C
-        said = "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
-        print(f"skfem-modal {args.command}: {said}", file=sys.stderr)
+        print(f"skfem-modal {args.command}: {_stopped(stop)}", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _stopped(stop: KeyboardInterrupt) -> str:
+    """How a command was stopped, in words: by SIGTERM or by Ctrl-C."""
+    return "terminated (SIGTERM)" if isinstance(stop, Terminated) else "interrupted"
+
+
+def _written_status(out) -> str | None:
+    """The ``status`` a run's ``summary.json`` in ``out`` holds, None if there is none to read."""
+    try:
+        with open(os.path.join(out, "summary.json"), encoding="utf-8") as f:
+            return json.load(f).get("status")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _no_room(err: OSError) -> str:

@@ -45,6 +45,7 @@ __all__ = [
     "box3d",
     "creature",
     "normalize_and_center",
+    "normalizing_transform",
     "boundary_vertices",
     "farthest_point_sampling",
     "sample_boundary",
@@ -980,13 +981,45 @@ def normalize_and_center(mesh):
     >>> float(np.ptp(m.p, axis=1).max())
     2.0
     """
+    x, _, _ = _normalized(mesh)
+    return type(mesh)(np.ascontiguousarray(x.T), mesh.t.copy(), sort_t=False)
+
+
+def normalizing_transform(mesh) -> tuple[np.ndarray, float]:
+    """What :func:`normalize_and_center` does to a mesh: its vertices go to ``factor * (x - centre)``.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+
+    Returns
+    -------
+    centre : ndarray, shape (dim,)
+        The vertex mean.
+    factor : float
+        2 over the largest extent.
+
+    Examples
+    --------
+    >>> centre, factor = normalizing_transform(beam2d(length=10.0, height=1.0, nx=10, ny=2))
+    >>> centre.tolist(), factor
+    ([5.0, 0.5], 0.2)
+    """
+    _, centre, factor = _normalized(mesh)
+    return centre, factor
+
+
+def _normalized(mesh):
+    """The normalised vertices (n, dim), the centre (dim,) and the factor of :func:`normalize_and_center`."""
     check_mesh(mesh)
     # work on (n, dim) rows: the same summation order as the usual
     # ``X -= X.mean(0)`` on vertex rows, so results agree to the last bit
     x = np.array(mesh.p.T, order="C")
-    x -= x.mean(axis=0)
-    x *= 2.0 / (x.max(axis=0) - x.min(axis=0)).max()
-    return type(mesh)(np.ascontiguousarray(x.T), mesh.t.copy(), sort_t=False)
+    centre = x.mean(axis=0)
+    x -= centre
+    factor = 2.0 / (x.max(axis=0) - x.min(axis=0)).max()
+    x *= factor
+    return x, centre, float(factor)
 
 
 #: Elements a built-in shape may have, at most (a few GB to build and analyse)

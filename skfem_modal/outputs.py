@@ -89,7 +89,7 @@ def _names(files) -> re.Pattern:
 _TOP = _names(RUN_FILES + PICTURES)
 _STUDY = _names(STUDY_FILES)
 _SEARCH = _names(SEARCH_FILES)
-_FRAME = re.compile(r"\.?frame_\d{5}(?:\.[0-9a-f]{8})?\.vtu")
+_FRAME = re.compile(r"\.?frame_\d{5,}(?:\.[0-9a-f]{8})?\.vtu")
 
 
 def _found(directory: str, names: re.Pattern) -> list[str]:
@@ -253,6 +253,8 @@ def check_output_folder(directory, kind: str) -> list[str]:
 
     Raises
     ------
+    ValueError
+        ``directory`` is empty (or blank).
     FileExistsError
         ``directory`` (or a folder on its path) is a file, or it holds
         another kind's output: a run, a study and a search never share a folder;
@@ -262,6 +264,8 @@ def check_output_folder(directory, kind: str) -> list[str]:
         folder of its path that exists, is refused).
     """
     directory = os.fspath(directory)
+    if not directory.strip():  # (the current folder's files would be written, then "No such file" after the work)
+        raise ValueError(f"the output folder {directory!r} has no name: give a folder's name")
     blocking = _file_in_the_way(directory)
     if blocking is not None:
         what = "is" if blocking == directory else f"cannot be made: {blocking!r} is"

@@ -276,8 +276,7 @@ def plot_com(run, path) -> str:
     np.atleast_1d(axes)[-1].set_xlabel("time")
     fig.suptitle(f"centre of mass: {summary['scene'].get('name', '')}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save_figure(plt, fig, path)
     return os.fspath(path)
 
 
@@ -300,10 +299,17 @@ def plot_amplitudes(run, path) -> str:
     path : str
     """
     plt = _pyplot()
-    fig = amplitudes_figure(run)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save_figure(plt, amplitudes_figure(run), path)
     return os.fspath(path)
+
+
+def _save_figure(plt, fig, path) -> None:
+    """Save a matplotlib figure whole or not at all (a full disk left a picture cut short), and close it."""
+    try:
+        with written_whole(path) as partial:
+            fig.savefig(partial, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def amplitudes_figure(run):
@@ -375,6 +381,13 @@ def _read_frame(time: float, path: str, first: _Frame | None = None) -> _Frame:
         raise ValueError(
             f"frame file {path!r} is not a frame of a run: it needs triangle or tetrahedron cells "
             "and a 'displacement' for every point"
+        )
+    own_time = np.ravel(m.field_data.get("time", [time]))
+    if own_time.size != 1 or not abs(float(own_time[0]) - time) <= 1e-9 * max(1.0, abs(time)):
+        # (a frame of another run of the same mesh has its cells and rest shape)
+        raise ValueError(
+            f"frame file {path!r} is at time {own_time.tolist()}, frames.pvd lists it at {time:g}: "
+            "not a frame of this run"
         )
     cells, dim = m.cells_dict[kind], 2 if kind == "triangle" else 3
     points = m.points[:, :dim]
@@ -696,7 +709,8 @@ def _pyvista_frames(frames: list[_Frame], view: _View, size):
 def _save_png(image, path):
     from PIL import Image
 
-    Image.fromarray(image).save(path)
+    with written_whole(path) as partial:  # whole or not at all
+        Image.fromarray(image).save(partial)
     return os.fspath(path)
 
 

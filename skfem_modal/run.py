@@ -317,7 +317,7 @@ def _summary_start(scene, sim, precompute: float) -> dict:
         "python": platform.python_version(),
         "scene": {**scene.to_dict(), "source": _source(scene)},
         "material": scene.material(),
-        "mesh": mesh_summary(sim.mesh),
+        "mesh": {**mesh_summary(sim.mesh), "placement": scene.placement},
         "effects": list(sim.effects),
         "backend": sim.backend_used,
         "sizes": {

@@ -40,6 +40,7 @@ from .mesh import (
     load_mesh,
     mirror,
     normalize_and_center,
+    normalizing_transform,
     shape_parameter_problems,
     shape_parameters,
     vertices_where,
@@ -200,7 +201,12 @@ SCHEMA: dict[str, Any] = {
             "of its coordinates moves a body at rest).",
         ),
         "scale": Key(
-            "float", 1.0, "Multiply every coordinate by this factor (after normalising).", "length", _positive
+            "float",
+            1.0,
+            "Multiply every coordinate by this factor (after normalising). The scene's other lengths, and a run's "
+            "outputs, are of the mesh so placed ([units](#units)).",
+            "length",
+            _positive,
         ),
     },
     "material": {
@@ -824,12 +830,18 @@ class Scene:
     mesh : skfem.MeshTri or skfem.MeshTet
     source : str
         Where the scene came from (a path, or "built-in").
+    placement : dict
+        Where ``mesh.normalize`` and ``mesh.scale`` put the mesh read: its vertices at
+        ``factor * (x - centre)`` of where the file (or shape) has them, after ``mesh.flip``
+        (``centre``: a list of dim floats). Every length of the scene and of a run's outputs is
+        of the mesh so placed.
     """
 
     config: dict
     mesh: Any = field(repr=False)
     source: str = "dict"
     _table: Any = field(default=None, repr=False)
+    placement: dict = field(default_factory=dict)
 
     # ------------------------------------------------------------ loading
     @classmethod
@@ -878,12 +890,12 @@ class Scene:
         if isinstance(data, dict) and data.get("muscles") is None:
             # an effect the scene does not name is not simulated (4 muscles at rest stiffened such a body)
             config["muscles"]["count"] = 0
-        mesh = None
+        mesh, placement = None, {}
         table = None
         # every problem at once: the mesh is built when its own keys are right,
         # and the checks across keys run whatever else is wrong
         if not any(e.split(":", 1)[0].split(".", 1)[0] == "mesh" for e in errors):
-            mesh = _build_mesh(config["mesh"], errors)
+            mesh, placement = _build_mesh(config["mesh"], errors)
         _check_cross(config, mesh, errors)
         muscles = config["muscles"]
         if muscles["table"] is not None and muscles["count"]:  # (without muscles: said by unused_warning)
@@ -891,7 +903,7 @@ class Scene:
         if errors:
             head = f"{source}: " if source not in ("dict", "built-in") else ""
             raise SceneError(f"{head}{len(errors)} problem(s) in the scene:\n  " + "\n  ".join(errors))
-        scene = cls(config=config, mesh=mesh, source=source, _table=table)
+        scene = cls(config=config, mesh=mesh, source=source, _table=table, placement=placement)
         message = scene.scale_warning()
         if message:
             warnings.warn(message, ScaleWarning, stacklevel=2)
@@ -1321,6 +1333,21 @@ def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:
 
 
 def _build_mesh(spec: dict, errors: list[str]):
+    """The scene's mesh, read and placed, and its placement (:class:`Scene`); (None, {}) when it has problems."""
+    mesh = _read_mesh(spec, errors)
+    if mesh is None:
+        return None, {}
+    centre, factor = np.zeros(mesh.p.shape[0]), 1.0
+    if spec["normalize"]:
+        centre, factor = normalizing_transform(mesh)
+        mesh = normalize_and_center(mesh)
+    if spec["scale"] != 1.0:
+        mesh = type(mesh)(mesh.p * spec["scale"], mesh.t.copy(), sort_t=False)
+    return mesh, {"centre": centre.tolist(), "factor": factor * spec["scale"]}
+
+
+def _read_mesh(spec: dict, errors: list[str]):
+    """The mesh a scene's file or shape names, flipped as it says; None when it has problems."""
     if spec["shape"] is not None and spec["file"] is not None:
         errors.append("mesh: give either shape or file, not both")
         return None
@@ -1353,10 +1380,6 @@ def _build_mesh(spec: dict, errors: list[str]):
             errors.append(f"mesh.flip: expected axes of this {mesh.p.shape[0]}D mesh, got {spec['flip']!r}")
             return None
         mesh = mirror(mesh, spec["flip"])
-    if spec["normalize"]:
-        mesh = normalize_and_center(mesh)
-    if spec["scale"] != 1.0:
-        mesh = type(mesh)(mesh.p * spec["scale"], mesh.t.copy(), sort_t=False)
     return mesh
 
 

@@ -294,3 +294,21 @@ def test_version_and_defaults_in_help(capsys):
         assert shown in helps["optimize"]
     # said as the option takes it (it said "960 600", which --size refuses)
     assert "window size in pixels (default: 960x600)" in helps["play"]
+
+
+def test_the_cleaner_knows_frames_past_the_99999th(tmp_path):
+    """The writer names frame 100000 ``frame_100000.vtu``: an overwrite removes it too (five digits left it stale)."""
+    from skfem_modal.outputs import earlier_run
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    names = [
+        "frame_00000.vtu",
+        "frame_99999.vtu",
+        "frame_100000.vtu",
+        "frame_1234567.vtu",
+        ".frame_100000.0123abcd.vtu",
+    ]
+    for name in names + ["frame_1.vtu", "frame_100000.vtu.bak", "mine.vtu"]:
+        (frames / name).write_text("")
+    assert earlier_run(tmp_path) == sorted(str(frames / name) for name in names)

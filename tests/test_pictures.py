@@ -28,6 +28,14 @@ def test_up_follows_the_ground_then_gravity():
     # both: the ground's up axis, not gravity's (an incline: gravity tilted 30 degrees off -y)
     np.testing.assert_array_equal(up_vector(summary(2, ground={"up": 1}, gravity=[4.9, -8.49])), [0, 1])
     np.testing.assert_array_equal(up_vector(summary(3, ground={"up": 2}, gravity=[0.0, -9.8, 0.0])), [0, 0, 1])
+    # an incline whose ground.up gravity chose (null in the scene): the axis the run recorded, not gravity's
+    # own tilted direction, which drew the floor tilted and the body 1.1 of its sizes below it
+    incline = summary(2, ground={"up": None}, gravity=[-5.0, -8.43])
+    np.testing.assert_array_equal(up_vector(incline), [0, 1])  # an older run: gravity's largest component
+    np.testing.assert_array_equal(up_vector({**incline, "settings": {"up": 1}}), [0, 1])
+    np.testing.assert_array_equal(
+        up_vector({**summary(3, ground={}, gravity=[-9.0, 0.5, -2.0]), "settings": {"up": 0}}), [1, 0, 0]
+    )
 
 
 @pytest.mark.parametrize("up", [[0, 0, 1], [0, 1, 0], [1, 0, 0]])
@@ -90,7 +98,7 @@ def creature_runs(tmp_path_factory):
         frame.point_data["displacement"] = frame.point_data["displacement"] @ turn.T
         meshio.write(path, frame)
     summary = json.loads((y_up / "summary.json").read_text())
-    summary["scene"]["ground"]["up"] = 1
+    summary["scene"]["ground"]["up"] = summary["settings"]["up"] = 1
     summary["scene"]["gravity"]["acceleration"] = [0.0, -9.8, 0.0]
     (y_up / "summary.json").write_text(json.dumps(summary))
     return z_up, y_up

@@ -150,10 +150,12 @@ def test_a_broken_summary_or_cut_table_is_named_in_one_line(run_copy, capsys, da
     assert sorted(os.listdir(run_copy)) == before
 
 
-@pytest.mark.parametrize("damage", ["missing", "truncated", "not a frame"])
+@pytest.mark.parametrize("damage", ["missing", "truncated", "not a frame", "another time"])
 def test_a_missing_or_broken_frame_is_named_in_one_line(run_copy, capsys, damage):
     frame = run_copy / "frames" / "frame_00004.vtu"
-    if damage == "missing":
+    if damage == "another time":  # a frame of another run of the same mesh (its cells and rest shape) was drawn
+        shutil.copyfile(run_copy / "frames" / "frame_00001.vtu", frame)
+    elif damage == "missing":
         frame.unlink()
     elif damage == "truncated":
         frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
@@ -172,6 +174,7 @@ def test_a_missing_or_broken_frame_is_named_in_one_line(run_copy, capsys, damage
         "missing": "(listed in frames.pvd) is missing",
         "truncated": "cannot read frame file",
         "not a frame": "is not a frame of a run",
+        "another time": "frames.pvd lists it at",
     }
     assert expected[damage] in err
     assert sorted(os.listdir(run_copy)) == before  # nothing drawn
@@ -366,3 +369,30 @@ def test_a_disk_full_while_rendering_is_named_and_leaves_no_part_of_the_file(run
     made = set(os.listdir(run_copy)) - set(before)
     assert made and all(name.endswith(".png") for name in made)  # the stills drawn before, whole
     assert "animation.gif" not in made  # no part of the animation, no hidden temporary file
+
+
+@pytest.mark.parametrize("picture", ["plot", "still"])
+def test_a_disk_full_while_drawing_a_picture_leaves_none_of_it(run_copy, capsys, monkeypatch, picture):
+    """An audit: a plot or still cut short by a full disk was left truncated, and the message named no file."""
+    import matplotlib.figure
+    from PIL import Image
+
+    def half_then_full(self, path, *args, **kwargs):
+        with open(path, "wb") as f:
+            f.write(b"\x89PNG half")
+        raise OSError(28, "No space left on device")
+
+    if picture == "plot":
+        monkeypatch.setattr(matplotlib.figure.Figure, "savefig", half_then_full)
+    else:
+        monkeypatch.setattr(Image.Image, "save", half_then_full)
+    before = sorted(os.listdir(run_copy))
+    assert main(["render", str(run_copy), "--backend", "matplotlib", "--max-frames", "2", "-q"]) == 5
+    err = capsys.readouterr().err
+    assert err.startswith(f"skfem-modal render: outputs failed: could not write {run_copy}{os.sep}")
+    named = err.split("could not write ")[1].split(": No space left on device")[0]
+    assert named.endswith(".png") and not os.path.exists(named)
+    made = sorted(set(os.listdir(run_copy)) - set(before))
+    assert all(not name.startswith(".") for name in made)  # no hidden temporary file left
+    for name in made:  # what was drawn before the disk filled is whole
+        assert Image.open(run_copy / name).size[0] > 0

@@ -41,6 +41,17 @@ def test_an_output_path_that_is_a_file_is_named(tmp_path, capsys):
         assert sorted(p.name for p in folder.iterdir()) == ["frames"]
 
 
+@pytest.mark.parametrize("command", [["run"], ["study", "--quick"], ["optimize", "--generations", "1"]])
+@pytest.mark.parametrize("out", ["", "  "])
+def test_an_output_folder_without_a_name_is_refused_before_any_work(tmp_path, capsys, monkeypatch, command, out):
+    """An audit: ``--out ""`` ran the whole precompute, then said "[Errno 2] No such file or directory: ''"."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*command, "--out", out, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.endswith(f"error: the output folder {out!r} has no name: give a folder's name\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     "duration, steps, warned",
     [(0.025, 3, True), (0.1, 10, False), (0.3, 30, False), (0.0201, 3, True), (0.005, 1, True)],

@@ -101,28 +101,40 @@ def test_the_last_step_is_always_a_frame(tmp_path, every, frame_steps):
     assert summary["frames"]["every"] == every
 
 
+CATERPILLAR_30_STEPS = (
+    "[mesh]\nshape = 'caterpillar'\nparams = { nx = 20, ny = 10 }\n[material]\nmu = 1e5\nrho = 1e3\n"
+    "[subspace]\nweights = 4\nclusters = 6\n[muscles]\ncount = 2\n[muscles.gait]\namplitude = [0.9, 0.6]\n"
+    "period = [1.0, 0.7]\n[time]\nstep = 0.02\nsteps = 30\n[output]\nevery = 5\n"
+)
+
+
+#: a SIGTERM as the frame at t = 0.2 is written
+TERMINATED_AT_02 = """
+import skfem_modal.export as export
+write = export.FrameWriter.write
+def terminated(self, t, x, **options):
+    if abs(t - 0.2) < 1e-12:
+        os.kill(os.getpid(), signal.SIGTERM)
+    return write(self, t, x, **options)
+export.FrameWriter.write = terminated
+"""
+
+
+def run_console(tmp_path, prelude: str):
+    """The console script run on the 30-step caterpillar into ``tmp_path / "out"``, after ``prelude`` (Python)."""
+    (tmp_path / "scene.toml").write_text(CATERPILLAR_30_STEPS)
+    argv = ["skfem-modal", "run", str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out"), "-q"]
+    script = (
+        "import os, signal, sys\n"
+        + textwrap.dedent(prelude)
+        + (f"sys.argv = {argv!r}\nfrom skfem_modal._entry import main\nsys.exit(main())\n")
+    )
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+
+
 def test_sigterm_stops_a_command_run_like_ctrl_c(tmp_path):
     # timeout(1) sends SIGTERM: the run stops cleanly, its summary says interrupted, its files agree
-    script = textwrap.dedent(
-        f"""
-        import os, signal, sys
-        import skfem_modal.export as export
-        from skfem_modal.cli import main
-        write = export.FrameWriter.write
-        def terminated(self, t, x, **options):
-            if abs(t - 0.2) < 1e-12:
-                os.kill(os.getpid(), signal.SIGTERM)
-            return write(self, t, x, **options)
-        export.FrameWriter.write = terminated
-        sys.exit(main(["run", {str(tmp_path / "scene.toml")!r}, "--out", {str(tmp_path / "out")!r}, "-q"]))
-        """
-    )
-    (tmp_path / "scene.toml").write_text(
-        "[mesh]\nshape = 'caterpillar'\nparams = { nx = 20, ny = 10 }\n[material]\nmu = 1e5\nrho = 1e3\n"
-        "[subspace]\nweights = 4\nclusters = 6\n[muscles]\ncount = 2\n[muscles.gait]\namplitude = [0.9, 0.6]\n"
-        "period = [1.0, 0.7]\n[time]\nstep = 0.02\nsteps = 30\n[output]\nevery = 5\n"
-    )
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    done = run_console(tmp_path, TERMINATED_AT_02)
     assert done.returncode == 130, done.stderr
     assert done.stderr.strip().splitlines()[-1] == "skfem-modal run: terminated (SIGTERM)"
     summary, _ = assert_all_end_at(tmp_path / "out", 10)
@@ -192,3 +204,70 @@ def test_the_command_prints_every_warning_in_its_own_words(tmp_path, capsys):
         "skfem-modal run: warning: time.duration = 0.025 is not a whole number of time.step = 0.01: running 3 "
         "steps, to t = 0.03 (the duration rounded up to a whole step; give time.steps for an exact count)"
     ]
+
+
+@pytest.mark.filterwarnings("ignore::skfem_modal.units.ScaleWarning")  # (one step of a long beam)
+@pytest.mark.parametrize("normalize, scale", [(True, 3.0), (False, 0.5), (True, 1.0)])
+def test_the_summary_says_where_normalize_and_scale_put_the_mesh(tmp_path, normalize, scale):
+    """An audit: a normalised mesh's frames were in other units than its file, and nothing said which."""
+    from skfem_modal.mesh import beam2d
+
+    beam = {"shape": "beam2d", "params": {"length": 10.0, "height": 1.0, "nx": 10, "ny": 2}}
+    mesh = {**beam, "normalize": normalize, "scale": scale}
+    scene = Scene.from_dict({**FLOATING, "mesh": mesh, "muscles": {"count": 0}, "time": {"step": 0.02, "steps": 1}})
+    summary = run_scene(scene, tmp_path / "out")
+    placement = summary["mesh"]["placement"]
+    centre, factor = ([5.0, 0.5], 0.2 * scale) if normalize else ([0.0, 0.0], scale)
+    np.testing.assert_allclose(placement["centre"], centre, rtol=1e-15)
+    assert placement["factor"] == pytest.approx(factor, rel=1e-15)
+    first = meshio.read(tmp_path / "out" / "frames" / "frame_00000.vtu")
+    in_file = beam2d(10.0, 1.0, 10, 2).p.T  # where the shape has its vertices
+    np.testing.assert_allclose(first.points[:, :2], factor * (in_file - centre), atol=1e-14)
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["mesh"]["placement"] == placement
+
+
+def test_ctrl_c_while_the_last_records_are_written_says_the_run_is_whole(tmp_path):
+    """An audit: a Ctrl-C as the last frame was written said "interrupted" (130) beside a summary saying completed."""
+    done = run_console(
+        tmp_path,
+        """
+        import skfem_modal.run as run
+        measured = run._measured
+        def interrupted(*args):  # inside the summary's last write, whose signals wait until it is whole
+            os.kill(os.getpid(), signal.SIGINT)
+            return measured(*args)
+        run._measured = interrupted
+        """,
+    )
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        "skfem-modal run: interrupted after the last step: the run is whole (summary.json says completed); "
+        "the closing lines skipped"
+    ]
+    summary, _ = assert_all_end_at(tmp_path / "out", 30)
+    assert summary["status"] == "completed" and summary["error"] is None
+
+
+def test_a_second_sigterm_while_the_first_stops_the_run_keeps_its_exit_code(tmp_path):
+    """An audit: two SIGTERMs 10 ms apart ended the process by the second (exit 143), not with 130."""
+    done = run_console(
+        tmp_path,
+        TERMINATED_AT_02
+        + textwrap.dedent(
+            """
+        class Again:  # the second as the first one's stop is said
+            def __init__(self, stream):
+                self.stream = stream
+            def write(self, text):
+                if "terminated" in text:
+                    os.kill(os.getpid(), signal.SIGTERM)
+                return self.stream.write(text)
+            def __getattr__(self, name):
+                return getattr(self.stream, name)
+        sys.stderr = Again(sys.stderr)
+        """
+        ),
+    )
+    assert done.returncode == 130, done.stderr
+    summary, _ = assert_all_end_at(tmp_path / "out", 10)
+    assert summary["status"] == "interrupted"
