@@ -7,8 +7,6 @@ setting is checked by one function wherever it is given.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import scipy.sparse as sps
 
@@ -19,6 +17,7 @@ from .mesh import connected_labels, part_sizes
 from .solver import BACKENDS
 from .units import float_range_problems, up_axis
 from .values import checked_flag, is_whole
+from .values import positive_number as _positive_scalar
 
 
 def _array(value, shape, name):
@@ -31,20 +30,6 @@ def _array(value, shape, name):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite")
     return arr
-
-
-def _positive_scalar(value, name, *, allow_zero=False):
-    if isinstance(value, (str, bytes, bool, np.bool_)):  # float() would take "0.5" and True
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    except OverflowError:  # an integer beyond a float's range
-        v = math.inf
-    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
-        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
-    return v
 
 
 def _fraction(value, name):

@@ -142,7 +142,14 @@ def cmd_modes(args) -> int:
     """
     from .export import export_modes
     from .mesh import mesh_summary, vertices_where
-    from .modal import actuation_limits, hinge_count, linear_modal_analysis, natural_frequencies, rigid_mode_count
+    from .modal import (
+        DEFAULT_MASS,
+        actuation_limits,
+        hinge_count,
+        linear_modal_analysis,
+        natural_frequencies,
+        rigid_mode_count,
+    )
 
     mu, lam = _material(args)
     check_output_file(args.out, "--out", ".vtu", "modes.vtu")
@@ -156,10 +163,11 @@ def cmd_modes(args) -> int:
         if everything:
             raise ValueError(everything)
     info = mesh_summary(mesh)
+    mass = args.mass or DEFAULT_MASS[args.element]
     say = _say(args)
     say(
         f"{args.mesh}: {info['vertices']} vertices, {info['elements']} {info['element']} elements, "
-        f"{info['dim']}D, {args.element}" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
+        f"{info['dim']}D, {args.element}, {mass} mass" + (f", {fixed.size} fixed vertices" if fixed is not None else "")
     )
     n_rigid, n_hinges = rigid_mode_count(mesh, fixed), hinge_count(mesh, fixed)
     k = args.k
@@ -173,7 +181,7 @@ def cmd_modes(args) -> int:
         k = min(n_rigid + n_hinges + ELASTIC_MODES, free)  # a small mesh has fewer
     start = time.perf_counter()
     values, modes = linear_modal_analysis(
-        mesh, k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=args.mass, element=args.element
+        mesh, k, mu=mu, lam=lam, rho=args.rho, fixed=fixed, mass=mass, element=args.element
     )
     elapsed = time.perf_counter() - start
     freqs = natural_frequencies(values)
@@ -840,7 +848,12 @@ def _modes_options(p) -> None:
     p.add_argument("--poisson", type=float, help="Poisson's ratio (2D meshes: plane strain)")
     p.add_argument("--rho", type=_positive_float, default=1.0, help="density")
     p.add_argument("--element", choices=["P1", "P2"], default="P1", help="linear or quadratic elements")
-    p.add_argument("--mass", choices=["lumped", "consistent"], default="lumped", help="mass matrix")
+    p.add_argument(
+        "--mass",
+        choices=["lumped", "consistent"],
+        default=None,
+        help="mass matrix (default: lumped for P1, consistent for P2: each element's frequencies converge fastest)",
+    )
     p.add_argument(
         "--fix",
         action="append",

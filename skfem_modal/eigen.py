@@ -164,8 +164,14 @@ def spd_solver(A, node_dim: int = 1):
         lower = Ap.row >= Ap.col
         ab = np.zeros((band + 1, n))
         ab[(Ap.row - Ap.col)[lower], Ap.col[lower]] = Ap.data[lower]
-        factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
-        return _permuted(lambda b: sla.cho_solve_banded((factor, True), b, check_finite=False), dofs, "banded")
+        try:
+            factor = sla.cholesky_banded(ab, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            # not positive definite to round-off: a sliver element (a triangle 1e-12 high on a 0.125 edge)
+            # stopped Cholesky; the pivoted sparse factorisation solves it as it solves any other
+            pass
+        else:
+            return _permuted(lambda b: sla.cho_solve_banded((factor, True), b, check_finite=False), dofs, "banded")
     dofs = _dof_order(sparse_order, node_dim)
     lu = spla.splu(
         A[dofs][:, dofs].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
@@ -418,6 +424,8 @@ def sign_convention(modes: np.ndarray) -> np.ndarray:
         A copy with signs fixed.
     """
     out = np.array(modes, dtype=np.float64, copy=True)
+    if out.ndim != 2:  # (one mode is a column: a 1-D array was an IndexError)
+        raise ValueError(f"modes must have shape (n_dofs, k), got {out.shape}")
     mag = np.abs(out)
     top = mag.max(axis=0)
     for col in range(out.shape[1]):

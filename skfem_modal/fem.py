@@ -272,6 +272,12 @@ def _stiffness(mesh, mu, lam, element: str) -> sps.csr_matrix:
     return (J.T @ (C @ J)).tocsr()
 
 
+#: The largest ``lam / mu`` a stiffness may have (Poisson's ratio 0.499999995): beyond, its shear part,
+#: which sets the lowest modes, drowns in the round-off of its volume part (an audit: at 1e15 the
+#: eigenvalues came out negative and out of order; at 5e9 the lowest 2 % high; at 5e7 exact)
+MOST_LAM_OVER_MU = 1e8
+
+
 def _lame(mesh, mu, lam) -> tuple[np.ndarray, np.ndarray]:
     """The Lame parameters per element, (nT,) each, or a ValueError naming the element whose are not elastic."""
     nT = mesh.t.shape[1]
@@ -287,6 +293,16 @@ def _lame(mesh, mu, lam) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(
             f"lam must be above -2 mu / {dim} (a positive bulk modulus{ratio}), got {lam[bad[0]]} with mu "
             f"{mu[bad[0]]}, so above {-2.0 * mu[bad[0]] / dim:g}{where}"
+        )
+    bad = np.nonzero(~(lam <= MOST_LAM_OVER_MU * mu))[0]
+    if bad.size:
+        where = "" if uniform else f" at elements {bad[:10].tolist()}"
+        first_lam, first_mu = float(lam[bad[0]]), float(mu[bad[0]])
+        raise ValueError(
+            f"lam must be at most {MOST_LAM_OVER_MU:g} mu (a Poisson's ratio up to 0.499999995), got "
+            f"{first_lam:g} with mu {first_mu:g} (Poisson's ratio {first_lam / (2.0 * (first_lam + first_mu))!r})"
+            f"{where}: a material that nearly keeps its volume puts the stiffness's shear part, which sets the "
+            "lowest modes, below the round-off of its volume part (that needs a mixed formulation)"
         )
     return mu, lam
 
@@ -446,8 +462,9 @@ def gravity_force(mesh, g, rho=1.0) -> np.ndarray:
 
 def _gravity(mesh, g, rho) -> np.ndarray:
     dim = mesh.p.shape[0]
-    g = np.asarray(g, dtype=np.float64)
-    if g.shape != (dim,) or not np.all(np.isfinite(g)):
-        raise ValueError(f"gravity must be a finite vector of length {dim}, got {np.asarray(g).tolist()}")
+    given = np.asarray(g)
+    if given.dtype.kind not in "biuf" or given.shape != (dim,) or not np.all(np.isfinite(given)):
+        raise ValueError(f"gravity must be a finite vector of length {dim}, got {g!r}")
+    g = given.astype(np.float64)
     m = _lumped_p1(mesh, _positive(rho, mesh.t.shape[1], "rho"))
     return (m[:, None] * g[None, :]).ravel()

@@ -279,7 +279,8 @@ def _tangled(p, t, groups) -> np.ndarray:
         v = p[:, opposite.ravel()[rows]] - corners[:, :, 0]
         return _determinants(np.concatenate([edges, v[:, :, None]], axis=2))
 
-    same = side(first) * side(second) > 0
+    # (the signs, not the product: two volumes of a mesh 1e-54 across multiply to an underflow, 0)
+    same = np.sign(side(first)) * np.sign(side(second)) > 0
     bad.append(first[same] % nT)
     bad.append(second[same] % nT)
     return np.unique(np.concatenate(bad))

@@ -250,7 +250,8 @@ SCHEMA: dict[str, Any] = {
         "poisson": Key(
             "float",
             None,
-            "Poisson's ratio, in (-1, 0.5).",
+            "Poisson's ratio, in (-1, 0.5), and at most 0.499999995 (lam at most 1e8 mu: nearer 0.5 the shear "
+            "stiffness that sets the lowest modes drowns in the round-off of the volume's).",
             "",
             lambda v: None if -1 < v < 0.5 else "a number in (-1, 0.5)",
         ),
@@ -1295,15 +1296,17 @@ def _material(m: dict) -> dict:
 
 
 def _check_bulk_modulus(config: dict, mesh, errors: list[str]) -> None:
-    """A ``material.lam`` given must leave the modes' material a positive bulk modulus (the stiffness's own check)."""
+    """A ``material.lam`` (or ``poisson``) given must leave the modes' material elastic (the stiffness's own check)."""
     from .fem import _lame
 
-    material = _material(config["material"])
-    if config["material"]["lam"] is not None:
+    given = config["material"]
+    material = _material(given)
+    key = "lam" if given["lam"] is not None else "poisson" if given["poisson"] is not None else None
+    if key is not None:  # (lam from poisson, scaled as mu is: a ratio near 0.5 makes it too large for mu)
         try:
             _lame(mesh, material["mu"], material["lam"])
         except ValueError as err:
-            errors.append(f"material.lam = {_toml_value(material['lam'])}: {err}")
+            errors.append(f"material.{key} = {_toml_value(given[key])}: {err}")
 
 
 def _check_float_range(config: dict, mesh, gravity, errors: list[str]) -> None:

@@ -11,9 +11,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["is_whole", "is_real", "is_finite_real", "checked_flag", "checked_state"]
+__all__ = ["is_whole", "is_real", "is_finite_real", "checked_flag", "checked_state", "positive_number"]
 
 
 def is_whole(value) -> bool:
@@ -78,3 +80,40 @@ def checked_state(value, size: int, name: str = "z") -> np.ndarray:
     if not np.all(np.isfinite(state)):
         raise ValueError(f"{name} must be finite, got NaN or infinity in it")
     return state
+
+
+def positive_number(value, name: str, *, allow_zero: bool = False) -> float:
+    """``value`` as a float if it is a positive (``allow_zero``: non-negative) finite number; else an error.
+
+    A string, bytes or bool is refused (TypeError), not converted: ``float("0.5")`` and ``float(True)``
+    would take them. An integer beyond a float's range counts as infinite (ValueError).
+
+    Parameters
+    ----------
+    value : object
+    name : str
+        What the error calls it.
+    allow_zero : bool
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    TypeError
+        Not a number.
+    ValueError
+        Not positive (non-negative), or not finite.
+    """
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    except OverflowError:  # an integer beyond a float's range
+        v = math.inf
+    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
+        raise ValueError(f"{name} must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}")
+    return v

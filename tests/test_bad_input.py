@@ -253,6 +253,27 @@ def test_numbers_beyond_a_float_are_named(call, message):
         call()
 
 
+BEAM = sm.beam2d(4.0, 1.0, 8, 2)
+BEAM_MODES = np.eye(BEAM.p.size)[:, :4]
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        # an audit: an IndexError, NaN back, numpy's "ufunc 'isfinite' not supported", "could not convert string"
+        (lambda: sm.mode_sign_convention(BEAM_MODES[:, 0]), ValueError, r"modes must have shape \(n_dofs, k\)"),
+        (lambda: sm.mode_sign_convention(np.full((4, 2), np.nan)), ValueError, "modes must be finite"),
+        (lambda: sm.actuation_limits(BEAM, BEAM_MODES, max_s="2"), TypeError, "max_s must be a number, got '2'"),
+        (lambda: sm.actuation_limits(BEAM, BEAM_MODES, max_s=None), TypeError, "max_s must be a number, got None"),
+        (lambda: sm.gravity_force(BEAM, "down"), ValueError, "gravity must be a finite vector of length 2, got 'down'"),
+        (lambda: sm.natural_frequencies(None), TypeError, "eigenvalues must be numbers, got None"),
+    ],
+)
+def test_the_modal_helpers_name_what_they_were_given(call, error, message):
+    with pytest.raises(error, match=message):
+        call()
+
+
 def test_model_edits_are_checked():
     sim = ModalMuscle.from_mesh(GOOD, n_muscles=1, n_weights=3, n_clusters=2)
     model, h = sim.model, sim.h

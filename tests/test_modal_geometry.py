@@ -11,6 +11,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.linalg
+from skfem import MeshTri
 
 import skfem_modal as sm
 from skfem_modal.fem import vector_dofs
@@ -48,7 +49,7 @@ CASES = {
 
 def _dense_eigenvalues(mesh, element, fixed=None, lam=1.0):
     K = sm.stiffness_matrix(mesh, 1.0, lam, element).toarray()
-    M = sm.mass_matrix(mesh, 1.0, True, element).toarray()
+    M = sm.mass_matrix(mesh, 1.0, sm.modal.DEFAULT_MASS[element] == "lumped", element).toarray()  # the default
     if fixed is not None:
         dim = mesh.p.shape[0]
         pinned = vector_dofs(sm.modal.fixed_nodes(mesh, fixed, element), dim)
@@ -71,7 +72,7 @@ def test_hinges_are_the_zero_eigenvalues_of_a_dense_solve(name, element):
     with pytest.warns(RuntimeWarning, match=f"{hinges} modes have zero stiffness"):
         values, modes = sm.linear_modal_analysis(mesh, k, element=element)
     np.testing.assert_allclose(values[zero:], dense[zero:k], rtol=1e-10)
-    M = sm.mass_matrix(mesh, 1.0, True, element)
+    M = sm.mass_matrix(mesh, 1.0, sm.modal.DEFAULT_MASS[element] == "lumped", element)
     K = sm.stiffness_matrix(mesh, 1.0, 1.0, element)
     np.testing.assert_allclose(modes.T @ (M @ modes), np.eye(k), atol=1e-12)
     # the hinges strain nothing: no force, to round-off of the stiffness
@@ -90,19 +91,19 @@ def test_pins_hold_hinges_as_a_dense_solve_says():
 
 
 def test_a_stiff_material_is_no_hinge():
-    # lam = 1e11 mu: the shear modes sit far below (2 mu + lam) / l^2, but they bend; a threshold on
-    # that scale called the first two hinges, printed at 0 Hz with a hinge warning
+    # lam = 1e8 mu (the most a stiffness takes): the shear modes sit far below (2 mu + lam) / l^2, but they
+    # bend; a threshold on that scale called the first two hinges, printed at 0 Hz with a hinge warning
     beam = sm.beam2d(4.0, 1.0, 16, 4)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        values, _ = sm.linear_modal_analysis(beam, 7, lam=1e11)
+        values, _ = sm.linear_modal_analysis(beam, 7, lam=1e8)
     assert hinge_count(beam) == 0 and values[3] > 1.0
 
 
 def test_the_modes_command_labels_by_geometry_not_by_size(tmp_path, capsys):
     from skfem_modal.cli import main
 
-    assert main(["modes", "beam2d:length=4,height=1,nx=16,ny=4", "--lam", "1e11", "-k", "6",
+    assert main(["modes", "beam2d:length=4,height=1,nx=16,ny=4", "--lam", "1e8", "-k", "6",
                  "--out", str(tmp_path / "stiff.vtu")]) == 0  # fmt: skip
     rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.split()[-1:] == ["elastic"]]
     assert len(rows) == 3 and all(float(row[2]) > 0.2 for row in rows)  # frequencies, not 0
@@ -163,3 +164,30 @@ def test_many_identical_parts_repeat_their_frequencies_instead_of_stalling():
     np.testing.assert_allclose(modes.T @ (sm.mass_matrix(mesh) @ modes), np.eye(66), atol=1e-12)
     again, twice = sm.linear_modal_analysis(mesh, 60 + 6)
     np.testing.assert_array_equal(twice, modes)  # the repeated group's basis is fixed
+
+
+def test_a_material_that_nearly_keeps_its_volume_is_refused_where_round_off_would_take_its_modes():
+    """An audit: lam = 1e15 mu gave eigenvalues -2, -1, -0.5 (out of order, 'elastic' at 0 Hz), exit 0."""
+    beam = sm.beam2d(4.0, 0.5, 8, 2)
+    with pytest.raises(ValueError, match=r"lam must be at most 1e\+08 mu .* got 1e\+15 with mu 1 .*mixed"):
+        sm.linear_modal_analysis(beam, 6, mu=1.0, lam=1e15)
+    lam = [1.0] * (beam.t.shape[1] - 1) + [2e8]  # per element: named
+    with pytest.raises(
+        ValueError, match=r"got 2e\+08 with mu 1 \(Poisson's ratio 0\.4999999975\d*\) at elements \[31\]"
+    ):
+        sm.linear_modal_analysis(beam, 6, mu=1.0, lam=np.array(lam))
+    # up to the limit the lowest modes keep their values: they rise towards the locked limit, never fall
+    lowest = [sm.linear_modal_analysis(beam, 4, mu=1.0, lam=ratio)[0][3] for ratio in (1e4, 1e6, 1e8)]
+    assert 0.0 < lowest[0] <= lowest[1] <= lowest[2] and lowest[2] == pytest.approx(lowest[1], rel=1e-3)
+
+
+def test_a_sliver_element_that_passes_the_mesh_check_is_solved():
+    """An audit: a triangle 1e-12 high on a 0.125 edge stopped the banded Cholesky ("1460-th leading minor")."""
+    beam = sm.beam2d(10.0, 1.0, 80, 8)
+    top = np.flatnonzero(beam.p[1] == beam.p[1].max())
+    a, b = top[np.argsort(beam.p[0, top])][2:4]
+    apex = 0.5 * (beam.p[:, a] + beam.p[:, b]) + [0.0, 1e-12]
+    sliver = MeshTri(np.hstack([beam.p, apex[:, None]]), np.hstack([beam.t, [[a], [b], [beam.p.shape[1]]]]))
+    with_sliver, _ = sm.linear_modal_analysis(sliver, 6)
+    without, _ = sm.linear_modal_analysis(beam, 6)
+    np.testing.assert_allclose(with_sliver[3:], without[3:], rtol=1e-5)

@@ -292,6 +292,20 @@ def test_a_vertex_moved_across_its_neighbours_is_reported_with_the_tangled_eleme
         check_mesh(MeshTri(p, square.t))
 
 
+@pytest.mark.parametrize("scale", [1.0, 1e-55, 1e55])
+def test_a_tangled_mesh_is_found_at_any_size_it_may_have(scale):
+    """An audit: at 1e-54 across the product of two facets' volumes underflowed to 0 and the check passed."""
+    from skfem import MeshTet
+
+    cube = MeshTet.init_tensor(*(np.linspace(0.0, 1.0, 4),) * 3)
+    p = cube.p.copy()
+    p[0, np.flatnonzero(np.all((p > 0.1) & (p < 0.9), axis=0))[0]] += 0.7  # an inner vertex across its neighbours
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (at 1e55 the product overflowed, a warning)
+        assert tangled_elements(p * scale, cube.t).tolist() == tangled_elements(p, cube.t).tolist()
+    assert tangled_elements(p, cube.t).size == 18
+
+
 @needs_shared
 def test_a_tangled_real_tetrahedral_mesh_is_reported(tmp_path):
     seal = load_mesh(SHARED / "seal.mesh")
