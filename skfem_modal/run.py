@@ -31,7 +31,7 @@ from .export import FrameWriter, written_whole
 from .interrupts import HeldSignals
 from .mesh import mesh_summary
 from .monitor import MotionMonitor
-from .outputs import FRAMES_DIR, OutputError, clear_earlier_run
+from .outputs import FRAMES_DIR, OutputError, clear_earlier_run, made_folder, remove_if_empty
 from .scene import Scene
 from .sim import SimulationError, live_settings, simulate
 from .units import material_length_scales
@@ -442,8 +442,7 @@ class _RunFiles:
     """
 
     def __init__(self, out_dir: str, sim, every: int, monitor):
-        self._made_dir = not os.path.isdir(out_dir)  # removed again if the run cannot start
-        os.makedirs(out_dir, exist_ok=True)
+        self._made = made_folder(out_dir)  # removed again, with the parents it took, if the run cannot start
         self.out_dir, self.sim, self.every = out_dir, sim, every
         self.monitor = monitor  # the run's MotionMonitor: it counts the elements inside out in each frame
         self._last = None  # (step, z, a) of the last step written
@@ -463,8 +462,10 @@ class _RunFiles:
             )
             for f in self._files:
                 f.flush()
-        except OSError as err:
+        except BaseException as err:  # (a Ctrl-C here too: it left the folder the run had just made)
             self._remove_started()
+            if not isinstance(err, OSError):
+                raise
             raise OutputError(
                 f"could not write {err.filename or out_dir}: {err.strerror or err}; nothing was run"
             ) from None
@@ -476,9 +477,10 @@ class _RunFiles:
                 with contextlib.suppress(OSError):
                     handle.close()
         names = [os.path.join(self.out_dir, name) for name in ("frames.pvd", "com.csv", "amplitudes.csv")]
-        for path in names + [os.path.join(self.out_dir, FRAMES_DIR)] + ([self.out_dir] if self._made_dir else []):
+        for path in names + [os.path.join(self.out_dir, FRAMES_DIR)]:
             with contextlib.suppress(OSError):  # (a folder: only if empty)
                 os.rmdir(path) if os.path.isdir(path) else os.remove(path)
+        remove_if_empty(self.out_dir, self._made)
 
     def _failure(self, err: OSError, step: int, where: str) -> OutputError:
         """The error a failed write raises: the file, why, the step, and where the frames end."""

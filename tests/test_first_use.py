@@ -282,7 +282,7 @@ def test_version_and_defaults_in_help(capsys):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         helps[command] = " ".join(capsys.readouterr().out.split())
-    for shown in ("(default: P1)", "(default: lumped)", "ceilings (default: 2.0)"):
+    for shown in ("(default: P1)", "(default: lumped for P1, consistent for P2", "ceilings (default: 2.0)"):
         assert shown in helps["modes"]
     for shown in (
         "generations (default: 20)",
