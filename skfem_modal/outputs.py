@@ -32,6 +32,7 @@ __all__ = [
     "earlier_study",
     "earlier_search",
     "check_output_folder",
+    "check_writable",
     "check_output_file",
     "listed",
     "clear_earlier_run",
@@ -168,13 +169,28 @@ def check_output_file(path, option: str, suffix: str, example: str) -> None:
         raise ValueError(f"{option} {path}: {folder} is not a folder this user can write in") from None
 
 
-def _check_writable(directory: str, what: str = "the output folder") -> None:
-    """Raise PermissionError, naming the output folder, if a folder cannot be made where it is (or in it).
+def check_writable(directory, what: str = "the output folder", advice: str = "choose another output folder") -> None:
+    """Raise PermissionError, naming the folder, if a folder cannot be made where it is (or in it).
 
     Tried, not read off the permissions (root passes those, and /proc refuses all the
     same): an empty folder is made and removed. Found at the end, a search's output
     folder was refused after its precompute, the error naming only the path.
+
+    Parameters
+    ----------
+    directory : str or path-like
+        The folder (or where it would be made: the nearest folder of its path that exists is tried).
+    what : str
+        What the error calls it.
+    advice : str
+        What the error says to do.
+
+    Raises
+    ------
+    PermissionError
+        Nothing can be written there.
     """
+    directory = os.fspath(directory)
     existing = os.path.abspath(directory)
     while not os.path.exists(existing):
         existing = os.path.dirname(existing)
@@ -182,8 +198,7 @@ def _check_writable(directory: str, what: str = "the output folder") -> None:
         os.rmdir(tempfile.mkdtemp(prefix=".skfem_modal-", dir=existing))
     except OSError as err:
         raise PermissionError(
-            f"{what} {directory!r} cannot be written: {existing!r} refuses a new folder "
-            f"({err.strerror}); choose another output folder"
+            f"{what} {directory!r} cannot be written: {existing!r} refuses a new folder ({err.strerror}); {advice}"
         ) from None
 
 
@@ -272,7 +287,7 @@ def check_output_folder(directory, kind: str) -> list[str]:
         raise FileExistsError(
             f"the output folder {directory!r} {what} a file, not a folder: choose another output folder"
         )
-    _check_writable(directory)
+    check_writable(directory)
     frames = os.path.join(directory, FRAMES_DIR)
     if kind == "run" and os.path.exists(frames) and not os.path.isdir(frames):  # (a run writes its frames there)
         raise FileExistsError(
@@ -280,7 +295,7 @@ def check_output_folder(directory, kind: str) -> list[str]:
             "move it, or choose another output folder"
         )
     if kind == "run" and os.path.isdir(frames):  # before anything is removed or run: a frames/ made read-only
-        _check_writable(frames, "the output folder's frames")
+        check_writable(frames, "the output folder's frames")
     for other, earlier in _KINDS.items():
         others = earlier(directory) if other != kind else []
         if others:

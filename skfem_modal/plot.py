@@ -24,6 +24,7 @@ import numpy as np
 
 from .camera import ELEVATION, Camera, deformation, frame_windows, grid_spacing, up_vector
 from .export import pad3, written_whole
+from .outputs import check_writable
 
 __all__ = [
     "read_run",
@@ -832,6 +833,8 @@ def render_run(
     problems = render_problems(backend, fmt)
     if problems:
         raise ImportError("cannot render: " + "; ".join(problems))
+    # before reading every frame (a read-only run folder was found only at the first picture)
+    check_writable(run_dir, "the run folder", "copy the run to a folder that can be written and render it there")
     run = read_run(run_dir)
     if not run["frames"]:
         raise ValueError(f"{run_dir!r} holds no frames")

@@ -396,3 +396,23 @@ def test_a_disk_full_while_drawing_a_picture_leaves_none_of_it(run_copy, capsys,
     assert all(not name.startswith(".") for name in made)  # no hidden temporary file left
     for name in made:  # what was drawn before the disk filled is whole
         assert Image.open(run_copy / name).size[0] > 0
+
+
+def test_a_run_folder_that_refuses_pictures_is_named_before_any_frame_is_read(run_copy, capsys, monkeypatch):
+    """An audit: render read every frame of a run in a read-only folder, then failed at its first picture."""
+    import tempfile
+
+    read = []
+    monkeypatch.setattr(plot, "_read_frame", lambda *args: read.append(args))
+
+    def refused(*args, dir=None, **kwargs):
+        raise PermissionError(30, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refused)
+    assert main(["render", str(run_copy), "--backend", "matplotlib", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"skfem-modal render: error: the run folder {str(run_copy)!r} cannot be written: {str(run_copy)!r} refuses "
+        "a new folder (Read-only file system); copy the run to a folder that can be written and render it there\n"
+    )
+    assert read == []
