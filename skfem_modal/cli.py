@@ -642,6 +642,15 @@ def cmd_optimize(args) -> int:
         print(_next_command(args.argv, stop.generations), file=sys.stderr)
         return EXIT_INTERRUPTED if isinstance(stop, SearchInterrupted) else EXIT_WORKERS_LOST
     best = result["best"]
+    if best["physical"] == 0.0:  # (said even with --quiet, as an error is)
+        print(
+            f"skfem-modal optimize: no gait moved the body physically: every one of the {result['rollouts']} rollouts, "
+            "the start gait's included, went non-finite or tore the body apart (the motion monitor's rules); "
+            f"{result['best_scene']} holds the start gait, which failed too: give the scene a gait that runs, "
+            "or search smaller amplitudes (--amplitude-max)",
+            file=sys.stderr,
+        )
+        return EXIT_NUMERICAL
     if result["converged"]:
         say(
             f"converged after {result['generations']} of {args.generations} generations: CMA-ES's steps fell below "
@@ -683,10 +692,16 @@ def cmd_transfer(args) -> int:
         )
         print("|---|---|---|---|---|---|---|---|---|---|")
         for r in result["rows"]:
+            survives = f"{r['survives']:.2f}" if r.get("physical", True) else "not physical"
             print(
                 f"| {r['setting']} | {r['elements']} | {r['coordinates']} | {r['clusters']} | "
-                f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {r['survives']:.2f} | "
+                f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {survives} | "
                 f"{r['alignment']:.3f} | {r['max_tilt_degrees']:.1f} | {r['seconds']:.1f} |"
+            )
+        if not result["rows"][0].get("physical", True):
+            print(
+                "the searched gait's own replay is not physical (a body torn apart, or gone non-finite): what "
+                "survives of its travel says nothing of the gait"
             )
         for sentence in result["not_replayed"]:
             print(f"{sentence} (--full-space-limit)")

@@ -26,7 +26,14 @@ import time
 #: The exit code of a command stopped by Ctrl-C (128 + SIGINT), or SIGTERM, as shells give.
 EXIT_INTERRUPTED = 130
 
-__all__ = ["Terminated", "terminate_as_interrupt", "HeldSignals", "QuietSpawnContext", "exit_with_parent"]
+__all__ = [
+    "Terminated",
+    "terminate_as_interrupt",
+    "signals_ignored",
+    "HeldSignals",
+    "QuietSpawnContext",
+    "exit_with_parent",
+]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -58,6 +65,24 @@ def terminate_as_interrupt():
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def signals_ignored():
+    """Within: SIGINT and SIGTERM change nothing (in the main thread; elsewhere nothing changes).
+
+    For the bookkeeping of a command already stopping on one: a second Ctrl-C while a stopped
+    search drew its plot and said how to resume lost both (an audit).
+    """
+    if not _in_main_thread():
+        yield
+        return
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in _SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 class HeldSignals:

@@ -40,6 +40,7 @@ import contextlib
 import csv
 import hashlib
 import json
+import math
 import os
 import pickle
 import re
@@ -50,11 +51,12 @@ import numpy as np
 
 from .checks import _nonnegative, _positive_scalar
 from .export import written_whole
+from .interrupts import signals_ignored
 from .monitor import CeilingWarning
 from .outputs import SEARCH_FILES, TRANSFER_FILE, check_output_folder, listed, made_folder, remove_if_empty
 from .rollouts import OBJECTIVES, Rollouts, Trial, rollout_steps, unit_direction
 from .run import Progress
-from .study import WorkersLost, checked_executor
+from .study import WorkersLost, checked_executor, checked_workers
 from .threads import checked_thread_count
 from .values import is_whole
 
@@ -411,6 +413,26 @@ def scene_fingerprint(scene) -> dict:
     return {**config, "contents": contents}
 
 
+#: A checkpoint's settings as a search is given them: run_search's argument and the command's option
+_GIVEN_AS = {
+    key: f"{key} (--{key.replace('_', '-')})"
+    for key in ("seed", "popsize", "samples", "jitter", "sigma0", "steps", "direction", "objective", "tip_weight")
+}
+
+
+def _as_given(key: str, then, now) -> list[tuple[str, object, object]]:
+    """A changed checkpoint setting as the user gives it: ``(name, then, now)`` rows (the tipping limit in
+    degrees, the search box by its own options; they were named by their inner form, radians and a list)."""
+    if key == "tip_limit" and then is not None:
+        return [("tip_limit_degrees (--tip-limit)", round(math.degrees(then), 9), round(math.degrees(now), 9))]
+    if key == "space" and then is not None:
+        rows = [("amplitude_max (--amplitude-max)", then[0], now[0])] if then[0] != now[0] else []
+        if then[1:] != now[1:]:
+            rows.append(("period range (--period-range)", list(then[1:]), list(now[1:])))
+        return rows
+    return [(_GIVEN_AS.get(key, key), then, now)]
+
+
 def _load_checkpoint(path: str, settings: dict, data: dict | None = None) -> dict:
     """A checkpoint's state, after checking it was made with these settings (and the scene ``data``, its
     :func:`scene_fingerprint`).
@@ -428,7 +450,10 @@ def _load_checkpoint(path: str, settings: dict, data: dict | None = None) -> dic
         said = [f"scene key {key}: {then!r} then, {now!r} now" for key, then, now in scene]
         if not scene:  # renamed: the same search, under its new name from here on
             made["scene"], state["scene_data"] = settings["scene"], data
-    said += [f"{key}: {made.get(key)!r} then, {settings[key]!r} now" for key in changed]
+    for key in changed:
+        said += [
+            f"{name}: {then!r} then, {now!r} now" for name, then, now in _as_given(key, made.get(key), settings[key])
+        ]
     if said:
         raise ValueError(f"the checkpoint in {os.path.dirname(path)} was made with other settings ({'; '.join(said)})")
     return state
@@ -521,7 +546,8 @@ def run_search(
     result : dict
         ``best`` (``gait``, ``fitness``, ``travel``, ``alignment``,
         ``max_tilt_degrees``: the gait's own rollout; ``travel_spread``, the
-        standard deviation over its samples; ``generation``), ``history``
+        standard deviation over its samples; ``physical``, the share of its samples
+        whose motion was physical; ``generation``), ``history``
         (rows), ``generations`` done (fewer than asked when ``converged``: CMA-ES's steps fell below
         1e-11 of the search box, its candidates one gait), ``rollouts`` and ``seconds`` (over the
         whole search, resumed parts included), ``precompute_seconds`` (this
@@ -545,6 +571,7 @@ def run_search(
     data, scene, space = _checked_scene(data, base_dir, space)
     _check_search(generations, popsize, sigma0, seed, stop_after, samples, jitter, blas_threads)
     executor = checked_executor(executor)
+    workers = checked_workers(workers)
     trial_settings = _trial_settings(scene, steps, direction, objective, tip_limit_degrees, tip_weight)
     fingerprint = scene_fingerprint(scene)
     if resume and overwrite:
@@ -581,9 +608,10 @@ def run_search(
                 bar.update()
         bar.close()
         # (within the try: a stop while it draws says, as any other, what the checkpoint holds)
-        _write_plot(paths["plot"], state["history"], objective)
+        _write_plot(paths["plot"], state, objective)
     except KeyboardInterrupt:
-        done, kept = _stop(bar, out_dir, paths, data, objective, replacing, made)
+        with signals_ignored():  # stopping already: a second Ctrl-C must not cut the plot and the resume's record
+            done, kept = _stop(bar, out_dir, paths, data, objective, replacing, made)
         raise SearchInterrupted(done, generations, out_dir, kept) from None
     except WorkersLost as lost:
         done, kept = _stop(bar, out_dir, paths, data, objective, replacing, made)
@@ -785,7 +813,7 @@ def _restore(paths: dict, data: dict, objective: str) -> int:
         return 0
     state = read_checkpoint(paths["checkpoint"])
     _write_outputs(paths, data, state)
-    _write_plot(paths["plot"], state["history"], objective)
+    _write_plot(paths["plot"], state, objective)
     return state["generation"]
 
 
@@ -800,6 +828,7 @@ def _result(state: dict, paths: dict, precompute: float) -> dict:
             "alignment": overall["best_alignment"],
             "max_tilt_degrees": overall["best_max_tilt_degrees"],
             "travel_spread": overall["best_travel_spread"],
+            "physical": overall.get("best_physical", math.nan),
             "generation": overall["generation"],
         },
         "history": state["history"],
@@ -853,6 +882,7 @@ def _row(generation: int, gaits: list, groups: list, fitness: list) -> dict:
         "best_alignment": own["alignment"],
         "best_max_tilt_degrees": float(np.degrees(own["max_tilt"])),
         "best_travel_spread": float(np.std([r["travel"] for r in groups[best]])),
+        "best_physical": float(np.mean([r["physical"] for r in groups[best]])),
         "mean_fitness": float(np.mean(fitness)),
         "gait": gaits[best],
         "workers": sorted({r["pid"] for r in flat}),
@@ -940,6 +970,7 @@ HISTORY_COLUMNS = (
     "best_alignment",
     "best_max_tilt_degrees",
     "best_travel_spread",
+    "best_physical",
     "mean_fitness",
     "sigma",
     "seconds",
@@ -956,7 +987,9 @@ def _write_outputs(paths: dict, data: dict, state: dict) -> None:
         writer.writerow(HISTORY_COLUMNS)
         for h in history:
             writer.writerow(
-                [h["generation"]] + [repr(float(h[c])) for c in HISTORY_COLUMNS[1:-1]] + [json.dumps(h["gait"])]
+                [h["generation"]]
+                + [repr(float(h.get(c, math.nan))) for c in HISTORY_COLUMNS[1:-1]]  # (an older checkpoint's rows)
+                + [json.dumps(h["gait"])]
             )
 
     _write_atomic(paths["history_csv"], table, "w")
@@ -977,8 +1010,10 @@ def _write_outputs(paths: dict, data: dict, state: dict) -> None:
     _write_atomic(paths["best_scene"], lambda f: f.write(scene_to_toml(best)), "w")
 
 
-def _write_plot(path: str, history: list, objective: str) -> None:
-    """fitness.png: the best and mean fitness of each generation, and the best so far (needs matplotlib)."""
+def _write_plot(path: str, state: dict, objective: str) -> None:
+    """fitness.png: the best and mean fitness of each generation, and the best so far, the gait the search
+    started from counted (it is what the search returns when nothing beats it); needs matplotlib."""
+    history = state["history"]
     if not history:
         return
     try:
@@ -993,7 +1028,11 @@ def _write_plot(path: str, history: list, objective: str) -> None:
     best = [h["best_fitness"] for h in history]
     ax.plot(g, best, ".-", label="best of the generation")
     ax.plot(g, [h["mean_fitness"] for h in history], "--", lw=1, label="mean of the generation")
-    ax.plot(g, np.maximum.accumulate(best), "k-", lw=1.5, label="best so far")
+    start = state.get("start")  # (a checkpoint of an earlier version has none)
+    so_far = np.maximum.accumulate([start["best_fitness"]] + best if start else best)
+    ax.plot([0] + g if start else g, so_far, "k-", lw=1.5, label="best so far")
+    if start:
+        ax.plot([0], [start["best_fitness"]], "ko", ms=4, label="the gait it started from")
     ax.set_xlabel("generation")
     ax.set_ylabel("fitness")
     said = "travel x alignment" if objective == "aligned" else "travel"
@@ -1001,6 +1040,8 @@ def _write_plot(path: str, history: list, objective: str) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with written_whole(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    try:
+        with written_whole(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)

@@ -29,8 +29,10 @@ A rollout that goes non-finite scores ``-1000 size``.
 
 Workers. :class:`Rollouts` runs the gaits of one trial on an executor and
 sends the trial's precompute (the pickled simulator: the backends are
-rebuilt on arrival) once to each worker: the local process pool gets it
-through its initializer, a dask cluster as one scattered object, the
+rebuilt on arrival) once to each worker: the local process pool's
+initializer reads it from a temporary file (removed when the pool closes;
+not sent as the start-up arguments, which a worker dying before reading
+them left the search waiting on for good), a dask cluster as one scattered object, the
 pickled bytes (every worker holds one copy; the first task a worker runs
 unpickles it, the others find it unpickled: scattered as a simulator, a
 task racing the broadcast had it unpickled twice). Any other executor gets
@@ -42,13 +44,16 @@ workers ignore SIGINT, so Ctrl-C reaches the search alone, which stops them.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import signal
+import tempfile
 import threading
 import time
 import uuid
 import warnings
+import weakref
 from contextlib import contextmanager
 
 import numpy as np
@@ -124,8 +129,11 @@ def unit_direction(direction, dim: int) -> np.ndarray:
         vector = np.eye(dim)[0] if direction is None else np.asarray(direction, dtype=float)
     except (TypeError, ValueError):
         vector = None
-    if vector is None or vector.shape != (dim,) or not np.all(np.isfinite(vector)) or not np.linalg.norm(vector) > 0:
+    if vector is None or vector.shape != (dim,) or not np.all(np.isfinite(vector)) or not np.any(vector):
         raise ValueError(f"direction must be a non-zero, finite vector of {dim} values, got {direction!r}")
+    biggest = float(np.abs(vector).max())
+    if not 1e-150 < biggest < 1e150:  # its norm would overflow (1e308, 1e308) or underflow (1e-320, 0): scaled first
+        vector = vector / biggest
     return vector / np.linalg.norm(vector)
 
 
@@ -381,8 +389,9 @@ def _task_blas_limit(task: dict):
                 _TASK_LIMIT.pop().__exit__(None, None, None)
 
 
-def _install(key: str, payload: bytes, blas_threads) -> None:
-    """Pool initializer: keep the trial sent, one BLAS thread, leave Ctrl-C to the parent, no warnings.
+def _install(key: str, payload_path: str, blas_threads) -> None:
+    """Pool initializer: keep the trial (read from the file the parent wrote), one BLAS thread, leave Ctrl-C
+    to the parent, no warnings.
 
     A gait that diverges would warn of overflows from each worker, raw; its
     score (-1000 sizes) says it already.
@@ -391,7 +400,26 @@ def _install(key: str, payload: bytes, blas_threads) -> None:
     warnings.simplefilter("ignore")
     exit_with_parent()
     _limit_blas(blas_threads)
-    _TRIALS[key] = pickle.loads(payload)
+    with open(payload_path, "rb") as f:
+        _TRIALS[key] = pickle.load(f)
+
+
+def _remove_quietly(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.remove(path)
+
+
+def _payload_file(trial) -> str:
+    """The pickled trial in a temporary file of its own, for the pool's workers to read as they start.
+
+    Not the pool's start-up arguments: those go down a pipe to each new process, which the parent
+    writes while it holds the pipe's other end (CPython's spawn), so a worker that died before
+    reading them (the seal's 46 MB) left the search blocked on the write for good, Ctrl-C held.
+    """
+    handle, path = tempfile.mkstemp(prefix="skfem_modal-trial-", suffix=".pickle")
+    with os.fdopen(handle, "wb") as f:
+        pickle.dump(trial, f, protocol=pickle.HIGHEST_PROTOCOL)
+    return path
 
 
 def rollout(task: dict) -> dict:
@@ -453,6 +481,7 @@ class Rollouts:
     def __init__(self, trial, *, workers=1, scheduler=None, executor=None, recipe=None, blas_threads=1):
         clock = time.perf_counter()
         self._close, self._scattered, self._payload, self._lost_payloads = None, None, None, 0
+        self._remove_payload = None
         self.blas_threads = checked_thread_count(blas_threads)
         executor = checked_executor(executor)
         client = dask_client(executor)
@@ -470,12 +499,13 @@ class Rollouts:
             self._scattered = client.scatter(self._payload, broadcast=True, hash=False)
         else:
             self.handle = uuid.uuid4().hex
-            payload = pickle.dumps(trial, protocol=pickle.HIGHEST_PROTOCOL)
+            path = _payload_file(trial)
+            self._remove_payload = weakref.finalize(self, _remove_quietly, path)  # at close, or at exit
             self.executor, self._close = make_executor(
                 workers,
                 None,
                 initializer=_install,
-                initargs=(self.handle, payload, self.blas_threads),
+                initargs=(self.handle, path, self.blas_threads),
                 quiet_interrupts=True,
             )
         self.startup_seconds = time.perf_counter() - clock
@@ -551,6 +581,8 @@ class Rollouts:
         if self._close is not None:
             close, self._close = self._close, None
             close(cancel)
+        if self._remove_payload is not None:  # (the pool's workers have read it, or are gone)
+            self._remove_payload()
 
     def __enter__(self):
         return self

@@ -66,6 +66,7 @@ __all__ = [
     "checked_executor",
     "WorkersLost",
     "lost_workers",
+    "checked_workers",
     "dask_client",
     "run_study",
 ]
@@ -276,7 +277,7 @@ def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
     -------
     reference : dict
         ``x`` (steps + 1, n * dim) positions, ``seconds_per_step``, ``iterations`` mean,
-        ``vertices``, ``max_iterations``; ``unsettled_steps``: the steps that used every
+        ``vertices``, ``max_iterations``, ``steps``; ``unsettled_steps``: the steps that used every
         iteration without meeting the stopping rule, and ``unsettled_change`` the largest
         last change of one of them, relative to the body's size (0 when every step settled).
     """
@@ -301,6 +302,7 @@ def run_reference(data: dict, base_dir: str | None, steps: int) -> dict:
         "iterations": float(np.mean(its)),
         "vertices": int(scene.mesh.p.shape[1]),
         "max_iterations": int(ref.max_iter),
+        "steps": int(steps),
         "unsettled_steps": int(np.count_nonzero(capped)),
         "unsettled_change": float(max(np.asarray(residuals)[capped], default=0.0)) / size,
     }
@@ -734,6 +736,13 @@ def make_executor(
     close : callable
         ``close(cancel=False)`` shuts down what was started (``cancel``:
         no task is waited for: the local pool's running ones are stopped).
+
+    Raises
+    ------
+    ValueError
+        No dask scheduler answers at ``scheduler`` (or dask is not installed).
+    WorkersLost
+        The scheduler has no worker, and none joins within :data:`WORKERS_JOIN_SECONDS`.
     """
     if scheduler:
         try:
@@ -744,6 +753,14 @@ def make_executor(
             client = Client(scheduler, timeout="20s")
         except (OSError, ValueError, TypeError) as err:  # no port, no such host, nothing answering
             raise ValueError(f"--scheduler {scheduler}: no dask scheduler answers there ({err})") from None
+        try:  # (without workers a search failed with dask's raw "No valid workers found", a study waited silently)
+            client.wait_for_workers(1, timeout=WORKERS_JOIN_SECONDS)
+        except TimeoutError:
+            client.close()
+            raise WorkersLost(
+                f"--scheduler {scheduler}: the dask scheduler has no workers (none joined in "
+                f"{WORKERS_JOIN_SECONDS:g} s): start some (dask worker {scheduler})"
+            ) from None
 
         # A lost scheduler makes the client's sender log its closed connection,
         # traceback and all, at INFO level; the search names the loss itself.
@@ -804,9 +821,38 @@ def make_executor(
 
 _ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
+#: How long a dask scheduler may take to have a worker, at most, before the work is refused
+WORKERS_JOIN_SECONDS = 30.0
+
 
 class WorkersLost(RuntimeError):
     """An executor lost its workers (a process killed, the dask scheduler gone): the tasks they had are lost."""
+
+
+def checked_workers(workers) -> int:
+    """The number of local worker processes, checked: a whole number of at least 1.
+
+    Checked before any work (0 was numpy's "max_workers must be greater than 0" after the precompute,
+    2.5 a TypeError from the pool, True taken as 1).
+
+    Parameters
+    ----------
+    workers : int
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    TypeError, ValueError
+        Not a whole number (bools included), or below 1.
+    """
+    if not is_whole(workers):
+        raise TypeError(f"workers must be a whole number of processes, got {workers!r}")
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    return int(workers)
 
 
 def checked_executor(executor):
@@ -981,6 +1027,7 @@ def run_study(
     cfg = PRESETS[preset]
     out_dir = os.fspath(out_dir)
     executor = checked_executor(executor)  # (after the earlier study was removed, it lost that study)
+    workers = checked_workers(workers)
     clear_earlier_study(out_dir, overwrite, how=how)
     left_out = _left_out(scene.config["ground"], mesh_file=bool(data.get("mesh", {}).get("file")))
     say = print if progress else (lambda *a, **k: None)
@@ -1136,7 +1183,11 @@ def _unsettled(references: dict, contact_model: str | None) -> str | None:
     worst = max(references.values(), key=lambda ref: ref["unsettled_change"])
     if not worst["unsettled_steps"]:
         return None
-    steps = sum(ref["unsettled_steps"] for ref in references.values())
+    # each resolution's reference has its own steps (the errors are measured against one of them)
+    runs = [(f, ref) for f, ref in sorted(references.items(), reverse=True) if ref["unsettled_steps"]]
+    steps = ", ".join(
+        f"{ref['unsettled_steps']} of its {ref['steps']} steps at resolution {float(f):g}" for f, ref in runs
+    )
     if contact_model == "reference":
         why = (
             "The reference contact model can do this: each iterate picks the points it holds, and the "
@@ -1148,7 +1199,7 @@ def _unsettled(references: dict, contact_model: str | None) -> str | None:
             "a smaller step (time.step) settles sooner."
         )
     return (
-        f"The full-space reference did not settle in {steps} steps: they stopped at {worst['max_iterations']} "
+        f"The full-space reference did not settle in {steps}: they stopped at {worst['max_iterations']} "
         f"iterations with a last change of up to {100 * worst['unsettled_change']:.2g} % of the body's size, so it "
         f"is itself off by about that much and errors near it say little. ({why})"
     )

@@ -104,7 +104,9 @@ def replay(
         Per setting: ``setting``, ``space`` (reduced or full), ``elements``,
         ``coordinates``, ``clusters``, ``iterations`` (at most, a step),
         ``mean_iterations``, ``travel``, ``alignment``, ``max_tilt_degrees``,
-        ``fitness``, ``survives`` (travel over the size of the first row's: module docs) and ``seconds``.
+        ``fitness``, ``physical`` (whether the replay's motion was: a travel that is not, of a body torn
+        apart or gone non-finite, says nothing of the gait), ``survives`` (travel over the size of the
+        first row's: module docs) and ``seconds``.
     """
     from .scene import Scene
     from .study import resolution_scene
@@ -155,6 +157,7 @@ def replay(
                 "alignment": score["alignment"],
                 "max_tilt_degrees": float(np.degrees(score["max_tilt"])),
                 "fitness": score["fitness"],
+                "physical": bool(score["physical"]),
                 "seconds": time.perf_counter() - clock,
             }
         )
@@ -177,6 +180,7 @@ COLUMNS = (
     "alignment",
     "max_tilt_degrees",
     "fitness",
+    "physical",
     "seconds",
 )
 

@@ -1,5 +1,7 @@
 """Every public entry point checks its input first and names the problem."""
 
+import warnings
+
 import numpy as np
 import pytest
 from skfem import MeshTri
@@ -354,6 +356,12 @@ def test_internal_readers_name_a_wrong_input():
 
     with pytest.raises(ValueError, match="dim must be 2 or 3, the scene's dimension, got True"):
         unit_direction(None, True)
+    # any non-zero finite vector (an audit: 1e308s overflowed to [0, 0] and were refused, 1e-320 was "zero")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(unit_direction([1e308, 1e308], 2), unit_direction([1.0, 1.0], 2))
+        np.testing.assert_array_equal(unit_direction([1e-320, 0.0, 0.0], 3), [1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(unit_direction([3.0, 4.0], 2), [3.0 / 5.0, 4.0 / 5.0])  # (as before: unscaled)
     beam = sm.mesh.beam2d(nx=4, ny=1)
     with pytest.raises(ValueError, match="mu must be positive, got -1.0"):
         stiffness_scale(beam, mu=-1.0)

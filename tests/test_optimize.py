@@ -163,10 +163,19 @@ def test_an_existing_search_is_never_replaced_silently(local, tmp_path):
         search(tmp_path, workers=1)
     assert open(tmp_path / "checkpoint.pkl", "rb").read() == before
     # settings that would change the search are refused by name
-    with pytest.raises(ValueError, match="popsize: 4 then, 5 now"):
+    with pytest.raises(ValueError, match=r"popsize \(--popsize\): 4 then, 5 now"):
         run_search(TINY, tmp_path, generations=2, popsize=5, seed=3, steps=60, resume=True)
     with pytest.raises(ValueError, match="objective"):
         search(tmp_path, resume=True, objective="aligned")
+    # as given, not as kept (radians, a list of the box's bounds; an audit)
+    with pytest.raises(ValueError, match=r"tip_limit_degrees \(--tip-limit\): 60\.0 then, 50\.0 now\)"):
+        search(tmp_path, resume=True, tip_limit_degrees=50.0)
+    box = GaitSpace(4, amplitude_max=0.5)
+    with pytest.raises(ValueError, match=r"\(amplitude_max \(--amplitude-max\): 1\.0 then, 0\.5 now\)"):
+        search(tmp_path, resume=True, space=box)
+    box = GaitSpace(4, period_min=0.4)
+    with pytest.raises(ValueError, match=r"\(period range \(--period-range\): \[0\.3, 2\.0\] then, \[0\.4, 2\.0\] now"):
+        search(tmp_path, resume=True, space=box)
     # a scene key changed is named (it said two hashes); its name alone may change
     stepped = copy.deepcopy(TINY)
     stepped["time"] = {**stepped.get("time", {}), "step": 0.02}
@@ -298,7 +307,7 @@ def test_samples_average_jittered_copies(tmp_path):
     assert best["fitness"] != pytest.approx(best["travel"], rel=1e-12)
     again = search(tmp_path / "b", workers=1, samples=3, jitter=0.02)
     assert again["best"] == best
-    with pytest.raises(ValueError, match="samples: 3 then, 2 now"):
+    with pytest.raises(ValueError, match=r"samples \(--samples\): 3 then, 2 now"):
         search(tmp_path / "a", workers=1, samples=2, jitter=0.02, resume=True)
     with pytest.raises(ValueError, match="samples must be a positive integer"):
         search(tmp_path / "c", samples=0)
@@ -596,3 +605,27 @@ def test_rollouts_name_gaits_that_are_no_list_of_gaits():
                 rollouts.map(bad)
         (score,) = rollouts.map([TINY["muscles"]["gait"]])
     assert score["finite"] and np.isfinite(score["travel"])
+
+
+def test_a_local_pool_reads_the_trial_from_a_file_not_its_start_up_pipe(monkeypatch):
+    """An audit: the pickled simulator went to each new worker down its start-up pipe, which the search writes
+    while holding the other end: a worker killed as it started left the search blocked there, Ctrl-C held."""
+    import skfem_modal.rollouts as rollouts_module
+    from skfem_modal.rollouts import Rollouts
+
+    made = []
+    real = rollouts_module.make_executor
+
+    def seen(*args, **kwargs):
+        made.append(kwargs["initargs"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rollouts_module, "make_executor", seen)
+    trial = Trial.from_scene(TINY, steps=5, direction=[1.0, 0.0])
+    with Rollouts(trial, workers=1) as rollouts:
+        (initargs,) = made
+        assert len(pickle.dumps(initargs)) < 4096  # far below a pipe's 64 kB: the write cannot wait on the worker
+        path = initargs[1]
+        assert os.path.getsize(path) > 100_000  # the simulator is there
+        (score,) = rollouts.map([TINY["muscles"]["gait"]])
+    assert score["finite"] and not os.path.exists(path)  # removed with the pool

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 import tomllib
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
@@ -214,6 +215,25 @@ def test_ctrl_c_while_the_last_generation_is_drawn_says_what_the_checkpoint_hold
         search(tmp_path, workers=1)
     assert stop.value.generations == 2 and "2 of 2" in str(stop.value)
     assert len(calls) == 2 and (tmp_path / "fitness.png").exists()  # drawn again from the checkpoint
+
+
+def test_a_second_ctrl_c_while_a_search_stops_changes_nothing(tmp_path, monkeypatch):
+    """An audit: a second Ctrl-C 0.05 s after the first lost fitness.png and the lines saying how to resume."""
+    draw = optimize._write_plot
+    calls = []
+
+    def interrupted_twice(*args):
+        calls.append(args)
+        if len(calls) == 1:
+            raise KeyboardInterrupt  # the first: as the last generation is drawn
+        signal.raise_signal(signal.SIGINT)  # the second: while the stop draws it again
+        draw(*args)
+
+    monkeypatch.setattr(optimize, "_write_plot", interrupted_twice)
+    with pytest.raises(SearchInterrupted) as stop:
+        search(tmp_path, workers=1)
+    assert stop.value.generations == 2 and (tmp_path / "fitness.png").exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
 
 
 def test_ctrl_c_before_the_first_checkpoint_of_an_overwrite_keeps_the_earlier_search(tmp_path, monkeypatch):
@@ -932,3 +952,90 @@ def test_a_stop_during_the_precompute_says_what_there_is_to_resume(tmp_path, mon
     with pytest.raises(optimize.SearchInterrupted, match="nothing was checkpointed in .*: there is nothing to resume"):
         search(tmp_path / "s", workers=1)
     assert not (tmp_path / "s").exists()
+
+
+def test_a_search_none_of_whose_gaits_move_physically_says_so_and_fails(tmp_path, capsys, monkeypatch):
+    """An audit: every rollout non-finite, the search said "best: travel nan (fitness -2000) in the gait it
+    started from" and exited 0; transfer then showed unphysical replays as "survives 8.00"."""
+    data = copy.deepcopy(TINY)
+    data["muscles"]["gait"]["amplitude"] = [1e299] * 4
+    scene = tmp_path / "blows_up.toml"
+    scene.write_text(scene_to_toml(data))
+    out = tmp_path / "search"
+    argv = ["optimize", str(scene), "--generations", "1", "--amplitude-max", "1e300", "--out", str(out), *QUICK]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the amplitude's own warning)
+        assert main(argv) == 3
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == (
+        "skfem-modal optimize: no gait moved the body physically: every one of the 3 rollouts, the start gait's "
+        f"included, went non-finite or tore the body apart (the motion monitor's rules); {out / 'best_gait.toml'} "
+        "holds the start gait, which failed too: give the scene a gait that runs, or search smaller amplitudes "
+        "(--amplitude-max)"
+    )
+    with open(out / "history.csv") as f:
+        (row,) = list(csv.DictReader(f))
+    assert float(row["best_physical"]) == 0.0 and float(row["best_fitness"]) < -100
+    # transfer: a replay that is not physical shows no survival figure
+    import skfem_modal.transfer as transfer
+
+    rows = [
+        {"setting": label, "elements": 1, "coordinates": 2, "clusters": 3, "iterations": 10, "mean_iterations": 9.0,
+         "travel": travel, "survives": travel / 0.7, "alignment": 0.0, "max_tilt_degrees": 1.0, "seconds": 0.1,
+         "physical": physical}
+        for label, travel, physical in (("as searched", 0.7, False), ("full space", 5.6, False))
+    ]  # fmt: skip
+    replayed = {"rows": rows, "not_replayed": [], "csv": "transfer.csv", "unfinished": None}
+    monkeypatch.setattr(transfer, "transfer_search", lambda *args, **kwargs: replayed)
+    assert main(["transfer", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| 5.6 | not physical |" in printed and "8.00" not in printed
+    assert "the searched gait's own replay is not physical" in printed
+
+
+def test_the_fitness_plot_counts_the_gait_the_search_started_from(tmp_path, monkeypatch):
+    """An audit: the search returned its start gait (fitness 0.078) while the plot's best so far read -0.322."""
+    import matplotlib.axes
+
+    drawn = {}
+    real = matplotlib.axes.Axes.plot
+
+    def seen(self, *args, **kwargs):
+        drawn[kwargs.get("label")] = list(args[1])
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", seen)
+    rows = [{"generation": g, "best_fitness": f, "mean_fitness": f - 1.0} for g, f in ((1, -0.322), (2, -0.031))]
+    state = {"history": rows, "start": {"generation": 0, "best_fitness": 0.078}}
+    optimize._write_plot(str(tmp_path / "fitness.png"), state, "travel")
+    assert drawn["best so far"] == [0.078, 0.078, 0.078] and drawn["the gait it started from"] == [0.078]
+    assert (tmp_path / "fitness.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("workers, error", [(0, ValueError), (2.5, TypeError), ("2", TypeError), (True, TypeError)])
+def test_workers_are_checked_before_the_search_or_the_study_says_or_does_anything(tmp_path, workers, error):
+    """An audit: 0 was refused by the pool after the precompute, 2.5 and "2" by Python's own messages, True ran."""
+
+    def announced():
+        raise AssertionError("announced before its settings were checked")
+
+    with pytest.raises(error, match="workers must be"):
+        run_search(TINY, tmp_path / "search", generations=1, popsize=2, workers=workers, announce=announced)
+    with pytest.raises(error, match="workers must be"):
+        study.run_study(TINY, tmp_path / "study", workers=workers)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["study", "optimize"])
+def test_a_scheduler_without_workers_is_named_and_leaves_no_folder(command, tmp_path, capsys, monkeypatch):
+    """An audit: a search said dask's raw "No valid workers found" (exit 2), a study waited for ever, silent."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is in the distributed extra")
+    monkeypatch.setattr(study, "WORKERS_JOIN_SECONDS", 1.0)
+    out = tmp_path / "out"
+    extra = ["--quick"] if command == "study" else ["--generations", "1", "--popsize", "3"]
+    with distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        address = cluster.scheduler_address
+        assert main([command, *extra, "--scheduler", address, "--out", str(out), "-q"]) == 4
+    err = capsys.readouterr().err
+    assert f"--scheduler {address}: the dask scheduler has no workers (none joined in 1 s)" in err
+    assert not out.exists()

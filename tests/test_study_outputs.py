@@ -88,7 +88,9 @@ def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extr
     said = "The full-space reference did not settle in"
     if "warm_start" in left_out:
         assert unsettled == 10 and meta["references"]["1.0"]["unsettled_change"] > 0.01
-        assert report["recommendation"][0].startswith(f"{said} 10 steps: they stopped at 5000 iterations")
+        # each resolution's own steps (the two had been added up: "112 steps" of a study of 100; an audit)
+        assert report["recommendation"][0].startswith(f"{said} 10 of its 10 steps at resolution 1")
+        assert ": they stopped at 5000 iterations" in report["recommendation"][0]
         assert "10 steps did not settle (stopped at 5000 iterations" in text
     else:
         assert unsettled == 0 and not any(said in line for line in report["recommendation"])
