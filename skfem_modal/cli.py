@@ -3,7 +3,8 @@
 Exit codes: 0 success; 2 bad input (usage, a mesh or scene error, a missing
 file, an output folder holding an earlier run, a missing extra); 3 numerical
 failure (a simulation that went non-finite, a modal analysis whose eigen solve
-stalled or lost its precision); 4 the workers were lost (a
+stalled or lost its precision, a gait search none of whose gaits moved
+physically); 4 the workers were lost (a
 worker process killed, the dask scheduler gone: a search keeps its
 checkpoint and says how to resume); 5 outputs could not be written (a
 run's as it went: the message names the file and the step; any command's
