@@ -835,6 +835,8 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         if ncorner is None:
             continue
         data = np.asarray(block.data)
+        if not data.size:  # (an empty section, as Medit's "Tetrahedra 0", made a 2D file 3D)
+            continue
         blocks.setdefault(kind, []).append(data[:, :ncorner])
         midside.append(data[:, ncorner:].ravel())
     if blocks:
@@ -850,8 +852,10 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         cells = np.vstack(blocks["tetra"])
     elif "triangle" in blocks:
         cells = np.vstack(blocks["triangle"])
-        if points.shape[1] == 3:
-            points = _planar_points(path, points)
+        if points.shape[1] == 3 and cells.min() >= 0 and cells.max() < len(points):
+            # judged on the vertices the triangles use: the others are dropped below (a stray vertex off
+            # the plane made a flat mesh "not in a plane", a NaN one "non-finite")
+            points = _planar_points(path, points, np.unique(cells))
     else:
         found = sorted({b.type for b in raw.cells}) or ["none"]
         raise MeshError(
@@ -1312,15 +1316,22 @@ def _refuse_non_finite(what: str, p: np.ndarray) -> None:
         raise MeshError(f"{what}: {bad.size} vertices have non-finite coordinates: {_listing(bad)}")
 
 
-def _planar_points(path: str, points: np.ndarray) -> np.ndarray:
+#: How far from flat a triangle mesh's vertices may be, across its plane, for a 2D body: a share of its
+#: largest extent (float32's round-off, as binary STL and many exports store coordinates, is 6e-8 of it)
+FLAT_RTOL = 1e-6
+
+
+def _planar_points(path: str, points: np.ndarray, used: np.ndarray) -> np.ndarray:
     """A flat triangle mesh's 3D points as 2D ones: x-y, or the other two axes of a plane x = c or y = c.
 
     A mesh drawn in the x-z plane (a side view, z up) becomes x-y with its z as y, so that
-    its up stays up; one in y-z becomes x-y from (y, z).
+    its up stays up; one in y-z becomes x-y from (y, z). Flat to :data:`FLAT_RTOL` of its size, judged
+    on the vertices the triangles use (``used``, indices).
     """
-    _refuse_non_finite(f"mesh file {path!r}", points.T)  # (a NaN spans NaN: no plane would be found)
-    spans = np.ptp(points, axis=0) if len(points) else np.zeros(3)
-    flat = [a for a in (2, 1, 0) if spans[a] <= 1e-12 * max(spans.max(), 1.0)]
+    corners = points[used]
+    _refuse_non_finite(f"mesh file {path!r}", corners.T)  # (a NaN spans NaN: no plane would be found)
+    spans = np.ptp(corners, axis=0) if len(corners) else np.zeros(3)
+    flat = [a for a in (2, 1, 0) if spans[a] <= FLAT_RTOL * spans.max()]
     if not flat:
         raise MeshError(
             f"mesh file {path!r}: triangles are not in a plane of constant x, y or z (they span "

@@ -208,12 +208,15 @@ class MotionMonitor:
     def __init__(self, sim, gravity=None, weight_scale=None, gait_period=None):
         dim = self.dim = sim.dim
         self.weight_scale = weight_scale
-        self._mean = self._gram = None  # the full space's state is the positions themselves
+        self._spread_rows = None  # the full space's state is the positions themselves
         if sim.B is not None:
             B = np.asarray(sim.B)
             n = B.shape[0] // dim
-            self._mean = B.reshape(n, dim, -1).mean(axis=0)  # (dim, r): the vertices' mean position
-            self._gram = B.T @ B / n  # (r, r): z^T G z is the mean squared distance from the origin
+            centred = B.reshape(n, dim, -1) - B.reshape(n, dim, -1).mean(axis=0)
+            # (r, r): |R z|^2 is the mean squared distance of the vertices from their mean. A factor, not the
+            # Gram matrix z^T G z - |mean|^2: that cancels as the squared coordinates grow (a box 1e8 from the
+            # origin had a spread of 0 at rest, and the run stopped on a division by zero)
+            self._spread_rows = np.linalg.qr(centred.reshape(n * dim, -1) / np.sqrt(n), mode="r")
         # each body of the mesh (connected part) watched as one alone: of the whole mesh, a copy 1/1000 the
         # size of a body beside it was pushed 2.62 of its sizes in a step unreported (0.0013 of the whole mesh's)
         self._parts = connected_labels(sim.mesh)
@@ -277,13 +280,12 @@ class MotionMonitor:
 
     def _spreads(self, states) -> np.ndarray:
         """The root-mean-square distance of the vertices from their mean, of each state (T, r): shape (T,)."""
-        if self._gram is None:
+        if self._spread_rows is None:
             x = states.reshape(states.shape[0], -1, self.dim)
             x = x - x.mean(axis=1, keepdims=True)
             return np.sqrt(np.einsum("tnd,tnd->t", x, x) / x.shape[1])
-        mean = states @ self._mean.T
-        squared = np.einsum("ij,ij->i", states @ self._gram, states) - np.einsum("ij,ij->i", mean, mean)
-        return np.sqrt(np.maximum(squared, 0.0))
+        rows = states @ self._spread_rows.T
+        return np.sqrt(np.einsum("ij,ij->i", rows, rows))
 
     def update(self, step: int, z, a=None, clearance=None, depth=None, sunk=None) -> bool:
         """Take the state after ``step`` steps; True if its elements are to be checked (:meth:`check_elements`).

@@ -212,6 +212,46 @@ def test_load_flat_triangles_drops_z(tmp_path):
     np.testing.assert_array_equal(loaded.t, m.t)
 
 
+def test_a_flat_file_is_judged_on_the_vertices_its_triangles_use(tmp_path):
+    """An audit: a square with one stray vertex 3 off its plane was "not in a plane", a NaN stray one
+    "non-finite", before the strays were dropped; a 2D Medit file's empty "Tetrahedra 0" section made it 3D."""
+    square = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n{}f 1 2 3\nf 1 3 4\n"
+    for stray in ("v 0.5 0.5 3\n", "v nan nan nan\n"):
+        path = tmp_path / "stray.obj"
+        path.write_text(square.format(stray))
+        with pytest.warns(UserWarning, match=r"1 of its 5 vertices \(index 4\) belong to no triangle"):
+            loaded = load_mesh(path)
+        assert isinstance(loaded, MeshTri) and loaded.p.shape == (2, 4)
+    medit = tmp_path / "square.mesh"
+    medit.write_text(
+        "MeshVersionFormatted 2\nDimension 3\nVertices\n4\n0 0 0 0\n1 0 0 0\n1 1 0 0\n0 1 0 0\n"
+        "Triangles\n2\n1 2 3 0\n1 3 4 0\nTetrahedra\n0\nEnd\n"
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = load_mesh(medit)
+    assert isinstance(loaded, MeshTri) and float(element_volumes(loaded).sum()) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("size, noise", [(1.0, 4.4e-8), (1e-13, 0.0), (1e6, 1e-7)])
+def test_an_outline_flat_to_float32_round_off_is_read_in_its_plane(tmp_path, size, noise):
+    """An audit: float32's round-off across an x-z outline's plane (4.4e-8 of it) was "not in a plane", and an
+    outline 1e-13 across was read in the wrong plane (an absolute floor of 1e-12)."""
+    m = beam2d(2.0, 1.0, 4, 2)
+    rng = np.random.default_rng(0)
+    points = np.column_stack([m.p[0], noise * rng.standard_normal(m.p.shape[1]), m.p[1]]) * size  # in x-z
+    path = tmp_path / "outline.vtu"
+    meshio.write(path, meshio.Mesh(points, [("triangle", m.t.T)]))
+    loaded = load_mesh(path)
+    assert isinstance(loaded, MeshTri)
+    np.testing.assert_allclose(loaded.p, m.p * size, rtol=1e-15, atol=0.0)  # z became y
+    tilted = points.copy()
+    tilted[:, 1] += 1e-5 * size * m.p[0]  # beyond FLAT_RTOL: not flat
+    meshio.write(path, meshio.Mesh(tilted, [("triangle", m.t.T)]))
+    with pytest.raises(MeshError, match="triangles are not in a plane of constant x, y or z"):
+        load_mesh(path)
+
+
 def test_vertices_no_element_uses_are_dropped_with_a_warning_naming_them(tmp_path):
     # point data of the file lines up with the mesh only without the dropped rows: the user must hear of them
     m = box3d(2, 2, 2)

@@ -567,3 +567,21 @@ def test_the_run_line_says_whose_share_of_the_allowance_it_prints(tmp_path, caps
     assert 1.0 < share <= 100.0  # landed, held
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("deepest any vertex"))
     assert f"; the deepest boundary vertex {share:.3g} % of its allowance)" in line
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e4, 1e8])
+def test_a_body_far_from_the_origin_has_its_own_spread(offset):
+    """An audit: a box 1e8 from the origin had a spread of 0 at rest (E[x^2] - mean^2 cancels), and its run
+    stopped on a division by zero (exit 1)."""
+    from skfem import MeshTet
+
+    box = MeshTet.init_tensor(np.linspace(0, 2, 5), np.linspace(0, 1, 3), np.linspace(0, 0.5, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (far from the origin: warned)
+        sim = ModalMuscle.from_mesh(MeshTet(box.p + offset, box.t), n_muscles=1, n_weights=3, n_clusters=4, h=0.01)
+    monitor = MotionMonitor(sim)
+    x = box.p.T - box.p.T.mean(axis=0)
+    exact = np.sqrt((x**2).sum(axis=1).mean())  # 0.8416
+    assert monitor.rest_spread == pytest.approx(exact, rel=1e-12 if offset < 1e6 else 1e-6)
+    z, _, _ = sim.rest_state()
+    assert not monitor.update(1, z) and monitor.finish()["physical"]
