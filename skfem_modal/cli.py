@@ -347,7 +347,7 @@ def cmd_info(args) -> int:
             f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {dim}D, "
             f"measure {info['measure']:.6g}, {info['parts']} part(s)"
         )
-        print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
+        print(f"bounds: {_shown(info['bounds'][0])} .. {_shown(info['bounds'][1])}")
         print(f"effects: {', '.join(scene.effects)}")
         mat = scene.material()
         print("material: " + ", ".join(f"{k} = {v:g}" for k, v in mat.items()))
@@ -386,7 +386,7 @@ def cmd_info(args) -> int:
         f"mesh: {info['vertices']} vertices, {info['elements']} {info['element']} elements, {info['dim']}D, "
         f"measure {info['measure']:.6g}, {info['parts']} part(s)"
     )
-    print(f"bounds: {np.round(info['bounds'][0], 4).tolist()} .. {np.round(info['bounds'][1], 4).tolist()}")
+    print(f"bounds: {_shown(info['bounds'][0])} .. {_shown(info['bounds'][1])}")
     return EXIT_OK
 
 
@@ -1183,6 +1183,11 @@ def main(argv=None) -> int:
         # Ctrl-C, or SIGTERM (e.g. from timeout): the command has stopped as it does on Ctrl-C
         print(f"skfem-modal {args.command}: {_stopped(stop)}", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def _shown(values) -> list:
+    """Numbers for a printed line, to 4 significant digits (rounded to 4 decimals, a box 2e-6 across read 0)."""
+    return [float(f"{value:.4g}") for value in values]
 
 
 def _stopped(stop: KeyboardInterrupt) -> str:

@@ -944,7 +944,13 @@ def _read_meshio(path: str, role: str = "mesh"):
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            return meshio.read(path)
+            raw = meshio.read(path)
+        if path.lower().endswith(".obj") and (
+            raw.points.ndim != 2 or raw.points.shape[1] > 3 or any(np.min(b.data, initial=0) < 0 for b in raw.cells)
+        ):
+            # vertex colours read as coordinates, relative indices as vertices before the first
+            return _read_obj(path) or raw
+        return raw
     except SystemExit:
         # the readers' complaints, then meshio's "Error: Couldn't read file ... as FORMATS"
         complaints, _, summary = " ".join(said.getvalue().split()).partition("Error: ")
@@ -960,12 +966,52 @@ def _read_meshio(path: str, role: str = "mesh"):
                 f"{os.path.splitext(path)[1] or '(none)'!r}; meshio reads {known}"
             ) from None
         raise MeshError(f"cannot read {role} {path!r}: ReadError: {err}") from None
+    except ImportError as err:  # a format meshio reads with a package of its own (.xdmf: h5py)
+        raise MeshError(
+            f"cannot read {role} {path!r}: meshio reads {os.path.splitext(path)[1]} files with the package "
+            f"{err.name!r}, which is not installed (pip install {err.name}), or write the mesh as .vtu or .msh"
+        ) from None
     except Exception as err:  # meshio raises many kinds for broken files
         kind = os.path.splitext(path)[1] or "mesh"
+        if kind.lower() == ".obj":
+            found = _read_obj(path)  # (meshio refuses normals, texture coordinates and relative indices)
+            if found is not None:
+                return found
         raise MeshError(
             f"cannot read {role} {path!r}: it is empty, cut short or not a valid {kind} file "
             f"(meshio's reader failed with {type(err).__name__}: {err})"
         ) from None
+
+
+def _read_obj(path: str):
+    """An OBJ file's vertices and triangles as a meshio Mesh, or None if it holds anything else as faces.
+
+    For the files meshio's reader refuses: ``vt`` and ``vn`` records beside the vertices (Blender
+    writes them: meshio fails on counts that differ, nschloe/meshio#1261), vertex colours after the
+    coordinates, and negative (relative) indices. Only ``v`` (the first three numbers) and ``f``
+    (three corners, each ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn``) are read.
+    """
+    import meshio
+
+    points, faces = [], []
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                words = line.split()
+                if not words or words[0] not in ("v", "f"):
+                    continue
+                if words[0] == "v":
+                    points.append([float(w) for w in words[1:4]])
+                    continue
+                if len(words) != 4:
+                    return None  # a polygon: not guessed at
+                corners = [int(w.split("/")[0]) for w in words[1:]]
+                faces.append([c - 1 if c > 0 else len(points) + c for c in corners])
+    except (OSError, ValueError):
+        return None
+    if not points or not faces or any(len(p) != 3 for p in points):
+        return None
+    return meshio.Mesh(np.array(points), [("triangle", np.array(faces, dtype=np.int64))])
 
 
 def normalize_and_center(mesh):
@@ -1585,7 +1631,7 @@ def builtin_mesh(name: str, **params):
     return BUILTIN_SHAPES[name](**params)
 
 
-_CONDITION = re.compile(r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s*$")
+_CONDITION = re.compile(r"^\s*([xyz])\s*(<=|>=|==|<|>)\s*(min|max|[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*$")
 
 
 def vertices_where(mesh, condition: str) -> np.ndarray:

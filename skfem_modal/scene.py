@@ -36,6 +36,7 @@ from .contact import (
 from .mesh import (
     _CONDITION,
     BUILTIN_SHAPES,
+    SIZE_RANGE,
     builtin_mesh,
     load_mesh,
     mirror,
@@ -311,7 +312,8 @@ SCHEMA: dict[str, Any] = {
             None,
             "CSV file of activations over time (instead of gait), relative to the scene file: a header, then "
             "rows `time, a_1, ..., a_count`, each a fraction of the muscle's ceiling (beyond 1: a warning, as for "
-            "the gait); linearly interpolated, held after the last row.",
+            "the gait); linearly interpolated, held after the last row, and before the first (a warning says so "
+            "when the first row is not at t = 0).",
         ),
         "gait": {
             "_optional": True,
@@ -908,7 +910,12 @@ class Scene:
         message = scene.scale_warning()
         if message:
             warnings.warn(message, ScaleWarning, stacklevel=2)
-        for message in (scene.duration_warning(), scene.unused_warning(), *scene.idle_warnings()):
+        for message in (
+            scene.duration_warning(),
+            scene.table_warning(),
+            scene.unused_warning(),
+            *scene.idle_warnings(),
+        ):
             if message:
                 warnings.warn(message, UserWarning, stacklevel=2)
         return scene
@@ -946,6 +953,21 @@ class Scene:
             "for an exact count)"
         )
 
+    def table_warning(self) -> str | None:
+        """Why the muscles' table acts before its first row's time (it does not start at 0), or None.
+
+        The first row is held from t = 0: a body at rest gets it at once (an audit: a table starting
+        at t = 2 kicked the body at its first step, unsaid).
+        """
+        if self._table is None or not self._table[0][0] > 0.0:
+            return None
+        times = self._table[0]
+        return (
+            f"muscles.table {os.path.basename(self.config['muscles']['table'])!r} starts at t = {times[0]:g}, not 0: "
+            "its first row is held from t = 0, so the muscles take it at the first step (add a row at t = 0 to "
+            "start from rest)"
+        )
+
     def idle_warnings(self) -> list[str]:
         """Why each of ``time.warm_start`` and ``time.acceleration`` that is on does nothing under the scene's ground.
 
@@ -981,7 +1003,8 @@ class Scene:
         names = ["elasticity", "inertia"]
         if self.config["muscles"]["count"]:
             names.append("muscles")
-        for key in ("gravity", "ground", "pinned", "damping"):
+        # the model's order: contact last (info said it before the pins and damping)
+        for key in ("gravity", "pinned", "damping", "ground"):
             if self.config[key] is not None:
                 names.append("contact" if key == "ground" else key)
         return tuple(names)
@@ -1345,6 +1368,15 @@ def _build_mesh(spec: dict, errors: list[str]):
         centre, factor = normalizing_transform(mesh)
         mesh = normalize_and_center(mesh)
     if spec["scale"] != 1.0:
+        # named by the key that did it, with the scene's other problems (it was the mesh's own bare message)
+        scale = float(spec["scale"])  # (Python floats: an overflow is inf, without numpy's warnings)
+        size, farthest = float(np.ptp(mesh.p, axis=1).max()) * scale, float(np.abs(mesh.p).max()) * scale
+        if not (SIZE_RANGE[0] <= size and farthest <= SIZE_RANGE[1]):
+            errors.append(
+                f"mesh.scale = {_toml_value(spec['scale'])}: makes the mesh {size:.3g} across, with coordinates up "
+                f"to {farthest:.3g}, outside the {SIZE_RANGE[0]:g} to {SIZE_RANGE[1]:g} its operators fit in float64"
+            )
+            return None, {}
         mesh = type(mesh)(mesh.p * spec["scale"], mesh.t.copy(), sort_t=False)
     return mesh, {"centre": centre.tolist(), "factor": factor * spec["scale"]}
 
@@ -1444,7 +1476,8 @@ def _check_cross(config: dict, mesh, errors: list[str]) -> None:
         count = t["steps"] if t["steps"] is not None else duration / t["step"]
         if count > MAX_STEPS:  # a step of 1e-9 meant 4.5e9 steps, days of running, without a word
             what = "time.steps" if t["steps"] is not None else f"time.step = {t['step']:g} over {duration:g}"
-            errors.append(f"time: {what} makes {count:.3g} steps, more than {MAX_STEPS:.0e}: give a larger step")
+            made = f"{count:.3g}" if count < 1e300 else "over 1e300"  # (an integer beyond a float: no format)
+            errors.append(f"time: {what} makes {made} steps, more than {MAX_STEPS:.0e}: give a larger step")
     ground = config["ground"]
     if ground is not None and ground["height"] is not None and ground["offset"] is not None:
         errors.append("ground: give height or offset, not both")
@@ -1510,8 +1543,8 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
         for cond in ground["contacts_where"] or []:
             if _bad_condition(cond, dim):
                 errors.append(
-                    f"ground.contacts_where: cannot use {cond!r}; expected e.g. 'z <= 0.1' with an axis of this "
-                    f"{dim}D mesh"
+                    f"ground.contacts_where: cannot use {cond!r}; expected e.g. '{'xyz'[dim - 1]} <= 0.1' with an "
+                    f"axis of this {dim}D mesh"
                 )
     pinned = config["pinned"]
     if (
@@ -1533,10 +1566,12 @@ def _check_against_mesh(config: dict, mesh, errors: list[str], valid) -> None:
             usable = (
                 set(box) == {"min", "max"}
                 and all(isinstance(box[k], list) and len(box[k]) == dim for k in ("min", "max"))
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for k in ("min", "max") for v in box[k])
+                and all(is_finite_real(v) for k in ("min", "max") for v in box[k])
             )
             if not usable:
-                errors.append(f"pinned.box: expected {{ min = [{dim} numbers], max = [{dim} numbers] }}, got {box!r}")
+                shown = repr(box) if len(repr(box)) <= 200 else repr(box)[:200] + "..."
+                expected = f"{{ min = [{dim} finite numbers], max = [{dim} finite numbers] }}"
+                errors.append(f"pinned.box: expected {expected}, got {shown}")
         selected = _pinned(pinned, mesh).size if usable else None
         if selected == 0:
             errors.append("pinned: the conditions select no vertex")

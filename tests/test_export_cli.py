@@ -305,3 +305,30 @@ def test_a_mesh_specs_count_beyond_a_float_is_named(capsys):
     """(It was an OverflowError's traceback and exit 1.)"""
     assert main(["info", "beam2d:nx=" + "9" * 400]) == 2
     assert "skfem-modal info: error: beam2d: these parameters make about inf elements" in capsys.readouterr().err
+
+
+def test_info_shows_a_tiny_mesh_s_bounds_and_the_effects_in_the_simulator_s_order(tmp_path, capsys):
+    """An audit: a box 2e-6 across printed bounds of zeros (4 decimals); info listed contact before the pins."""
+    import meshio
+
+    from skfem_modal import box3d
+    from skfem_modal.scene import Scene
+
+    box = box3d(2, 2, 2)
+    meshio.write(tmp_path / "tiny.vtu", meshio.Mesh(box.p.T * 2e-6, [("tetra", box.t.T)]))
+    assert main(["info", str(tmp_path / "tiny.vtu")]) == 0
+    assert "bounds: [0.0, 0.0, 0.0] .. [2e-06, 2e-06, 2e-06]" in capsys.readouterr().out
+    scene = Scene.from_dict(
+        {
+            "mesh": {"shape": "beam2d", "params": {"nx": 8, "ny": 2}},
+            "muscles": {"count": 1},
+            "gravity": {"acceleration": [0.0, -9.8]},
+            "ground": {"offset": 0.1},
+            "pinned": {"where": ["x == min"]},
+            "damping": {"mass": 0.5},
+            "time": {"steps": 2},
+        }
+    )
+    assert scene.effects == scene.build().effects == (
+        "elasticity", "inertia", "muscles", "gravity", "pinned", "damping", "contact"
+    )  # fmt: skip

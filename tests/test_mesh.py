@@ -444,3 +444,36 @@ def test_a_sliver_on_the_boundary_is_no_hanging_vertex():
     vertices, _ = hanging_vertices(np.array(p).T, np.array(t).T)
     assert vertices.size == 0
     make_mesh(p, t)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        # Blender's: texture coordinates and a normal beside the vertices (meshio fails on the counts)
+        "o Plane\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\ns 0\n"
+        "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n",
+        "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 1 1 0 0 0 1\nv 0 1 0 1 1 1\nf 1 2 3\nf 1 3 4\n",  # vertex colours
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nf -3 -2 -1\nv 0 1 0\nf -4 -2 -1\n",  # relative indices
+    ],
+)
+def test_obj_files_as_exporters_write_them_are_read(tmp_path, text):
+    """An audit: each was refused ("not a valid .obj file", "points must have 2 or 3 coordinates", "cells
+    reference vertices outside 0..3"): the same unit square, two triangles."""
+    path = tmp_path / "square.obj"
+    path.write_text(text)
+    loaded = load_mesh(path)
+    np.testing.assert_array_equal(loaded.p, [[0.0, 1.0, 1.0, 0.0], [0.0, 0.0, 1.0, 1.0]])
+    assert sorted(map(sorted, loaded.t.T.tolist())) == [[0, 1, 2], [0, 2, 3]]
+
+
+def test_a_format_whose_reader_needs_a_package_names_it(tmp_path, monkeypatch):
+    """An audit: an .xdmf without h5py was "empty, cut short or not a valid .xdmf file"."""
+    import meshio
+
+    def needs_h5py(path, *args, **kwargs):
+        raise ModuleNotFoundError("No module named 'h5py'", name="h5py")
+
+    monkeypatch.setattr(meshio, "read", needs_h5py)
+    (tmp_path / "mesh.xdmf").write_text("<Xdmf/>")
+    with pytest.raises(MeshError, match=r"reads \.xdmf files with the package 'h5py', which is not installed"):
+        load_mesh(tmp_path / "mesh.xdmf")

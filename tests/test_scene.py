@@ -2,6 +2,7 @@
 
 import copy
 import pathlib
+import warnings
 
 import numpy as np
 import pytest
@@ -344,3 +345,41 @@ def test_muscle_settings_without_muscles_are_said_to_change_nothing(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         Scene.from_dict({"mesh": {"shape": "caterpillar", "params": {"nx": 10, "ny": 5}}, "muscles": {"count": 0}})
+
+
+def test_scene_file_edges_found_by_an_audit_are_named(tmp_path):
+    """A malformed number in a condition, a scale beyond float64, integers beyond a float: each named by its key
+    with the scene's other problems (they were a bare float() error, the mesh's own message, a traceback)."""
+    from skfem_modal.scene import SceneError
+
+    def problems(text):
+        path = tmp_path / "scene.toml"
+        path.write_text(text)
+        with pytest.raises(SceneError) as error:
+            Scene.from_toml(path)
+        return str(error.value)
+
+    said = problems('[mesh]\nshape = "beam2d"\n[time]\nstep = -1\n[pinned]\nwhere = ["x <= 1.2.3"]\n')
+    assert "time.step: expected a positive number" in said and "pinned.where: cannot use 'x <= 1.2.3'" in said
+    said = problems('[mesh]\nshape = "box3d"\nscale = 1e305\n[time]\nstep = -1\n')
+    assert "time.step" in said and "mesh.scale = 1e+305: makes the mesh 1e+305 across" in said
+    huge = "1" + "0" * 400
+    assert "time: time.steps makes over 1e300 steps" in problems(f'[mesh]\nshape = "beam2d"\n[time]\nsteps = {huge}\n')
+    box = f'[mesh]\nshape = "beam2d"\n[pinned]\nbox = {{ min = [-{huge}, -1], max = [0.1, 5] }}\n'
+    assert "pinned.box: expected { min = [2 finite numbers]" in problems(box)
+    said = problems(
+        '[mesh]\nshape = "caterpillar"\n[gravity]\nacceleration = [0, -9.8]\n[ground]\ncontacts_where = ["z <= 0"]\n'
+    )
+    assert "expected e.g. 'y <= 0.1' with an axis of this 2D mesh" in said
+
+
+def test_a_table_that_starts_after_0_is_warned_of(tmp_path):
+    """An audit: a table starting at t = 2 was held from t = 0, kicking a body at rest at its first step, unsaid."""
+    (tmp_path / "late.csv").write_text("time,a\n2,0.5\n3,0.5\n")
+    (tmp_path / "scene.toml").write_text('[mesh]\nshape = "beam2d"\n[muscles]\ncount = 1\ntable = "late.csv"\n')
+    with pytest.warns(UserWarning, match=r"muscles.table 'late.csv' starts at t = 2, not 0: its first row is held"):
+        Scene.from_toml(tmp_path / "scene.toml")
+    (tmp_path / "late.csv").write_text("time,a\n0,0\n3,0.5\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Scene.from_toml(tmp_path / "scene.toml")
