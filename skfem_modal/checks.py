@@ -24,7 +24,9 @@ def _array(value, shape, name):
     arr = np.asarray(value)
     if not np.issubdtype(arr.dtype, np.number):
         raise TypeError(f"{name} must be numeric, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
+    if np.issubdtype(arr.dtype, np.complexfloating):  # (numpy drops the imaginary part with a warning)
+        raise TypeError(f"{name} must be real, got complex values {arr.tolist()}")
+    arr = arr.astype(np.float64)  # a copy: the caller's array, changed later, would not be the simulator's
     if arr.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -140,7 +142,7 @@ def _muscle_modes(D, N: int) -> np.ndarray:
     """Muscle modes as a checked (N, m) array."""
     if D is None:
         return np.zeros((N, 0))
-    D = np.asarray(D, dtype=np.float64)
+    D = np.array(D, dtype=np.float64)  # (a copy, as B)
     if D.ndim == 1:
         D = D[:, None]
     if D.ndim != 2 or D.shape[0] != N:
@@ -172,7 +174,7 @@ def _basis(B, rest) -> np.ndarray:
     """
     N = rest.size
     B = B.toarray() if sps.issparse(B) else B
-    B = np.asarray(B, dtype=np.float64)
+    B = np.array(B, dtype=np.float64)  # a copy: the caller's array, changed later, would not be the simulator's
     if B.ndim != 2 or B.shape[0] != N or B.shape[1] < 1:
         raise ValueError(f"B must have shape ({N}, r) for this mesh, got {B.shape}")
     if not np.all(np.isfinite(B)):

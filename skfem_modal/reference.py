@@ -49,6 +49,7 @@ class FullSpaceSimulator(ModalMuscle):
     """
 
     def __init__(self, mesh, D, *, max_iter=2000, tol=0.0, rtol=1e-10, **kwargs):
+        _plain_only(kwargs.pop("backend", "plain"))  # (it was Python's "got multiple values for 'backend'")
         if not hasattr(mesh, "t"):
             check_mesh(mesh)  # not a mesh at all (its points, say): named before its elements are counted
         try:
@@ -68,6 +69,15 @@ class FullSpaceSimulator(ModalMuscle):
             if "ModalMuscle.__init__()" in str(err):
                 raise TypeError(str(err).replace("ModalMuscle.__init__()", "FullSpaceSimulator()")) from None
             raise
+
+    @property
+    def backend(self) -> str:
+        """The backend: ``plain``, the only one on every DOF (assigning another is refused, naming it)."""
+        return self._backend
+
+    @backend.setter
+    def backend(self, value) -> None:
+        _plain_only(value)  # ("numba" was taken and said, while the plain one stepped)
 
     @classmethod
     def from_mesh(cls, mesh, n_muscles=4, *, muscle_signs=None, mu=1e5, gamma=None, lam=None, rho=1e3, h=0.02,
@@ -102,3 +112,11 @@ class FullSpaceSimulator(ModalMuscle):
         D = muscle_modes(mesh, n_muscles, mu=mu, lam=lam, rho=rho, pinned=pinned, signs=muscle_signs)
         gamma = mu if gamma is None else gamma
         return cls(mesh, D, mu=mu, gamma=gamma, rho=rho, h=h, pinned=pinned, **kwargs)
+
+
+def _plain_only(backend) -> None:
+    """Refuse a backend other than ``plain`` (or ``auto``, which takes it) for the full space, naming it."""
+    if backend not in ("plain", "auto"):
+        raise ValueError(
+            f"backend: the full space steps on the plain backend only (a rotation per element), got {backend!r}"
+        )

@@ -1094,6 +1094,7 @@ class Scene:
             Keyword arguments of :class:`~skfem_modal.sim.ModalMuscle` (and
             :class:`~skfem_modal.reference.FullSpaceSimulator`): ``mu``,
             ``gamma``, ``rho``, ``h``, ``gravity``, ``ground``, ``up``,
+            ``contact_model``, ``friction``, ``allowance``, ``exact_friction``,
             ``stickiness``, ``push_out``, ``pinned``, ``pin_stiffness``,
             ``damping_mass``, ``damping_stiffness``, ``max_s``.
         """
@@ -1295,8 +1296,8 @@ class Scene:
         return _sine(t, np.asarray(gait["amplitude"]), np.asarray(gait["period"]), np.asarray(phase), gait["ramp"])
 
     def to_dict(self) -> dict:
-        """The validated configuration, JSON-ready (for summary.json)."""
-        return {"source": self.source, **self.config}
+        """The validated configuration, JSON-ready (for summary.json): a copy, to change for a variant."""
+        return copy.deepcopy({"source": self.source, **self.config})  # (its tables were the scene's own)
 
 
 def _material(m: dict) -> dict:

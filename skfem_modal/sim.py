@@ -205,11 +205,29 @@ def _put_contact(sim, vertices, ground, setting=None) -> None:
     sim._rebuild()
 
 
+def _read_only(value):
+    """An array the simulator holds, as a read-only view (other values as they are).
+
+    Changed in place, it would have said what the steps no longer use (``sim.gravity[1] *= 2`` read
+    -19.6 while the steps fell at -9.8), or broken them (``sim.contact_vertices[:] = 0``).
+    """
+    if not isinstance(value, np.ndarray):
+        return value
+    view = value.view()
+    view.flags.writeable = False
+    return view
+
+
+def _kept(value):
+    """A material parameter as given, an array copied (the caller's, changed later, is not the simulator's)."""
+    return np.array(value, dtype=np.float64) if np.ndim(value) else value
+
+
 def _fixed(name: str, doc: str):
     """A read-only setting: reading gives the value, assigning explains why it cannot change."""
 
     def get(self):
-        return getattr(self, "_" + name)
+        return _read_only(getattr(self, "_" + name))
 
     def refuse(self, value):
         raise AttributeError(
@@ -245,6 +263,8 @@ def _contact_setting(name: str, model: str, check, doc: str):
                 f"{name} is a setting of contact_model='{model}'; this simulator uses "
                 f"contact_model='{self._contact['model']}'"
             )
+        if value == self._contact.get(name):  # (a fresh contact forgets what it held: a 3D crawl moved 4e-4)
+            return
         _new_contact(self, name, **{name: value})
 
     return property(get, put, doc=doc)
@@ -618,6 +638,7 @@ class _GroundSettings:
         """
         z = self._state(z)
         contact = self._model.contact
+        relative = checked_flag(relative, "relative")  # ("yes" would be true)
         return 0.0 if contact is None else contact.penetration(z, relative)
 
     @property
@@ -634,6 +655,8 @@ class _GroundSettings:
             self._rebuild()
             return
         value = float(_array(value, (), "ground"))
+        if value == self.ground:  # the same ground: the contact, and what it holds, stay
+            return
         _pulled_to_ground(self.gravity, value, self._up)  # (a floating body's gravity may pull any way)
         # during a run under the Coulomb contact, the state the next step starts from is checked by that step
         # (its start); the rest shape says nothing of a body that has moved (one risen 5 sizes was refused a
@@ -659,6 +682,8 @@ class _GroundSettings:
     @up.setter
     def up(self, value) -> None:
         value = _axis(value, self.dim)
+        if value == self._up:  # (as the ground's)
+            return
         if self.gravity is not None:
             up_axis(self.gravity, self.dim, value, self.ground is not None)  # gravity must pull down along it
         _clear_of_ground(self._mesh, self.ground, value, _allowance(self._contact))
@@ -882,7 +907,7 @@ class ModalMuscle(_GroundSettings):
         _clear_of_ground(mesh, ground, self._up, _allowance(self._contact))
         w_mu, w_gamma, rho_e = _element_weights(mesh, mu, gamma, rho)
         self._mesh, self._B, self._labels, self._active_labels = mesh, B, labels, active_labels
-        self._mu, self._gamma, self._rho = mu, gamma, rho
+        self._mu, self._gamma, self._rho = _kept(mu), _kept(gamma), _kept(rho)
         self._dim, self._mass = dim, np.repeat(_lumped_p1(mesh, rho_e), dim)
         self._mass.flags.writeable = False  # the effects were built from it: changed in place, only some would follow
         self._space = Subspace(mesh, B) if B is not None else FullSpace(mesh)
@@ -999,7 +1024,10 @@ class ModalMuscle(_GroundSettings):
     @max_iter.setter
     def max_iter(self, value) -> None:
         self._solver.max_iter = _iterations(value)
-        self.reset()
+        # the backends' buffers are sized by it; what the contact and the run hold stays (a reset here made a
+        # later ground be judged on the rest shape, not where the body was, and changed a 3D crawl by 4e-4)
+        self._solver.predicted = min(self._solver.predicted, self._solver.max_iter)
+        self._rebuild()
 
     tol = _driver_setting(
         "tol", _nonnegative, "Stopping tolerance: the last iteration's change of ``z`` over ``motion_scale`` (0: off)."
@@ -1063,7 +1091,7 @@ class ModalMuscle(_GroundSettings):
     def gravity(self):
         """Gravitational acceleration, shape (dim,), or None; assigning adds, changes or removes it."""
         effect = self._model.named.get("gravity")
-        return None if effect is None else effect.acceleration
+        return None if effect is None else _read_only(effect.acceleration)
 
     @gravity.setter
     def gravity(self, value) -> None:
@@ -1078,7 +1106,8 @@ class ModalMuscle(_GroundSettings):
 
     @property
     def pin_stiffness(self):
-        """The pins' spring stiffness at the current time step (None without pins)."""
+        """The pins' spring stiffness at the current time step (None without pins); assigning None gives back
+        the default, which follows the time step (a value read and assigned back stays at it)."""
         pins = self._model.named.get("pinned")
         return None if pins is None else pins.stiffness(self.h)
 
@@ -1087,7 +1116,8 @@ class ModalMuscle(_GroundSettings):
         pins = self._model.named.get("pinned")
         if pins is None:
             raise AttributeError("pin_stiffness: this simulator has no pinned vertices (build it with pinned=...)")
-        old, pins.given_stiffness = pins.given_stiffness, _positive_scalar(value, "pin_stiffness")
+        given = None if value is None else _positive_scalar(value, "pin_stiffness")
+        old, pins.given_stiffness = pins.given_stiffness, given
         self._model.assemble_or_undo(lambda: setattr(pins, "given_stiffness", old))
         self._rebuild()
         _warn_stiff_pins(pins, self.h)
@@ -1123,7 +1153,7 @@ class ModalMuscle(_GroundSettings):
     def ceilings(self) -> np.ndarray:
         """Amplitude ceilings of the muscles, shape (m,)."""
         muscles = self._model.muscles
-        return np.zeros(0) if muscles is None else muscles.ceilings
+        return _read_only(np.zeros(0) if muscles is None else muscles.ceilings)
 
     # ----------------------------------------------------------------- state
     def rest_state(self):
@@ -1272,7 +1302,7 @@ class ModalMuscle(_GroundSettings):
         """
         a = self._activation(a)
         z_next, z, z_dot = self._state(z_next, "z_next"), self._state(z), self._state(z_dot, "z_dot")
-        return self._model.energy(z_next, z, z_dot, a, gradient)
+        return self._model.energy(z_next, z, z_dot, a, checked_flag(gradient, "gradient"))
 
     def mechanical_energy(self, z, z_dot) -> float:
         """Kinetic plus potential energy of a state, the muscles at rest.
@@ -1360,12 +1390,14 @@ class StepRecord:
     def residual(self) -> float:
         """The last change over the step's motion ``|z_k - z|``: how far from converged it stopped.
 
-        0 for a step that did not move (or whose start is not known).
+        0 for a step that did not move beyond round-off of its state (or whose start is not known): a body
+        at rest changed by 1.5e-16 over a motion of 1.5e-16, a residual of 1 (an audit).
         """
         if self.start is None:
             return 0.0
         motion = float(np.linalg.norm(self.z - self.start))
-        return self.change / motion if motion > 0 else 0.0
+        still = motion <= 1e-13 * float(np.linalg.norm(self.z))
+        return 0.0 if still else self.change / motion
 
 
 def simulate(sim, steps: int, activation=None, state=None):
@@ -1413,7 +1445,7 @@ def simulate(sim, steps: int, activation=None, state=None):
         raise ValueError("state must be (z, z_dot), e.g. sim.rest_state()[:2]")
     z, z_dot = sim._state(state[0]), sim._state(state[1], "z_dot")
     if activation is not None and not callable(activation):
-        constant = sim._activation(activation)  # checked now: shape, finite
+        constant = _read_only(np.array(sim._activation(activation)))  # checked now, and the caller's no more
         activation = lambda t: constant  # noqa: E731
     return _steps(sim, int(steps), activation, z, z_dot)
 

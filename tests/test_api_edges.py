@@ -377,3 +377,129 @@ def test_an_affine_basis_at_any_scale_is_taken_or_refused_by_what_is_wrong():
     np.testing.assert_allclose(moved[1e9], moved[1.0], atol=1e-13)
     with pytest.raises(ValueError, match="B's columns do not span the rest pose"):
         sm.ModalMuscle(mesh, B[:, [0, 1, 2, 4, 5]], D, labels, **material)  # without y e_y: y = a x + b
+
+
+# ---------------------------------------------------------- an audit of the API (2026-11-29)
+
+CRAWL = {
+    "mesh": {"shape": "caterpillar", "params": {"nx": 20, "ny": 10}},
+    "subspace": {"weights": 4, "clusters": 6},
+    "muscles": {"count": 2, "gait": {"amplitude": [0.5, 0.4], "period": [1.0, 0.7]}},
+    "gravity": {"acceleration": [0.0, -9.8]},
+    "ground": {"offset": 0.0},
+    "time": {"step": 0.01, "steps": 30},
+}
+
+
+def test_arrays_given_to_and_read_from_a_simulator_are_its_own():
+    """Changed in place, the caller's gravity was reported and not used; ``sim.contact_vertices[:] = 0`` broke the
+    next step; ``sim.ceilings *= 2`` doubled the ceilings."""
+    g, mu = np.array([0.0, -9.8]), np.full(sm.caterpillar(nx=20, ny=10).t.shape[1], 1e5)
+    sim = sm.ModalMuscle.from_mesh(
+        sm.caterpillar(nx=20, ny=10), n_muscles=2, n_weights=4, n_clusters=6, gravity=g, mu=mu, ground=-2.0
+    )
+    g[1], mu[:] = -100.0, 1.0
+    np.testing.assert_array_equal(sim.gravity, [0.0, -9.8])
+    assert float(sim.mu.min()) == 1e5
+    for name in ("gravity", "ceilings", "B", "D", "labels", "pinned", "contact_vertices", "mu"):
+        value = getattr(sim, name)
+        if isinstance(value, np.ndarray) and value.size:
+            with pytest.raises(ValueError, match="read-only"):
+                value[...] = 0
+    before = sim.gravity.copy()
+    g2 = np.array([0.0, -19.6])
+    sim.gravity = g2
+    g2[1] = -1.0
+    np.testing.assert_array_equal(sim.gravity, 2 * before)
+    with pytest.raises(TypeError, match="ground must be real, got complex values"):
+        sim.ground = complex(-2.0, 5.0)
+
+
+def test_a_setting_assigned_its_own_value_changes_nothing_and_max_iter_keeps_the_run():
+    """On the ground, ``sim.friction = sim.friction`` (and allowance, ground, up, max_iter) put in a fresh
+    contact, which forgot what it held (a 3D crawl moved 4e-4 of its size); max_iter's reset made a later
+    ground be judged on the rest shape."""
+    scene = sm.Scene.from_dict(CRAWL)
+    runs = []
+    for assign in (None, "friction", "allowance", "exact_friction", "ground", "up", "max_iter"):
+        sim = scene.build()
+        z, z_dot, _ = sim.rest_state()
+        for step in range(30):
+            if step == 15 and assign is not None:
+                setattr(sim, assign, getattr(sim, assign))
+            z, z_dot = sim.step(z, z_dot, scene.activation(step * sim.h, sim.ceilings), velocity=True)
+        runs.append(z)
+    for z in runs[1:]:
+        np.testing.assert_array_equal(z, runs[0])
+    # thrown up, then a ground just below where the body is: taken, after max_iter was assigned too
+    sim = scene.build()
+    z, z_dot, _ = sim.rest_state()
+    z_up = z + sim.coordinates(np.tile([0.0, 3.0], sim.mesh.p.shape[1]))
+    sim.step(z_up, z_dot)
+    sim.max_iter = 20
+    sim.ground = float(sim.positions(z_up)[:, 1].min()) - 0.001
+
+
+def test_pin_stiffness_none_gives_back_the_default_that_follows_h():
+    """Read and assigned back, the default froze at its value for h = 0.01; None was refused."""
+    beam = sm.beam2d(4.0, 0.4, 20, 2)
+    sim = sm.ModalMuscle.from_mesh(
+        beam, n_muscles=1, n_weights=3, n_clusters=4, pinned=sm.vertices_where(beam, "x == min")
+    )
+    default = sim.pin_stiffness
+    sim.pin_stiffness = default
+    sim.h = sim.h / 5
+    assert sim.pin_stiffness == default
+    sim.pin_stiffness = None
+    fresh = sm.ModalMuscle.from_mesh(
+        beam, n_muscles=1, n_weights=3, n_clusters=4, pinned=sm.vertices_where(beam, "x == min"), h=sim.h
+    )
+    assert sim.pin_stiffness == fresh.pin_stiffness > 2 * default  # the default, at the new step
+
+
+def test_records_of_a_body_at_rest_and_the_run_of_a_scene_on_a_simulator_used_before():
+    """A body at rest had a residual of 1 (1.5e-16 over 1.5e-16); run_scene(sim=) went on from the
+    simulator's last run (the second run of a 3D crawl on one simulator was off by 2e-4)."""
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=20, ny=10), n_muscles=2, n_weights=4, n_clusters=6)
+    records = list(sm.simulate(sim, 5))
+    assert [r.residual for r in records] == [0.0] * 5
+    a = np.array([0.3 * float(sim.ceilings[0]), 0.0])
+    fed = list(sm.simulate(sim, 3, a))
+    a[0] = np.nan  # the caller's array, changed after the call: not the run's
+    assert all(np.isfinite(r.z).all() for r in fed)
+    import copy
+    import pathlib
+    import tomllib
+
+    examples = pathlib.Path(__file__).resolve().parent.parent / "examples"
+    data = tomllib.loads((examples / "creature_crawl.toml").read_text())  # 3D, the Coulomb contact
+    data["mesh"]["params"] = {**data["mesh"].get("params", {}), "cell": 0.2}
+    data["time"] = {**{k: v for k, v in data.get("time", {}).items() if k != "duration"}, "steps": 60}
+    scene = sm.Scene.from_dict(copy.deepcopy(data), base_dir=str(examples))
+    sim = scene.build()
+    first = sm.run_scene(scene, sim=sim)["com"]["travel"]
+    np.testing.assert_array_equal(sm.run_scene(scene, sim=sim)["com"]["travel"], first)
+
+
+def test_flags_and_the_full_space_s_backend_are_checked():
+    sim = sm.ModalMuscle.from_mesh(sm.caterpillar(nx=20, ny=10), n_muscles=2, n_weights=4, n_clusters=6, ground=-2.0)
+    z, z_dot, _ = sim.rest_state()
+    with pytest.raises(TypeError, match="relative must be True or False"):
+        sim.penetration(z, relative="yes")
+    with pytest.raises(TypeError, match="gradient must be True or False"):
+        sim.energy(z, z, z_dot, gradient="yes")
+    mesh = sm.beam2d(2.0, 0.5, 4, 1)
+    with pytest.raises(ValueError, match="the full space steps on the plain backend only"):
+        sm.FullSpaceSimulator(mesh, None, mu=1e5, gamma=1e5, rho=1e3, h=0.01, backend="numba")
+    full = sm.FullSpaceSimulator(mesh, None, mu=1e5, gamma=1e5, rho=1e3, h=0.01)
+    with pytest.raises(ValueError, match="got 'numba'"):
+        full.backend = "numba"
+    assert full.backend == full.backend_used == "plain"
+
+
+def test_a_scene_s_dict_is_a_copy_to_change():
+    """``d = scene.to_dict(); d["time"]["step"] = 0.005`` changed the scene too (its h, even to -0.5)."""
+    scene = sm.Scene.from_dict(CRAWL)
+    d = scene.to_dict()
+    d["time"]["step"] = -0.5
+    assert scene.h == 0.01 and scene.config["time"]["step"] == 0.01
