@@ -828,8 +828,9 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mesh file not found: {path!r}")
     raw = _read_meshio(path)
-    blocks, midside = {}, []
-    for block in raw.cells:
+    blocks, groups, midside = {}, {}, []
+    physical = raw.cell_data.get("gmsh:physical") or [None] * len(raw.cells)
+    for index, (block, tags) in enumerate(zip(raw.cells, physical)):
         kind = _LINEAR.get(block.type, block.type)
         ncorner = {"tetra": 4, "triangle": 3}.get(kind)
         if ncorner is None:
@@ -838,6 +839,9 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
         if not data.size:  # (an empty section, as Medit's "Tetrahedra 0", made a 2D file 3D)
             continue
         blocks.setdefault(kind, []).append(data[:, :ncorner])
+        # each element's group: its physical group (Gmsh), or its block
+        group = np.full(data.shape[0], -1 - index) if tags is None else np.asarray(tags, dtype=np.int64).ravel()
+        groups.setdefault(kind, []).append(group)
         midside.append(data[:, ncorner:].ravel())
     if blocks:
         _refuse_other_cells(path, raw.cells, 3 if "tetra" in blocks else 2)
@@ -849,9 +853,9 @@ def load_mesh(path: str | os.PathLike, *, merge: bool = False):
     if "tetra" in blocks:
         if points.shape[1] != 3:
             raise MeshError(f"mesh file {path!r}: tetrahedra need 3D points, got {points.shape[1]} columns")
-        cells = np.vstack(blocks["tetra"])
+        cells = _once_across_groups(path, blocks["tetra"], groups["tetra"], "tetrahedra")
     elif "triangle" in blocks:
-        cells = np.vstack(blocks["triangle"])
+        cells = _once_across_groups(path, blocks["triangle"], groups["triangle"], "triangles")
         if points.shape[1] == 3 and cells.min() >= 0 and cells.max() < len(points):
             # judged on the vertices the triangles use: the others are dropped below (a stray vertex off
             # the plane made a flat mesh "not in a plane", a NaN one "non-finite")
@@ -981,6 +985,31 @@ def _read_meshio(path: str, role: str = "mesh"):
             f"cannot read {role} {path!r}: it is empty, cut short or not a valid {kind} file "
             f"(meshio's reader failed with {type(err).__name__}: {err})"
         ) from None
+
+
+def _once_across_groups(path: str, blocks: list, groups: list, kind: str) -> np.ndarray:
+    """A file's elements of one kind (n, corners), an element repeated in another group dropped.
+
+    ``groups``: each block's elements' groups (their Gmsh physical groups, or else one a block).
+    Gmsh 2.2 writes an element once for each physical group it is in: a body in two groups came
+    with every element twice, refused as copies. A copy within one group is left for the mesh's own
+    check to name.
+    """
+    cells, group = np.vstack(blocks), np.concatenate(groups)
+    if np.unique(group).size == 1:
+        return cells
+    _, first, inverse = np.unique(np.sort(cells, axis=1), axis=0, return_index=True, return_inverse=True)
+    first = first[inverse.ravel()]
+    again = (first != np.arange(cells.shape[0])) & (group[first] != group)
+    if np.count_nonzero(again):
+        warnings.warn(
+            f"mesh file {path!r}: {np.count_nonzero(again)} {kind} are listed again in other physical groups or "
+            "cell blocks (a Gmsh 2.2 file writes an element once for each physical group it is in): each is "
+            "kept once",
+            UserWarning,
+            stacklevel=3,
+        )
+    return cells[~again]
 
 
 def _read_obj(path: str):

@@ -477,3 +477,23 @@ def test_a_format_whose_reader_needs_a_package_names_it(tmp_path, monkeypatch):
     (tmp_path / "mesh.xdmf").write_text("<Xdmf/>")
     with pytest.raises(MeshError, match=r"reads \.xdmf files with the package 'h5py', which is not installed"):
         load_mesh(tmp_path / "mesh.xdmf")
+
+
+def test_a_gmsh_2_2_body_in_two_physical_groups_is_read_once(tmp_path):
+    """An audit: Gmsh 2.2 writes an element once for each physical group it is in; such a body was refused,
+    its every element "a copy"."""
+    nodes = "\n".join(f"{i + 1} {x} {y} {z}" for i, (x, y, z) in enumerate(
+        [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 1)]))  # fmt: skip
+    elements = ["1 4 2 1 1 1 2 3 4", "2 4 2 2 1 1 2 3 4", "3 4 2 1 1 2 3 4 5", "4 4 2 2 1 2 3 4 5"]
+    text = (
+        "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n5\n" + nodes + "\n$EndNodes\n"
+        "$Elements\n4\n" + "\n".join(elements) + "\n$EndElements\n"
+    )
+    path = tmp_path / "two_groups.msh"
+    path.write_text(text)
+    with pytest.warns(UserWarning, match="2 tetrahedra are listed again in other physical groups"):
+        loaded = load_mesh(path)
+    assert loaded.t.shape == (4, 2) and float(element_volumes(loaded).sum()) == pytest.approx(1 / 6 + 1 / 3)
+    path.write_text(text.replace("2 4 2 2 1", "2 4 2 1 1").replace("4 4 2 2 1", "4 4 2 1 1"))  # copies in one group
+    with pytest.raises(MeshError, match="repeat earlier ones"):
+        load_mesh(path)
