@@ -137,3 +137,12 @@ class Compiled3Backend:
 
     def result(self, k):
         return self.Z[k].copy()
+
+    def carried(self) -> dict:
+        """The last rotations, the next step's warm starts."""
+        return {"q": self.q.copy(), "warm": self.warm}
+
+    def carry(self, state: dict) -> None:
+        """Take :meth:`carried`'s, if it is for as many rotations."""
+        if state.get("q") is not None and state["q"].shape == self.q.shape:
+            self.q[:], self.warm = state["q"], state["warm"]

@@ -430,3 +430,17 @@ class KroneckerBackend:
 
     def result(self, k):
         return self.outputs[k].ravel()
+
+    def carried(self) -> dict:
+        """The next step's shifts and squarings, made from this one's powers (unpickled, a 3D run went on
+        1e-16 off at its first step, 2.5e-12 after 300 steps of a crawl)."""
+        return {"shifted": self.shifted, "squarings": self.squarings, "shift": self.shift_column.copy(),
+                "levels": self.levels[0].copy()}  # fmt: skip
+
+    def carry(self, state: dict) -> None:
+        """Take :meth:`carried`'s, if it is for buffers of this size."""
+        if state.get("levels") is None or state["levels"].shape != self.levels[0].shape:
+            return
+        self.shifted, self.squarings = state["shifted"], state["squarings"]
+        self.shift_column[:] = state["shift"]
+        self.levels[0] = state["levels"]

@@ -162,3 +162,10 @@ class Step2Backend:
 
     def result(self, k):
         return self.z_rows[k].copy()
+
+    def carried(self) -> dict:
+        """Nothing: 2D rotations are closed-form."""
+        return {}
+
+    def carry(self, state: dict) -> None:
+        """Take :meth:`carried`'s (nothing)."""

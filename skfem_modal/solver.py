@@ -56,7 +56,10 @@ driver calls:
     them here and refuse, and the driver redoes the step with the next
     backend;
 ``result(k)``
-    ``z_k``, a new array of shape (r,).
+    ``z_k``, a new array of shape (r,);
+``carried()`` and ``carry(state)``
+    what the next step takes from the last (warm starts, shifts), as a dict, and
+    taking it back: a simulator pickled mid-run goes on as it would have.
 
 ``max_batch`` says how many iterations one ``iterate`` call may run. The
 driver runs as many as the last step took without looking (they seldom
@@ -275,6 +278,13 @@ class PlainBackend:
     def result(self, k):
         """``z_k``, the step's result after ``k`` iterations, a new array of shape (r,)."""
         return self.Y[1].copy()
+
+    def carried(self) -> dict:
+        """Nothing: each step starts its rotations afresh."""
+        return {}
+
+    def carry(self, state: dict) -> None:
+        """Take :meth:`carried`'s (nothing)."""
 
 
 class LocalGlobal:
