@@ -190,6 +190,15 @@ class Muscles(Effect):
         JD = space.J @ modes
         self._JD = JD
         self.max_s = max_s
+        # a mode that deforms no element (zero, or a rigid translation: its gradients are round-off) has no
+        # ceiling: its activations, fractions of one, were inf and NaN (an audit)
+        reach = float(abs(space.J).sum(axis=1).max()) * np.abs(modes).max(axis=0, initial=0.0)
+        still = np.flatnonzero(~(self.max_s / self.ceilings > 1e-10 * reach) | (reach == 0.0))
+        if still.size:
+            raise ValueError(
+                f"muscle modes {still.tolist()} (columns of D) deform no element: zero or a rigid motion; a muscle "
+                "must change the body's shape"
+            )
         stacked = space.through(muscle_target_operator(JD, labels, weights, dim) @ space.J)
         size = self.n_clusters * dim * dim
         self.blocks = [stacked[k * size : (k + 1) * size] for k in range(self.count + 1)]

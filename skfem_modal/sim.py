@@ -145,7 +145,11 @@ def _real(value, name: str) -> np.ndarray:
     """``value`` as a float array; a complex one is refused (casting would drop its imaginary part)."""
     if np.iscomplexobj(value):
         raise ValueError(f"{name} must be real, got complex values")
-    return np.asarray(value, dtype=np.float64)
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):  # (numpy's "could not convert string to float: 'abc'" named nothing)
+        shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:80] + "..."
+        raise TypeError(f"{name} must be numbers, got {shown}") from None
 
 
 def _checked_activation(a, m: int) -> np.ndarray:

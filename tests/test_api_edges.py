@@ -503,3 +503,19 @@ def test_a_scene_s_dict_is_a_copy_to_change():
     d = scene.to_dict()
     d["time"]["step"] = -0.5
     assert scene.h == 0.01 and scene.config["time"]["step"] == 0.01
+
+
+def test_step_names_arguments_that_are_no_numbers_and_muscles_that_deform_nothing():
+    """An audit: numpy's "could not convert string to float: 'abc'"; a zero muscle mode had an infinite ceiling."""
+    mesh = sm.caterpillar(nx=20, ny=10)
+    sim = sm.ModalMuscle.from_mesh(mesh, n_muscles=2, n_weights=4, n_clusters=6)
+    z, z_dot, a = sim.rest_state()
+    with pytest.raises(TypeError, match="z must be numbers, got 'abc'"):
+        sim.step("abc", z_dot)
+    with pytest.raises(TypeError, match=r"activation must be numbers, got \{'a': 1\}"):
+        sim.step(z, z_dot, {"a": 1})
+    D = np.zeros((mesh.p.size, 2))
+    D[:, 1] = sm.muscle_modes(mesh, 1)[:, 0]
+    D[0::2, 0] = 1.0  # a translation along x
+    with pytest.raises(ValueError, match=r"muscle modes \[0\] \(columns of D\) deform no element"):
+        sm.ModalMuscle(mesh, sim.B, D, sim.labels, mu=1e5, gamma=1e5, rho=1e3, h=0.01)
