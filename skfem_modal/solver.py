@@ -280,11 +280,22 @@ class PlainBackend:
         return self.Y[1].copy()
 
     def carried(self) -> dict:
-        """Nothing: each step starts its rotations afresh."""
+        """What the next step takes from the last: nothing, each step starts its rotations afresh.
+
+        Returns
+        -------
+        state : dict
+            Empty.
+        """
         return {}
 
     def carry(self, state: dict) -> None:
-        """Take :meth:`carried`'s (nothing)."""
+        """Take what :meth:`carried` gave (nothing, here).
+
+        Parameters
+        ----------
+        state : dict
+        """
 
 
 class LocalGlobal:
