@@ -163,9 +163,12 @@ def exit_with_parent(poll: float = 1.0) -> None:
 
     A parent killed outright (SIGKILL, the out-of-memory killer) cannot shut its
     pool down: its workers, handed to init, held 191 MB each for good (an audit).
-    A daemon thread checks every ``poll`` seconds.
+    A daemon thread checks every ``poll`` seconds. The parent is the process that
+    started this one (multiprocessing knows it), not whichever has it now: a worker
+    still importing when its parent was killed took init for its parent, and stayed.
     """
-    parent = os.getppid()
+    started_by = multiprocessing.parent_process()
+    parent = started_by.pid if started_by is not None else os.getppid()
 
     def watch():
         while os.getppid() == parent:
