@@ -200,40 +200,27 @@ def test_ctrl_c_in_the_first_generation_says_nothing_was_checkpointed(tiny_scene
     assert not (tmp_path / "cli").exists() and not (tmp_path / "lib").exists()  # the folders it made: gone
 
 
-def test_ctrl_c_while_the_last_generation_is_drawn_says_what_the_checkpoint_holds(tmp_path, monkeypatch):
-    # a stop while fitness.png was drawn, after the last generation: a bare "interrupted", no resume line, no picture
+@pytest.mark.parametrize("again", [False, True])
+def test_ctrl_c_while_the_last_generation_is_drawn_says_what_the_checkpoint_holds(tmp_path, monkeypatch, again):
+    """A stop while fitness.png was drawn, after the last generation: a bare "interrupted", no resume line, no
+    picture. ``again``: a second Ctrl-C while the stop draws it again (an audit: 0.05 s after the first, it lost
+    fitness.png and the lines saying how to resume)."""
     draw = optimize._write_plot
     calls = []
 
-    def interrupted_once(*args):
+    def interrupted(*args):
         calls.append(args)
         if len(calls) == 1:
             raise KeyboardInterrupt
+        if again:
+            signal.raise_signal(signal.SIGINT)
         draw(*args)
 
-    monkeypatch.setattr(optimize, "_write_plot", interrupted_once)
+    monkeypatch.setattr(optimize, "_write_plot", interrupted)
     with pytest.raises(SearchInterrupted) as stop:
         search(tmp_path, workers=1)
     assert stop.value.generations == 2 and "2 of 2" in str(stop.value)
     assert len(calls) == 2 and (tmp_path / "fitness.png").exists()  # drawn again from the checkpoint
-
-
-def test_a_second_ctrl_c_while_a_search_stops_changes_nothing(tmp_path, monkeypatch):
-    """An audit: a second Ctrl-C 0.05 s after the first lost fitness.png and the lines saying how to resume."""
-    draw = optimize._write_plot
-    calls = []
-
-    def interrupted_twice(*args):
-        calls.append(args)
-        if len(calls) == 1:
-            raise KeyboardInterrupt  # the first: as the last generation is drawn
-        signal.raise_signal(signal.SIGINT)  # the second: while the stop draws it again
-        draw(*args)
-
-    monkeypatch.setattr(optimize, "_write_plot", interrupted_twice)
-    with pytest.raises(SearchInterrupted) as stop:
-        search(tmp_path, workers=1)
-    assert stop.value.generations == 2 and (tmp_path / "fitness.png").exists()
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
 
 
