@@ -23,14 +23,15 @@ points (at one, every proposal is the fixed point).
   terms' Hessian has rank ``q`` per cluster (1 in 2D, 3 in 3D): for a
   cluster with ``S = R P``, ``d^2 (-tr(R^T S)) = -a^T K^-1 a`` with
   ``[a]_x = R^T dS - dS^T R`` and ``K = tr(P) I - P``. So the energy's
-  Hessian is ``H - U K^-1 U^T`` with ``U^T = L G`` (``L`` the maps
-  ``dS -> a``), and by the Woodbury identity the Newton iterate is
+  Hessian is ``H - U w K^-1 U^T`` with ``U^T = L G`` (``L`` the maps
+  ``dS -> a``, ``w`` the clusters' weights), and by the Woodbury identity the
+  Newton iterate is
 
-      z_N = g + W L^T (K - L G W L^T)^-1 L G (g - z),    W = H^-1 G^T,
+      z_N = g + W L^T (K / w - L G W L^T)^-1 L G (g - z),    W = H^-1 G^T,
 
-  one ``q n``-sized solve for ``n`` clusters (none when ``K - L G W L^T`` is
-  not positive definite: the energy is not convex there, and the plain
-  iterate is kept).
+  one symmetric ``q n``-sized solve for ``n`` clusters (none when
+  ``K / w - L G W L^T`` is not positive definite: the energy is not convex
+  there, and the plain iterate is kept).
 """
 
 from __future__ import annotations
@@ -109,8 +110,16 @@ class StepEnergy:
 
     @property
     def columns(self):
-        """``H^-1 rows^T`` (a subspace only), shape (r, clusters * dim * dim)."""
+        """``H^-1 rows^T`` times each cluster's weight (a subspace only), shape (r, clusters * dim * dim)."""
         return self.exact.cols_buffer
+
+    @property
+    def weights(self):
+        """Each cluster's weight ``w_c`` in the energy, shape (clusters,)."""
+        block = self.dim**2
+        weights = np.ones(self.exact.rows.shape[0] // block)
+        weights[: self.exact.n_passive // block] = self.rotation_scale  # (n_passive counts rows)
+        return weights
 
     def __call__(self, z) -> float:
         """``E(z)`` up to the step's constant; keeps ``S`` and ``R`` at ``z``."""
@@ -238,10 +247,13 @@ class SubspaceNewton:
         L = np.einsum("aji,nki->nakj", self.axial, R).reshape(n, q, d * d)
         r = z.size
         LG = np.matmul(L, energy.rows.reshape(n, d * d, r)).reshape(n * q, r)
-        WL = np.einsum("rnj,naj->rna", energy.columns.reshape(r, n, d * d), L).reshape(r, n * q)
+        # the columns carry the clusters' weights w (H^-1 G^T w): divided out, the
+        # system K / w - L G H^-1 G^T L^T is symmetric, as the Cholesky solve needs
+        weights = energy.weights
+        WL = np.einsum("rnj,naj,n->rna", energy.columns.reshape(r, n, d * d), L, 1.0 / weights).reshape(r, n * q)
         system = -(LG @ WL)
         blocks = system.reshape(n, q, n, q)
-        blocks[self._diagonal(n)] += K
+        blocks[self._diagonal(n)] += K / weights[:, None, None]
         # one LAPACK call: Cholesky and solve; info > 0 when not positive definite
         _, y, info = _posv(system, LG @ (g - z), overwrite_a=True, overwrite_b=True)
         if info != 0:

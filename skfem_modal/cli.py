@@ -694,6 +694,8 @@ def cmd_transfer(args) -> int:
         print("|---|---|---|---|---|---|---|---|---|---|")
         for r in result["rows"]:
             survives = f"{r['survives']:.2f}" if r.get("physical", True) else "not physical"
+            if r.get("tipped") and r.get("physical", True):
+                survives += " (tipped over)"
             print(
                 f"| {r['setting']} | {r['elements']} | {r['coordinates']} | {r['clusters']} | "
                 f"{r['iterations']} ({r['mean_iterations']:.1f}) | {r['travel']:.4g} | {survives} | "
@@ -703,6 +705,12 @@ def cmd_transfer(args) -> int:
             print(
                 "the searched gait's own replay is not physical (a body torn apart, or gone non-finite): what "
                 "survives of its travel says nothing of the gait"
+            )
+        if any(r.get("tipped") for r in result["rows"]):
+            print(
+                f"tipped over: the body tilted more than the search's tip limit ({result['tip_limit_degrees']:.4g} "
+                "degrees) in that replay, so its travel is partly a tumble's; its fitness (transfer.csv) has the "
+                "penalty"
             )
         for sentence in result["not_replayed"]:
             print(f"{sentence} (--full-space-limit)")

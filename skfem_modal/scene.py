@@ -381,8 +381,9 @@ SCHEMA: dict[str, Any] = {
             "bool",
             False,
             "Start each step's iterations from the inertial prediction z + h z_dot (the same answer in fewer "
-            "iterations; not under the reference contact model, whose rule reads the iterates: there it does "
-            "nothing, and a warning says so).",
+            "iterations; with Coulomb friction the slides' directions settle along the iterations, so a nearby "
+            "one: docs/accuracy.md; not under the reference contact model, whose rule reads the iterates: there "
+            "it does nothing, and a warning says so).",
         ),
         "acceleration": Key(
             "str",

@@ -103,10 +103,11 @@ def replay(
     rows : list of dict
         Per setting: ``setting``, ``space`` (reduced or full), ``elements``,
         ``coordinates``, ``clusters``, ``iterations`` (at most, a step),
-        ``mean_iterations``, ``travel``, ``alignment``, ``max_tilt_degrees``,
-        ``fitness``, ``physical`` (whether the replay's motion was: a travel that is not, of a body torn
-        apart or gone non-finite, says nothing of the gait), ``survives`` (travel over the size of the
-        first row's: module docs) and ``seconds``.
+        ``mean_iterations``, ``travel``, ``alignment``, ``max_tilt_degrees``, ``tipped`` (whether the body
+        tilted past ``tip_limit``: its travel is a tumble's, its fitness penalised), ``fitness``,
+        ``physical`` (whether the replay's motion was: a travel that is not, of a body torn apart or gone
+        non-finite, says nothing of the gait), ``survives`` (travel over the size of the first row's:
+        module docs) and ``seconds``.
     """
     from .scene import Scene
     from .study import resolution_scene
@@ -156,6 +157,7 @@ def replay(
                 "travel": score["travel"],
                 "alignment": score["alignment"],
                 "max_tilt_degrees": float(np.degrees(score["max_tilt"])),
+                "tipped": bool(score["max_tilt"] > tip_limit),
                 "fitness": score["fitness"],
                 "physical": bool(score["physical"]),
                 "seconds": time.perf_counter() - clock,
@@ -179,6 +181,7 @@ COLUMNS = (
     "survives",
     "alignment",
     "max_tilt_degrees",
+    "tipped",
     "fitness",
     "physical",
     "seconds",
@@ -203,7 +206,8 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
     result : dict
         ``rows`` (:func:`replay`'s), ``csv`` (the path written), ``not_replayed``: the full-space replays
         left out, each a sentence saying why (the mesh is over ``full_space_limit``), and ``unfinished``: a
-        sentence when the search stopped before its generations were done (its best so far replayed), else None.
+        sentence when the search stopped before its generations were done (its best so far replayed), else None,
+        and ``tip_limit_degrees``, the search's tip limit.
     """
     from .optimize import read_checkpoint, search_converged
     from .scene import Scene, read_scene_file
@@ -248,4 +252,7 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    return {"rows": rows, "csv": path, "not_replayed": skipped, "unfinished": unfinished}
+    tip_limit_degrees = float(np.degrees(settings["tip_limit"]))
+    return {"rows": rows, "csv": path, "not_replayed": skipped, "unfinished": unfinished} | {
+        "tip_limit_degrees": tip_limit_degrees
+    }

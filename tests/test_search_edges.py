@@ -517,7 +517,29 @@ def test_transfer_prints_the_tilt_and_survives_means_the_same_for_a_backward_sea
     for row, line in zip(rows, printed[2:]):
         assert float(row["survives"]) == pytest.approx(float(row["travel"]) / -searched, rel=1e-15)  # along +x
         assert f"| {float(row['max_tilt_degrees']):.1f} |" in line
+        # a replay that tipped past the search's limit (60 degrees) says so beside its survives (an audit: a
+        # replay tilted 104 to 180 degrees showed survives 3.9 to 8.1 with nothing beside it)
+        tipped = float(row["max_tilt_degrees"]) > 60.0
+        assert (row["tipped"] == "True") == tipped and ("(tipped over) |" in line) == tipped
     assert f"the search's own travel is {searched:.4g}, backwards" in printed[-2]
+
+
+def test_transfer_marks_the_replays_that_tipped_past_the_search_s_limit(backwards, tmp_path, capsys):
+    # the same search with a tip limit below its own rollout's largest tilt: every replay that tilted more says so
+    out = tmp_path / "copy"
+    shutil.copytree(backwards[0], out)
+    state = pickle.loads((out / "checkpoint.pkl").read_bytes())
+    state["settings"]["tip_limit"] = 1e-3  # radians: the crawl tilts more (0.1 degrees)
+    (out / "checkpoint.pkl").write_bytes(pickle.dumps(state))
+    assert main(["transfer", str(out), "--full-space-limit", "1"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    rows = list(csv.DictReader(open(out / "transfer.csv")))
+    limit = np.degrees(1e-3)
+    assert rows[0]["tipped"] == "True" and "(tipped over) |" in printed[2]
+    for row, line in zip(rows, printed[2:]):
+        tipped = float(row["max_tilt_degrees"]) > limit
+        assert (row["tipped"] == "True") == tipped and ("(tipped over) |" in line) == tipped
+    assert f"tipped over: the body tilted more than the search's tip limit ({limit:.4g} degrees)" in "\n".join(printed)
 
 
 @pytest.mark.parametrize("command", ["study", "optimize"])
