@@ -108,9 +108,10 @@ class Player:
     clock : callable
         Wall-clock seconds (``time.perf_counter``); tests pass a fake one.
     max_lag : float
-        At most this much simulated time is owed at once: after a stall (a
-        window being dragged, a first step that compiles) the simulation skips
-        ahead instead of racing to catch up.
+        At most this much simulated time is owed at once (or one step, if
+        ``sim.h`` is longer): after a stall (a window being dragged, a first
+        step that compiles) the simulation skips ahead instead of racing to
+        catch up.
     step_budget : float
         Wall-clock seconds of stepping per frame, at most. When the steps that
         real time asks for take longer, the rest is dropped (``behind`` is
@@ -128,7 +129,8 @@ class Player:
     sliders : ndarray, shape (m,)
         The sliders' activations in mode-amplitude units, within ``+-ranges``.
     ranges : ndarray, shape (m,)
-        Half-width of each slider (:func:`slider_ranges` of the ceilings).
+        Half-width of each slider (:func:`slider_ranges` of the ceilings), widened to the
+        gait's activations where a gait goes past a ceiling.
     gait_on, paused : bool
     steps : int
         Steps taken in the last frame.
@@ -141,7 +143,7 @@ class Player:
     step_seconds : float
         Wall-clock seconds spent stepping in the last frame.
     message : str
-        The last thing worth telling the user ("" when nothing).
+        The last thing worth telling the user ("" when nothing; a reset clears it).
     """
 
     def __init__(
@@ -192,6 +194,7 @@ class Player:
         self._owed = 0.0
         self._last = None
         self._takeover = None
+        self.message = ""
 
     def set_slider(self, k: int, value: float) -> None:
         """Set muscle ``k``'s slider (clipped to its range); the sliders take over from the gait.
@@ -247,6 +250,8 @@ class Player:
             if share < 1.0:
                 return start + share * (a - start)
             self._takeover = None
+        # a gait past a muscle's ceiling widens its slider, which shows the activation in effect
+        np.maximum(self.ranges, np.abs(a), out=self.ranges)
         return a
 
     # --------------------------------------------------------------- stats
@@ -305,7 +310,8 @@ class Player:
         if self.paused:
             return 0
         h = self.sim.h
-        self._owed = min(self._owed + elapsed, self.max_lag)
+        # a step longer than max_lag is owed whole: capped at max_lag, it never came due (h = 0.3 never stepped)
+        self._owed = min(self._owed + elapsed, max(self.max_lag, h))
         # the tolerance keeps a frame of exactly k steps from taking k - 1
         wanted = int(np.floor(self._owed / h + 1e-9))
         start = self.clock()
@@ -346,6 +352,8 @@ def _xlib():
     x11.XOpenDisplay.restype = ctypes.c_void_p
     x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
     x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    int_p = ctypes.POINTER(ctypes.c_int)
+    x11.XQueryExtension.argtypes = [ctypes.c_void_p, ctypes.c_char_p, int_p, int_p, int_p]
     return x11
 
 
@@ -357,7 +365,15 @@ def _x_display_error(display: str) -> str | None:
     handle = x11.XOpenDisplay(display.encode())
     if not handle:
         return f"cannot open the X display DISPLAY={display!r} (is an X server running there?)"
+    codes = [ctypes.c_int() for _ in range(3)]
+    # VTK's window needs OpenGL on the display (GLX): without it the process died of a segmentation fault
+    glx = x11.XQueryExtension(handle, b"GLX", *(ctypes.byref(code) for code in codes))
     x11.XCloseDisplay(handle)
+    if not glx:
+        return (
+            f"the X display DISPLAY={display!r} has no OpenGL (its GLX extension is missing, as over ssh -X or "
+            "a VNC server without it)"
+        )
     return None
 
 

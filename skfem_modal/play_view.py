@@ -47,7 +47,8 @@ def _grid_cell(extent: float) -> float:
 
 
 def _ground_meshes(pv, dim: int, up: int, height: float, cell: float, half_cells: int):
-    """The ground as a fill and grid lines ``cell`` apart, centred at the origin of the horizontal axes.
+    """The ground as a fill and grid lines ``cell`` apart, centred at the origin of the horizontal axes
+    (the view moves it under the body).
 
     A 3D ground is a square of the plane; a 2D one a band two cells deep below
     the ground line. The lines show the travel when the camera follows the
@@ -175,13 +176,16 @@ class PlayView:
         camera.SetWindowCenter(-_PANEL, 0.0)
         camera.focal_point = centre
         if self.dim == 2:
+            # the scene's up axis up the screen (x up: the body lies on its side otherwise), as render draws it
+            view = Camera.looking_at(e_up[:2], 2)
             self.plotter.enable_parallel_projection()
             camera.position = centre + np.array([0.0, 0.0, 4.0 * self.extent])
-            camera.up = (0.0, 1.0, 0.0)
+            camera.up = view.screen_up
             width, height = self.plotter.window_size
+            span = view.screen((hi - lo)[:2][None])[0]
             # half the height shown, so that the padded body fits the free part of the window
             camera.parallel_scale = 0.5 * max(
-                (hi[1] - lo[1] + 2 * pad) / 0.8, (hi[0] - lo[0] + 2 * pad) * height / (width * (1 - _PANEL))
+                (abs(span[1]) + 2 * pad) / 0.8, (abs(span[0]) + 2 * pad) * height / (width * (1 - _PANEL))
             )
             camera.clipping_range = (0.1 * self.extent, 10.0 * self.extent)
         else:
@@ -193,6 +197,17 @@ class PlayView:
             self.plotter.renderer.ResetCamera(*bounds)
             camera.Zoom(1.1)
         self._anchor = self.player.com()
+        self._place_ground(self._anchor)
+
+    def _place_ground(self, com) -> None:
+        """The ground's grid under ``com`` (dim,), snapped to its cells, so its lines show the travel."""
+        if not self.ground_actors:
+            return
+        snap = np.zeros(3)
+        snap[: self.dim] = np.round(com / self.ground_cell) * self.ground_cell
+        snap[self.up] = 0.0
+        for actor in self.ground_actors:
+            actor.SetPosition(*snap)
 
     def _add_controls(self, pv, window_size) -> None:
         plotter = self.plotter
@@ -239,6 +254,11 @@ class PlayView:
         help_line = "   ".join(f"{key}: {what}" for key, what in KEYS.items())
         plotter.add_text(help_line, position=(10, 8), font_size=8, color="#555555")
         if not self.off_screen:
+            if self.dim == 2:
+                # a flat scene pans and zooms: the trackball (and pyvista's v, an isometric view) turned
+                # it out of its plane, showing the body and the ground edge-on
+                getattr(plotter, "enable_2d_style", plotter.enable_image_style)()  # (pyvista before 0.44: image's)
+                plotter.clear_events_for_key("v")
             # after the interactor style's own handler (its "r" resets the camera to every actor)
             plotter.iren.interactor.AddObserver("CharEvent", self._key, -1.0)
 
@@ -295,12 +315,7 @@ class PlayView:
                 camera.position = np.add(camera.position, shift)
                 camera.focal_point = np.add(camera.focal_point, shift)
                 self._anchor = com
-                if self.ground_actors:
-                    snap = np.zeros(3)
-                    snap[: self.dim] = np.round(com / self.ground_cell) * self.ground_cell
-                    snap[self.up] = 0.0
-                    for actor in self.ground_actors:
-                        actor.SetPosition(*snap)
+                self._place_ground(com)
         now = time.perf_counter()
         self._sync_buttons()
         if current or not player.gait_on or now - self._sliders_time >= _GAIT_SLIDERS_EVERY:
@@ -324,6 +339,10 @@ class PlayView:
         player = self.player
         values = player.activation() if player.gait_on else player.sliders
         for k, widget in enumerate(self.sliders):
+            if self._shown.get(("range", k)) != player.ranges[k]:  # a gait past the ceiling widened it
+                widget.GetRepresentation().SetMinimumValue(-player.ranges[k])
+                widget.GetRepresentation().SetMaximumValue(player.ranges[k])
+                self._shown["range", k] = player.ranges[k]
             # a gait's zero crossing is round-off off zero (sin(pi) = 1.2e-16): shown as 0, not +1.31e-15
             value = float(values[k]) if abs(values[k]) > 1e-12 * player.ranges[k] else 0.0
             if self._shown.get(k) != value:

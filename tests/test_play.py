@@ -282,10 +282,13 @@ def test_a_failed_step_resets_and_says_so(crawl):
     assert player.frame() == 0
     assert "failed at t = 0.000" in player.message and "non-finite" in player.message
     assert player.t == 0.0 and not player.sliders.any()
+    player.reset()  # the user's reset: the message goes (it had stayed on the status line for good)
+    assert player.message == ""
 
 
-@pytest.mark.parametrize("h", [1e-4, 0.1])
+@pytest.mark.parametrize("h", [1e-4, 0.1, 0.3])
 def test_tiny_and_large_steps_keep_real_time(h):
+    # (a step longer than max_lag, 0.25 s, never came due: an audit)
     data = {**DEFAULT_SCENE, "time": {"step": h, "steps": int(round(1.0 / h))}}  # a second, as played
     sim = Scene.from_dict(data).build()
     clock = FakeClock()
@@ -413,6 +416,33 @@ def test_without_a_display_the_error_says_what_to_set(monkeypatch, capsys):
     assert "cannot open the X display DISPLAY=':4321'" in play_problem()
     assert main(["play", "--frames", "3"]) == 2
     assert "cannot open the X display" in capsys.readouterr().err
+
+
+def test_a_display_without_opengl_is_named_before_any_window(monkeypatch, capsys):
+    """An audit: on an X display without GLX (ssh -X, some VNC servers) the window died of a segmentation fault."""
+    import shutil
+
+    if shutil.which("Xvfb") is None:
+        unavailable("Xvfb is not installed (Debian: apt-get install xvfb)")
+    read, write = os.pipe()
+    server = subprocess.Popen(
+        ["Xvfb", "-displayfd", str(write), "-extension", "GLX", "-nolisten", "tcp", "-noreset"],
+        pass_fds=(write,),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    os.close(write)
+    try:
+        with os.fdopen(read) as numbers:
+            display = ":" + numbers.readline().strip()
+        monkeypatch.setenv("DISPLAY", display)
+        monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW", raising=False)
+        assert f"the X display DISPLAY='{display}' has no OpenGL (its GLX extension is missing" in play_problem()
+        assert main(["play", "--frames", "3"]) == 2
+        assert "has no OpenGL" in capsys.readouterr().err
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
 
 
 # ------------------------------------------------------- the window (Xvfb)
@@ -800,6 +830,71 @@ def test_the_window_looks_at_a_y_up_body_from_the_front_as_render_does(display, 
     np.testing.assert_allclose(towards, pictures.towards, atol=1e-12)
     np.testing.assert_allclose(seen["up"], pictures.screen_up, atol=1e-12)
     assert pictures.towards[2] > 0.5 and pictures.right[0] > 0.5  # from +z, x running right
+
+
+WINDOW_OF_A_FAR_X_UP_2D_BODY = """
+import json, sys
+import numpy as np
+from skfem_modal.play import Player, _simulator
+from skfem_modal.play_view import PlayView
+
+sim, gait, _, _ = _simulator(sys.argv[1], None)
+view = PlayView(Player(sim, gait), window_size=(960, 600), follow=False)
+camera = view.plotter.camera
+seen = {"up": list(camera.up), "com": view.player.com().tolist(), "cell": view.ground_cell}
+seen["ground"] = [list(actor.GetPosition()) for actor in view.ground_actors]
+view.plotter.show(interactive_update=True, auto_close=False)
+interactor = view.plotter.iren.interactor
+def event(name, x, y):
+    interactor.SetEventInformation(x, y, 0, 0, "\\0", 0, None)
+    interactor.InvokeEvent(name)
+event("MouseMoveEvent", 600, 300)
+event("LeftButtonPressEvent", 600, 300)
+for k in range(1, 20):  # a drag with the left button
+    event("MouseMoveEvent", 600 + 10 * k, 300 + 4 * k)
+    view.render()
+event("LeftButtonReleaseEvent", 790, 376)
+seen["dragged"] = list(camera.direction)
+for _ in range(30):
+    view.player.step()
+view.draw(current=True)
+seen["slider_max"] = view.sliders[0].GetRepresentation().GetMaximumValue()
+seen["range"], seen["ceiling"] = float(view.player.ranges[0]), float(sim.ceilings[0])
+print(json.dumps(seen))
+"""
+
+
+def test_the_window_of_a_flat_body_far_off_with_x_up(display, tmp_path):
+    """An audit: a 2D body with x up lay on its side, the ground (drawn about the origin) was not under a body
+    at (300, 50), a mouse drag turned the flat scene out of its plane, and a gait past a muscle's ceiling
+    showed the ceiling on its slider."""
+    import meshio
+
+    from skfem_modal.camera import Camera
+    from skfem_modal.mesh import caterpillar
+
+    mesh = caterpillar()
+    meshio.write(tmp_path / "far.vtu", meshio.Mesh(mesh.p.T + [300.0, 50.0], [("triangle", mesh.t.T)]))
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        '[mesh]\nfile = "far.vtu"\n[subspace]\nweights = 4\nclusters = 6\n[muscles]\ncount = 2\n'
+        "[muscles.gait]\namplitude = [1.5, 0.4]\nperiod = [1.0, 0.8]\nphase = [0.25, 0.0]\n"
+        "[gravity]\nacceleration = [-9.8, 0.0]\n[ground]\noffset = 0.0\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", WINDOW_OF_A_FAR_X_UP_2D_BODY, str(scene)], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    seen = json.loads(result.stdout.strip().splitlines()[-1])
+    np.testing.assert_allclose(seen["up"], Camera.looking_at(np.array([1.0, 0.0]), 2).screen_up, atol=1e-12)
+    assert seen["up"][0] == 1.0
+    # the ground's grid under the body (snapped to its cells), along the ground: y here, x being up
+    assert seen["ground"] and all(
+        p == [0.0, round(seen["com"][1] / seen["cell"]) * seen["cell"], 0.0] for p in seen["ground"]
+    )
+    assert abs(seen["ground"][0][1] - 50.0) <= seen["cell"]
+    np.testing.assert_allclose(seen["dragged"], [0.0, 0.0, -1.0], atol=1e-12)  # panned, still facing the plane
+    assert seen["range"] > seen["ceiling"] and seen["slider_max"] == seen["range"]
 
 
 @pytest.mark.parametrize("size", ["16x16", "559x600", "960x359", "8193x600"])
