@@ -1058,7 +1058,7 @@ def _play_options(p) -> None:
 
 
 def _transfer_options(p) -> None:
-    p.add_argument("search", nargs="?", default="search", help="the folder of a finished search")
+    p.add_argument("search", nargs="?", default="search", help="the folder of a finished search (default: search)")
     p.add_argument(
         "--full-space-limit",
         type=_positive_int,
