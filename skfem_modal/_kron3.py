@@ -42,6 +42,8 @@ from .solver import ActivationRows, StateLayout
 __all__ = ["KroneckerBackend", "separable_rows", "separable_columns", "separable_square", "separable_watch"]
 
 MAX_SQUARINGS = 8
+# the iterations a step's shifts are written for as they are made (more are filled in when a step does them)
+_LEVEL0_ROWS = 64
 
 # index 4 e + d of a 4 x 4 block holds F^T[e, d] = F[d, e] (row-major F: 3 d + e)
 _BLOCK = [(4 * e + d, 3 * d + e) for d in range(3) for e in range(3)]
@@ -247,6 +249,7 @@ class KroneckerBackend:
         # hold finite values)
         self.powers = np.zeros((MAX_SQUARINGS + 1, max_iter, n, 4, 4))
         self.powers_rows = self.powers.reshape(-1, 16)
+        self.powers_levels = self.powers.reshape(MAX_SQUARINGS + 1, -1, 16)
         self.F = np.empty((4 * n, 4))
         # [4 s / 1.05, tr P^2, tr P^4, ...] per iteration and cluster, for the
         # certificate (level 0 as the shifts are made: s = 1.05 sqrt(t_1) / 4)
@@ -270,43 +273,43 @@ class KroneckerBackend:
         self.layout = _iterate_layout(p, K, up, extra) if watching else None
         self.z_flat = np.empty(3 * K)
         self.z_block = self.z_flat.reshape(K, 3)
-        self._views, self._trace_rows = self._iteration_views(p, up if watching else None)
+        self._watched_column = up if watching else None
+        self._views = {}  # squarings -> each iteration's operands (_iteration_views)
+        # the powers of levels 1..s and where their traces go, per number of squarings s
+        rows = max_iter * n
+        self._trace_rows = [
+            (self.powers_rows[rows : (s + 1) * rows], self.levels_flat[rows : (s + 1) * rows])
+            for s in range(MAX_SQUARINGS + 1)
+        ]
+        # level 0 (the shifts) is written for this many iterations a step; a step that does more fills the rest
+        self._level0_rows = min(max_iter, _LEVEL0_ROWS)
 
-    def _iteration_views(self, p, up):
-        """Views made once, per number of squarings ``s``: each iteration's operands and the traces' rows.
+    def _iteration_views(self, s):
+        """Each iteration's operands with ``s`` squarings, views made at the first step that needs them.
 
         An iteration's operands: its iterate and the next, the first and last powers, the rotations
         (and as 16 a cluster), the squarings' (input, output) pairs, the next z, the whole next
-        iterate and its watched heights (column ``up``; None: no contact watches). The traces' rows:
-        the powers of levels 1..s and where their traces go.
+        iterate and its watched heights (column ``up``; None: no contact watches). (Made for every
+        count of squarings up front, a backend with max_iter 5000 took 0.4 s to build.)
         """
-        n, max_iter = self.n, self.max_batch
+        n, p, up = self.n, self.p, self._watched_column
         views = [
-            [
-                (
-                    self.Z[i, p:],
-                    self.Z[i + 1],
-                    self.powers[0, i].reshape(n, 16),
-                    self.powers[s, i].reshape(n, 16),
-                    self.R[i],
-                    self.R[i, : 4 * n].reshape(n, 16),
-                    tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
-                    self.outputs[i + 1],
-                    self.Z[i + 1].reshape(-1),
-                    self.Z[i + 1, :p, up] if up is not None else None,
-                )
-                for i in range(max_iter)
-            ]
-            for s in range(MAX_SQUARINGS + 1)
-        ]
-        trace_rows = [
             (
-                self.powers_rows[max_iter * n : (s + 1) * max_iter * n],
-                self.levels_flat[max_iter * n : (s + 1) * max_iter * n],
+                self.Z[i, p:],
+                self.Z[i + 1],
+                self.powers[0, i].reshape(n, 16),
+                self.powers[s, i].reshape(n, 16),
+                self.R[i],
+                self.R[i, : 4 * n].reshape(n, 16),
+                tuple(zip(self.powers[:s, i], self.powers[1 : s + 1, i])),
+                self.outputs[i + 1],
+                self.Z[i + 1].reshape(-1),
+                self.Z[i + 1, :p, up] if up is not None else None,
             )
-            for s in range(MAX_SQUARINGS + 1)
+            for i in range(self.max_batch)
         ]
-        return views, trace_rows
+        self._views[s] = views
+        return views
 
     @classmethod
     def build(cls, model, max_iter):
@@ -369,7 +372,7 @@ class KroneckerBackend:
             np.dot(self.Yt, self.Z[0, self.p :], self.F)
             shift = 1.1 * np.sqrt(np.einsum("ij,ij->i", self.F16, self.F16) / 3.0)
             self.shift_column[:] = shift
-            np.multiply(shift, 4.0 / 1.05, self.levels[0])
+            np.multiply(shift, 4.0 / 1.05, self.levels[0, : self._level0_rows])
             self.shifted = True
         self.s = self.squarings  # fixed for the step: the certificate needs one count
         self.k = 0
@@ -386,7 +389,7 @@ class KroneckerBackend:
         dot, matmul, divide = _dot, np.matmul, np.divide
         first = self.k
         layout = self.layout
-        views = self._views[self.s][first : first + count]
+        views = (self._views.get(self.s) or self._iteration_views(self.s))[first : first + count]
         for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new, state, watched in views:
             # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)
@@ -411,9 +414,14 @@ class KroneckerBackend:
         """Certify the rotations of the step's first ``k`` iterations (None: it went non-finite)."""
         s = self.s
         if k is not None:
-            # the traces of levels 1..s, all iterations: one matrix-vector product
-            powers, traces = self._trace_rows[s]
-            _dot(powers, EYE16, traces)
+            if k > self._level0_rows:
+                self.levels[0, self._level0_rows : k] = self.levels[0, 0]
+            if 2 * k >= self.max_batch:  # the traces of levels 1..s, all iterations: one matrix-vector product
+                powers, traces = self._trace_rows[s]
+                _dot(powers, EYE16, traces)
+            else:  # those the step did (all of max_iter 5000 made a step 10 times slower)
+                rows = k * self.n
+                np.matmul(self.powers_levels[1 : s + 1, :rows], EYE16, out=self.levels_2d[1 : s + 1, :rows])
             ok, top, rho = certify_levels(self.levels_2d[: s + 1, : k * self.n], top_bound=1.05**2)
             if ok and not top:
                 ok = bool(np.einsum("knab,knab->kn", self.powers[0, :k], self.powers[s, :k]).min() > 0.0)
@@ -424,7 +432,7 @@ class KroneckerBackend:
         self.squarings = next_squarings(rho, most=MAX_SQUARINGS)
         # the next step's shifts: |P|^2 = |N|^2 + 4 s^2, so s' = 1.05 |P| / 4
         # tends to 1.07 |N| / sqrt(12), just above the bound the certificate needs
-        np.sqrt(self.levels[1, k - 1], self.levels[0])  # |P| = 4 s' / 1.05, every iteration
+        np.sqrt(self.levels[1, k - 1], self.levels[0, : self._level0_rows])  # |P| = 4 s' / 1.05, each iteration
         np.multiply(self.levels[0, 0], 1.05 / 4.0, self.shift_column)
         return True
 

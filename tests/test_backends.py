@@ -194,3 +194,23 @@ def test_3d_creature_crawling_under_coulomb_friction_same_trajectory_on_every_ba
         touched += plain.model.contact.active_count > 0
     assert touched >= 80  # it crawls on the ground
     assert worst <= 1e-10
+
+
+@pytest.mark.parametrize("max_iter", [60, 150, 5000])
+def test_the_kronecker_form_certifies_the_iterations_a_step_does_of_any_max_iter(max_iter):
+    # steps of about 90 iterations (a stiff body, rtol) under max_iter 60 (every iteration's traces at once),
+    # 150 (only those done) and 5000 (the shifts written for 64 a step, filled in past them): the certificate
+    # read each step's traces where they were (all 5000 iterations' had been taken, ten times the step's cost)
+    kw = dict(n_muscles=2, n_weights=4, n_clusters=8, mu=1e6, rho=1e3, h=0.02, tol=0.0, rtol=1e-9)
+    mesh = sm.box3d(8, 3, 3, (4.0, 1.0, 1.0))
+    sims = [sm.ModalMuscle.from_mesh(mesh, backend=b, max_iter=max_iter, **kw) for b in ("numpy", "plain")]
+    assert sims[0].backends[0].name == "numpy (Kronecker form)"
+    states = [s.rest_state()[:2] for s in sims]
+    iterations = []
+    for i in range(12):
+        a = 0.8 * sims[0].ceilings * np.sin(2 * np.pi * i * 0.01 / np.array([0.3, 0.4]))
+        states = [s.step(*state, a, velocity=True) for s, state in zip(sims, states)]
+        iterations.append(sims[0].iterations)
+        assert sims[0].backend_used == "numpy"  # certified, not redone by the plain backend
+    assert np.abs(states[0][0] - states[1][0]).max() <= 1e-9 * np.abs(states[1][0]).max()
+    assert min(iterations[1:]) > 64 or max_iter == 60
