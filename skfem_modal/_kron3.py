@@ -274,7 +274,7 @@ class KroneckerBackend:
         self.z_flat = np.empty(3 * K)
         self.z_block = self.z_flat.reshape(K, 3)
         self._watched_column = up if watching else None
-        self._views = {}  # squarings -> each iteration's operands (_iteration_views)
+        self._views = {}  # squarings -> the operands of each iteration reached (_iteration_views)
         # the powers of levels 1..s and where their traces go, per number of squarings s
         rows = max_iter * n
         self._trace_rows = [
@@ -284,16 +284,17 @@ class KroneckerBackend:
         # level 0 (the shifts) is written for this many iterations a step; a step that does more fills the rest
         self._level0_rows = min(max_iter, _LEVEL0_ROWS)
 
-    def _iteration_views(self, s):
-        """Each iteration's operands with ``s`` squarings, views made at the first step that needs them.
+    def _iteration_views(self, s, upto):
+        """Each iteration's operands with ``s`` squarings, up to iteration ``upto``, made as steps first reach them.
 
         An iteration's operands: its iterate and the next, the first and last powers, the rotations
         (and as 16 a cluster), the squarings' (input, output) pairs, the next z, the whole next
         iterate and its watched heights (column ``up``; None: no contact watches). (Made for every
-        count of squarings up front, a backend with max_iter 5000 took 0.4 s to build.)
+        iteration and count of squarings up front, a backend with max_iter 5000 took 0.4 s to build.)
         """
         n, p, up = self.n, self.p, self._watched_column
-        views = [
+        views = self._views.setdefault(s, [])
+        views.extend(
             (
                 self.Z[i, p:],
                 self.Z[i + 1],
@@ -306,9 +307,8 @@ class KroneckerBackend:
                 self.Z[i + 1].reshape(-1),
                 self.Z[i + 1, :p, up] if up is not None else None,
             )
-            for i in range(self.max_batch)
-        ]
-        self._views[s] = views
+            for i in range(len(views), upto)
+        )
         return views
 
     @classmethod
@@ -389,7 +389,10 @@ class KroneckerBackend:
         dot, matmul, divide = _dot, np.matmul, np.divide
         first = self.k
         layout = self.layout
-        views = (self._views.get(self.s) or self._iteration_views(self.s))[first : first + count]
+        views = self._views.get(self.s, ())
+        if len(views) < first + count:
+            views = self._iteration_views(self.s, first + count)
+        views = views[first : first + count]
         for Z_old, Z_new, P0, P_last, R, R16, squarings, z_new, state, watched in views:
             # dot for the 2D products: the same BLAS call as matmul, less dispatch
             dot(Yt, Z_old, F)

@@ -1000,7 +1000,7 @@ class ModalMuscle(_GroundSettings):
         bit for bit (a gait search's rollout, replayed from its scene file) starts from here,
         as a new simulator does.
         """
-        self._solver.predicted = self._solver.max_iter
+        self._solver.forget_prediction()
         self._stepped = False
         if self._model.contact is not None:
             self._model.contact.forget()

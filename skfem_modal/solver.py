@@ -102,6 +102,10 @@ _RUNS_FOR_MISSED = 2
 #: Backend names a simulator accepts.
 BACKENDS = ("auto", "numpy", "numba", "plain")
 
+#: Iterations a first step (or one after a reset) runs before its first stopping test, at most; later
+#: steps batch as many as the step before took. (All of max_iter: 5000 iterations where 6 would do.)
+FIRST_BATCH = 16
+
 #: The default ``tol``: iterations stop when a step's last one moved the body by
 #: less than this fraction of its size (about the reference's absolute 1e-6 on
 #: the tutorial's caterpillar, whose ``scale`` is 2.32).
@@ -335,7 +339,7 @@ class LocalGlobal:
                  acceleration="none", memory=5):  # fmt: skip
         self.max_iter, self.tol, self.rtol, self.etol, self.batch = max_iter, tol, rtol, etol, batch
         self.warm_start, self.memory = warm_start, memory
-        self.predicted = max_iter
+        self.forget_prediction()
         self.redone = self.accepted = self.refused = 0
         self._change2 = 0.0
         self.model = None
@@ -488,6 +492,10 @@ class LocalGlobal:
                 self.refused += 1
                 accelerator.reset()
             x, E, local = g, E_g, local_g
+
+    def forget_prediction(self) -> None:
+        """The next step's first batch as a first step's: ``max_iter``, at most :data:`FIRST_BATCH`."""
+        self.predicted = min(self.max_iter, FIRST_BATCH)
 
     def _finish(self, backend, k):
         """Hand the step's outcome to the backend: ``(z_k, k)``, or None if it refuses (k < 0: non-finite)."""

@@ -214,3 +214,23 @@ def test_the_kronecker_form_certifies_the_iterations_a_step_does_of_any_max_iter
         assert sims[0].backend_used == "numpy"  # certified, not redone by the plain backend
     assert np.abs(states[0][0] - states[1][0]).max() <= 1e-9 * np.abs(states[1][0]).max()
     assert min(iterations[1:]) > 64 or max_iter == 60
+
+
+@pytest.mark.parametrize("backend", ["numpy", "plain"])
+def test_a_first_step_under_a_large_max_iter_runs_a_first_batch_not_all_of_it(backend, monkeypatch):
+    # the driver batches as many iterations as the last step took before testing them; a first step (or one
+    # after a reset) had batched all of max_iter: 5000 iterations for the 6 a resting body's step needs
+    from skfem_modal.solver import FIRST_BATCH
+
+    kw = dict(n_muscles=2, n_weights=4, n_clusters=8, mu=1e5, rho=1e3, h=0.01, tol=0.0, rtol=1e-7, max_iter=5000)
+    sim = sm.ModalMuscle.from_mesh(sm.box3d(8, 3, 3, (4.0, 1.0, 1.0)), backend=backend, **kw)
+    run = []
+    iterate = type(sim.backends[0]).iterate
+    monkeypatch.setattr(type(sim.backends[0]), "iterate", lambda self, count, contact: run.append(count) or
+                        iterate(self, count, contact))  # fmt: skip
+    z, z_dot, _ = sim.rest_state()
+    for _ in range(2):
+        run.clear()
+        sim.step(z, z_dot, 0.1 * sim.ceilings)
+        assert sim.iterations < FIRST_BATCH and sum(run) <= FIRST_BATCH
+        sim.reset()
