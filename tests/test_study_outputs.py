@@ -78,10 +78,15 @@ def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extr
         else not any(chaotic in line for line in report["recommendation"])
     )
     assert (chaotic in text) == bool(extra)
+    # on the ground the reference's projection onto the subspace can go through it: no bound (an audit: "the
+    # subspace alone allows 1.2 %" on the creature's crawl, every row 22 to 73 %)
+    bound = any("(the subspace alone allows" in line for line in report["recommendation"])
+    not_bound = any("% off, not a bound here: the ground or the pins" in line for line in report["recommendation"])
+    assert (bound, not_bound) == ((False, True) if extra else (True, False))
     meta = json.loads((tmp_path / "study.json").read_text())["meta"]
     assert meta["left_out"] == left_out
     # the reference contact's rule goes round between sets of held points: its full-space reference never
-    # settles (every step of this one stopped at 5000 iterations, moving 27 % of the size at the last), and the
+    # settles (every step of this one stopped at 5000 iterations, its nodes moving 1.2 % of the size at the last), and the
     # report says so first; the others settle (the Coulomb contact's in 39 iterations a step). An audit: the
     # study called it "iterated to 1e-10" and reported errors against it.
     unsettled = meta["references"]["1.0"]["unsettled_steps"]
@@ -200,10 +205,11 @@ def test_a_study_says_when_its_length_is_not_the_scenes(tmp_path, tiny, capsys):
 
 def test_the_study_command_says_warnings_once_in_its_own_words(tmp_path, tiny, capfd):
     # a step large for the body: the ScaleWarning comes from the workers' builds too, which say nothing raw
+    # (a period of 1.3: with 1.0 every step read the gait at a zero, and the body never moved)
     scene = tmp_path / "scene.toml"
     scene.write_text(
         "[mesh]\nshape = 'caterpillar'\nparams = { nx = 16, ny = 8 }\n[material]\nmu = 1e5\nrho = 1e3\n"
-        "[muscles]\ncount = 1\n[muscles.gait]\namplitude = [0.5]\nperiod = [1.0]\n[time]\nstep = 0.5\nsteps = 4\n"
+        "[muscles]\ncount = 1\n[muscles.gait]\namplitude = [0.5]\nperiod = [1.3]\n[time]\nstep = 0.5\nsteps = 4\n"
     )
     assert main(["study", str(scene), "--quick", "--out", str(tmp_path / "study"), "-q"]) == 0
     err = capfd.readouterr().err.splitlines()
@@ -311,3 +317,60 @@ def test_a_study_interrupted_stops_its_pool_without_waiting(tmp_path, tiny, monk
     with pytest.raises(KeyboardInterrupt):
         study.run_study(FLOATING, tmp_path / "s", preset="tiny")
     assert closed == [True]
+
+
+def test_a_reference_that_does_not_settle_says_its_last_change_in_lengths(tmp_path):
+    # the reference contact's full space goes round between sets: every step stops at max_iter. Its last change,
+    # z_k - z_(k-1), as the study says it (root mean square over the nodes, over the size), against one made here
+    # by stepping the same state with one iteration fewer (an audit: the residual, already relative to the
+    # step's motion, had been divided by the size again: 31 % for a largest vertex move of 1.2 %)
+    import numpy as np
+
+    from skfem_modal.scene import Scene
+    from skfem_modal.sim import simulate
+
+    data = {**FLOATING, **GROUND, "ground": {**GROUND["ground"], "model": "reference"}}
+    ref = study.run_reference(data, None, 3)
+    assert ref["unsettled_steps"] == 3
+    scene = Scene.from_dict(study._steps_scene(data, 3))
+    sim = scene.build_reference()
+    records = list(simulate(sim, 3, lambda t: scene.activation(t, sim.ceilings)))
+    changes = []
+    for before, record in zip([None] + records[:-1], records):
+        z, z_dot = (sim.rest_state()[:2]) if before is None else (before.z, before.z_dot)
+        sim.max_iter = ref["max_iterations"] - 1
+        last_but_one = sim.step(z, z_dot, record.a)
+        sim.max_iter = ref["max_iterations"]
+        np.testing.assert_array_equal(sim.step(z, z_dot, record.a), record.z)
+        changes.append(np.linalg.norm(record.z - last_but_one))
+    nodes, size = records[0].z.size / 2, float(np.ptp(scene.mesh.p, axis=1).max())
+    assert ref["unsettled_change"] == pytest.approx(max(changes) / np.sqrt(nodes) / size, rel=1e-9)
+    assert 1e-4 < ref["unsettled_change"] < 0.05
+
+
+def test_a_study_of_a_body_that_does_not_move_is_refused(tmp_path, tiny):
+    # no gait, no gravity: the reference moves by round-off, and every row had read 21 % error (an audit)
+    data = {**FLOATING, "muscles": {**FLOATING["muscles"], "gait": None}}
+    out = tmp_path / "study"
+    with pytest.raises(ValueError, match="the scene's body does not move in the reference run at resolution 1: no "
+                       "vertex moved more than .* of its body's size in 10 steps"):  # fmt: skip
+        study.run_study(data, out, preset="tiny")
+    assert not out.exists()  # nothing half written
+
+
+def test_errors_on_a_mesh_of_two_bodies_are_each_body_s_own(tmp_path):
+    # a 2 x 0.4 bar and a body 28 away: a vertex's error over its own body's size, not the pair's span (an audit:
+    # 3.1e-3 where the bar's own error was 4.7e-2)
+    import numpy as np
+
+    rest = np.array([[0.0, 0.0], [2.0, 0.0], [28.0, 0.0], [28.5, 0.0]])
+    x_ref = rest + [[0.0, 0.1], [0.0, 0.1], [0.0, 0.0], [0.0, 0.0]]
+    x = x_ref + [[0.0, 0.02], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]]
+    parts = np.array([0, 0, 1, 1])
+    sizes = np.array([2.0, 2.0, 0.5, 0.5])
+    errors = study.trajectory_errors(x.ravel()[None], x_ref.ravel()[None], np.ones(8), rest.ravel(), sizes, 2,
+                                     parts=parts)  # fmt: skip
+    assert errors["worst_vertex_error"] == pytest.approx(0.02 / 2.0)
+    assert errors["com_error"] == pytest.approx(0.01 / 2.0)  # the bar's centre moved by half its vertex's 0.02
+    single = study.trajectory_errors(x.ravel()[None], x_ref.ravel()[None], np.ones(8), rest.ravel(), 28.5, 2)
+    assert single["worst_vertex_error"] == pytest.approx(0.02 / 28.5)
