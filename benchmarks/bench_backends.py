@@ -30,6 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import NUMBA_MISSING, at_least, by  # noqa: E402
 
 from skfem_modal import _accel  # noqa: E402
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
@@ -82,19 +83,21 @@ def medians(data, steps):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--sizes", nargs="*", default=["4x10", "8x10", "6x15", "8x20", "12x40", "16x60"],
+    parser.add_argument(
+        "--steps", type=at_least(SKIPPED + 1, f"the first {SKIPPED} steps are left out of the medians"), default=200
+    )
+    parser.add_argument("--sizes", nargs="*", type=by("WEIGHTS", "CLUSTERS"), metavar="WEIGHTSxCLUSTERS",
+                        default=[(4, 10), (8, 10), (6, 15), (8, 20), (12, 40), (16, 60)],
                         help="the seal's weights x clusters")  # fmt: skip
     args = parser.parse_args()
     if not _accel.AVAILABLE:
-        sys.exit("bench_backends needs numba (pip install -e '.[fast]')")
+        sys.exit(f"bench_backends needs numba: {NUMBA_MISSING}")
     import numba
 
     print(machine_line(f"numba {numba.__version__}", f"{args.steps} steps, median after the first {SKIPPED}"))
     print(f"{'scene':22s} {'r':>4s} {'numba ms':>9s} {'numpy ms':>9s} {'numpy/numba':>12s}  auto")
     cases = [("caterpillar (2D)", caterpillar())]
-    for size in args.sizes:
-        weights, clusters = (int(x) for x in size.split("x"))
+    for weights, clusters in args.sizes:
         cases.append((f"seal {weights} w x {clusters} cl", seal(weights, clusters)))
     for label, data in cases:
         times, auto, r = medians(data, args.steps)

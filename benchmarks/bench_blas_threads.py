@@ -28,6 +28,7 @@ import sys
 
 import numpy as np
 from machine import machine_line
+from options import at_least
 
 CASES = {
     "small": {"mesh": {"shape": "caterpillar", "params": {"nx": 18, "ny": 14}}},  # 218 vertices
@@ -67,8 +68,8 @@ def build_seconds(case: dict, way: str) -> float:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=10)
-    parser.add_argument("--cases", nargs="*", default=list(CASES))
+    parser.add_argument("--runs", type=at_least(1), default=10)
+    parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     args = parser.parse_args()
     try:
         import threadpoolctl  # noqa: F401

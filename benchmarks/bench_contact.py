@@ -79,6 +79,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import at_least  # noqa: E402
 
 from skfem_modal._contact_sets import SetOperator  # noqa: E402
 from skfem_modal.scene import DEFAULT_SCENE, Scene  # noqa: E402
@@ -370,10 +371,14 @@ def memory_row(name, sim, most_cache):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=300, help="timed steps a run")
-    parser.add_argument("--settle", type=int, default=50, help="steps before the timed ones (landing)")
-    parser.add_argument("--repeat", type=int, default=5, help="runs of each set-up; the best is printed")
-    parser.add_argument("--only", nargs="*", help="scenes to run (caterpillar, creature, seal)")
+    # two timed steps: one of them at least is not a turn's first, which every statistic leaves out
+    parser.add_argument(
+        "--steps", type=at_least(2, "a turn's first step is left out"), default=300, help="timed steps a run"
+    )
+    parser.add_argument("--settle", type=at_least(0), default=50, help="steps before the timed ones (landing)")
+    parser.add_argument("--repeat", type=at_least(1), default=5, help="runs of each set-up; the best is printed")
+    every_scene = scene_dicts()
+    parser.add_argument("--only", nargs="*", choices=list(every_scene), help="scenes to run (default: all)")
     args = parser.parse_args()
     print(
         machine_line("backend numpy", f"{args.settle} settling + {args.steps} timed steps, best of {args.repeat} runs")
@@ -382,7 +387,7 @@ def main():
         f"{'scene':12s} {'motion':6s} {'contact':16s} {'median ms':>9s} {'p90 ms':>8s} {'x float':>8s} "
         f"{'iter':>6s} {'held':>7s} {'most':>5s} {'depth %':>8s}"
     )
-    scenes = {k: v for k, v in scene_dicts().items() if not args.only or k in args.only}
+    scenes = {k: v for k, v in every_scene.items() if not args.only or k in args.only}
     coulomb, bests = {}, {}
     diagnose = SetOperator.diagnose
     SetOperator.diagnose = _counting(diagnose)

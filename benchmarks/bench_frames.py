@@ -22,6 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import meshio  # noqa: E402
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import at_least  # noqa: E402
 
 import skfem_modal as sm  # noqa: E402
 from skfem_modal.export import FrameWriter, pad3, vtk_cells  # noqa: E402
@@ -68,7 +69,7 @@ def compare(name, mesh, frames: int, rng) -> None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--frames", type=at_least(1), default=10)
     args = parser.parse_args()
     print(machine_line(f"meshio {meshio.__version__}"))
     print(f"{'mesh':12s} {'writer':8s} {'ms/frame':>9s} {'MB/frame':>9s}")

@@ -7,7 +7,9 @@ assigned live) through the same gait: iterations per step, milliseconds per
 step (the lowest per-round median of ``--rounds`` rounds taken in turn, so
 all see the machine's fast and slow spells alike), the ratio to the first
 setting of the scene, and the trajectory's distance from the converged one
-(relative, mass norm of z): how far from converged the setting stops.
+(``off converged``: the Euclidean norm of the difference of z, all steps
+together, over that of the converged trajectory's z from its first step's,
+the distance it moved): how far from converged the setting stops.
 
 Scenes:
   * caterpillar: the study's floating caterpillar (1719 vertices, 8 weights, 20 clusters, h = 0.02)
@@ -31,6 +33,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import at_least  # noqa: E402
 
 from skfem_modal import _accel  # noqa: E402
 from skfem_modal.scene import Scene  # noqa: E402
@@ -96,8 +99,8 @@ def run(sim, gait, settings, steps):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--rounds", type=at_least(1), default=5)
+    parser.add_argument("--steps", type=at_least(2, "the distance moved is measured from the first step"), default=100)
     args = parser.parse_args()
     print(machine_line(f"numba {'yes' if _accel.AVAILABLE else 'no'}", f"{args.steps} steps, {args.rounds} rounds"))
     print(f"{'scene':24s} {'setting':42s} {'iterations':>10s} {'ms/step':>9s} {'ratio':>7s} {'off converged':>14s}")

@@ -19,15 +19,18 @@ import argparse
 import os
 import time
 import tomllib
+import warnings
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import at_least  # noqa: E402
 
 from skfem_modal.optimize import GaitSpace  # noqa: E402
 from skfem_modal.rollouts import Rollouts, Trial  # noqa: E402
+from skfem_modal.scene import Scene  # noqa: E402
 from skfem_modal.study import make_executor  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -36,16 +39,21 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default=os.path.join(HERE, "..", "examples", "seal_crawl.toml"))
-    parser.add_argument("--rollouts", type=int, default=64)
-    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--rollouts", type=at_least(1), default=64)
+    parser.add_argument("--steps", type=at_least(1), default=300)
     args = parser.parse_args()
+    if not os.path.isfile(args.scene):
+        parser.error(f"argument --scene: expected a scene file (TOML), got {args.scene!r}: no such file")
     with open(args.scene, "rb") as f:
         data = tomllib.load(f)
     base_dir = os.path.dirname(os.path.abspath(args.scene))
     if data.get("mesh", {}).get("file"):
         data["mesh"]["file"] = os.path.join(base_dir, data["mesh"]["file"])
+    with warnings.catch_warnings():  # the scene's warnings, if any, come with the trial's build below
+        warnings.simplefilter("ignore")
+        settings = _settings(Scene.from_dict(data, base_dir=base_dir), args.steps)
     clock = time.perf_counter()
-    trial = Trial.from_scene(data, **_settings(data, args.steps))
+    trial = Trial.from_scene(data, **settings)
     precompute = time.perf_counter() - clock
     space = GaitSpace(trial.sim.n_muscles)
     rng = np.random.default_rng(0)
@@ -69,7 +77,7 @@ def main():
             rollouts = Rollouts(trial, workers=workers)
         else:
             executor, close = make_executor(workers)
-            recipe = {"data": data, **_settings(data, args.steps)}
+            recipe = {"data": data, **settings}
             rollouts = Rollouts(trial, executor=executor, recipe=recipe)
         try:
             start = time.perf_counter()
@@ -96,11 +104,23 @@ def main():
     print(f"# the paper's budget, {budget} rollouts, at the 2-worker steady rate: {budget / rates[2, 'shared']:.0f} s")
 
 
-def _settings(data: dict, steps: int) -> dict:
-    """Rollout length and a travel direction along the first horizontal axis."""
-    gravity = data.get("gravity", {}).get("acceleration")
-    dim = len(gravity) if gravity else 2
-    return {"steps": steps, "direction": np.eye(dim)[0].tolist()}
+def _settings(scene: Scene, steps: int) -> dict:
+    """Rollout length and a travel direction along the scene's first horizontal axis (not its up axis).
+
+    Parameters
+    ----------
+    scene : skfem_modal.scene.Scene
+        The scene, whose mesh gives the dimension (a floating scene has no gravity to tell it).
+    steps : int
+        Steps a rollout.
+
+    Returns
+    -------
+    settings : dict
+        ``steps`` and ``direction``, for :class:`skfem_modal.rollouts.Trial`.
+    """
+    axis = next(i for i in range(scene.dim) if i != scene.up)
+    return {"steps": steps, "direction": np.eye(scene.dim)[axis].tolist()}
 
 
 if __name__ == "__main__":

@@ -13,7 +13,9 @@ state into the scene, rendering), then an empty window's render time: the
 floor software rendering and presenting the frame set. ``--variants`` also
 times, under Xvfb, the window with each of the choices made for speed undone
 (pyvista's default 8x multisampling, its five-light kit, the ground drawn as
-the edges of its cells, the sliders following the gait every frame).
+the edges of its cells, the sliders following the gait every frame), after
+the other tables are printed; a variant that fails is reported on stderr, the
+others still run, and the script exits non-zero at the end.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 from machine import machine_line  # noqa: E402
+from options import at_least  # noqa: E402
 
 from skfem_modal.play import virtual_display  # noqa: E402
 
@@ -51,12 +54,12 @@ import pyvista as pv
 from skfem_modal import play_view
 from skfem_modal.play import Player, _simulator
 from skfem_modal.play_view import PlayView
-sim, gait, _ = _simulator(None if sys.argv[1] == "-" else sys.argv[1], None)
+sim, gait, _, ramp = _simulator(None if sys.argv[1] == "-" else sys.argv[1], None)
 sim.step(*sim.rest_state())
 variant = sys.argv[3]
 if variant == "sliders follow the gait every frame":
     play_view._GAIT_SLIDERS_EVERY = 0.0
-view = PlayView(Player(sim, gait), window_size=(960, 600))
+view = PlayView(Player(sim, gait, ramp=ramp), window_size=(960, 600))
 if variant == "8x multisampling (pyvista's default)":
     view.plotter.render_window.SetMultiSamples(8)
 if variant == "five-light kit (pyvista's default)":
@@ -123,12 +126,13 @@ def run(code, args, off_screen):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=int, default=600)
-    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--frames", type=at_least(1), default=600)
+    parser.add_argument("--rounds", type=at_least(1), default=3)
     parser.add_argument("--variants", action="store_true", help="also time the choices made for speed undone")
     args = parser.parse_args()
     modes = {"Xvfb window": False, "off-screen (EGL)": True}
     runs = {(scene, mode): [] for scene in SCENES for mode in modes}
+    failed = []  # "scene: variant" of each variant run that failed (why: on stderr, as it fails)
     with virtual_display() as display:
         for _ in range(args.rounds):
             for scene, path in SCENES.items():
@@ -136,13 +140,34 @@ def main():
                     stats = run(PLAY, ["-" if path is None else path, str(args.frames), "1" if off else "0"], off)
                     runs[scene, mode].append(stats)
         empty = {mode: run(EMPTY, ["1" if off else "0"], off)["render_ms"] for mode, off in modes.items()}
+        # printed before the variants: a variant that fails cannot lose what was measured
+        print_runs(display, args.frames, runs, empty)
         variants = {(scene, v): [] for scene in SCENES for v in VARIANTS} if args.variants else {}
         for _ in range(args.rounds if args.variants else 0):
             for scene, path in SCENES.items():
                 for variant in VARIANTS:
-                    stats = run(VARIANT, ["-" if path is None else path, str(args.frames), variant], False)
+                    try:
+                        stats = run(VARIANT, ["-" if path is None else path, str(args.frames), variant], False)
+                    except RuntimeError as error:
+                        print(f"bench_play: {scene}, variant {variant!r} failed: {error}", file=sys.stderr)
+                        failed.append(f"{scene}: {variant}")
+                        continue
                     variants[scene, variant].append(stats)
-    print(machine_line(f"Xvfb {display}", f"{args.frames} frames a run, window 960 x 600"))
+    if variants:
+        print()
+        print("| scene (Xvfb window) | variant | mean frames/s, each run | median render ms, each run |")
+        print("|---|---|---|---|")
+        for (scene, variant), stats in variants.items():
+            fps = ", ".join(f"{s['fps']:.1f}" for s in stats) or "failed"
+            render = ", ".join(f"{s['render_ms']:.2f}" for s in stats) or "failed"
+            print(f"| {scene} | {variant} | {fps} | {render} |")
+    if failed:
+        sys.exit(f"bench_play: {len(failed)} variant run(s) failed: {'; '.join(failed)}")
+
+
+def print_runs(display, frames, runs, empty):
+    """The first tables: each scene and mode's runs, and the empty window's render time."""
+    print(machine_line(f"Xvfb {display}", f"{frames} frames a run, window 960 x 600"))
     print("| scene | rendering | mean frames/s, each run | median run | step ms | steps/frame | draw ms | render ms |")
     print("|---|---|---|---|---|---|---|---|")
     for (scene, mode), stats in runs.items():
@@ -155,14 +180,7 @@ def main():
         )
     print()
     print("empty 960 x 600 window, median render ms: " + ", ".join(f"{m} {v:.2f}" for m, v in empty.items()))
-    if variants:
-        print()
-        print("| scene (Xvfb window) | variant | mean frames/s, each run | median render ms, each run |")
-        print("|---|---|---|---|")
-        for (scene, variant), stats in variants.items():
-            fps = ", ".join(f"{s['fps']:.1f}" for s in stats)
-            render = ", ".join(f"{s['render_ms']:.2f}" for s in stats)
-            print(f"| {scene} | {variant} | {fps} | {render} |")
+    sys.stdout.flush()
 
 
 if __name__ == "__main__":

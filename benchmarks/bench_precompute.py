@@ -27,7 +27,11 @@ import os
 import subprocess
 import sys
 
-from machine import machine_line
+# one BLAS thread, as the other benchmarks, for this process and so for its children (they inherit it)
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from machine import machine_line  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -127,8 +131,7 @@ print(json.dumps({"total": time.perf_counter() - start, "stages": stages, "eleme
 
 
 def run(code, *args):
-    env = dict(os.environ, OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"))
-    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env, timeout=3600)
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=3600)
     if out.returncode != 0:
         return {"error": out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "failed"}
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -148,6 +151,7 @@ def main():
     print(machine_line())
     if missing:
         print(f"# reference not run: {missing}")
+    failed = []  # "case implementation" of each run that failed
     for name in args.sizes:
         case = CASES[name]
         results = {}
@@ -159,6 +163,7 @@ def main():
         for label, res in results.items():
             if "error" in res:
                 print(f"{name:5s} {label:18s} failed: {res['error']}")
+                failed.append(f"{name} {label}")
                 continue
             ratio = f"{ref / res['total']:5.2f}x" if ref and label != "reference" else ""
             stages = ", ".join(f"{k} {v:.2f}" for k, v in res["stages"].items() if v >= 0.01)
@@ -167,6 +172,9 @@ def main():
                 f"peak {res['peak_mb']:7.0f} MB   [{stages}]"
             )
         sys.stdout.flush()
+    # after every case: one failure does not hide the others' numbers, nor pass for a result
+    if failed:
+        sys.exit(f"bench_precompute: {len(failed)} run(s) failed (see the table): {'; '.join(failed)}")
 
 
 if __name__ == "__main__":

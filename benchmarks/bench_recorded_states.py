@@ -24,6 +24,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_step  # noqa: E402
+import options  # noqa: E402
 
 from skfem_modal.muscles import sine_gait  # noqa: E402
 
@@ -51,8 +52,17 @@ def mean_least_step_us(sim, states, number=20, repeat=15) -> float:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scenes", nargs="*", default=["seal-drop"], help="float, crawl, 3d, seal, seal-drop")
-    parser.add_argument("--backend", default="numpy")
+    parser.add_argument(
+        "scenes",
+        nargs="*",
+        type=options.one_of(bench_step.SCENE_NAMES),
+        default=["seal-drop"],
+        metavar="SCENE",
+        help=f"{', '.join(bench_step.SCENE_NAMES)} (default: seal-drop)",
+    )
+    parser.add_argument(
+        "--backend", type=options.backend, default="numpy", help="numpy (default), numba, plain or auto"
+    )
     args = parser.parse_args()
     for scene in bench_step.scenes(args.scenes):
         sim = bench_step.build(scene, args.backend)

@@ -11,6 +11,7 @@ from skfem_modal.contact import ALLOWANCE, MOST_ALLOWANCE
 HERE = os.path.dirname(os.path.abspath(__file__))
 BENCHMARKS = os.path.join(HERE, "..", "benchmarks")
 SHARED = os.path.join(HERE, "..", "..", "shared", "meshes")
+TUTORIAL = os.path.join(HERE, "..", "..", "shared", "reference", "modal_muscles_tutorial.txt")
 
 
 def bench(script, *args):
@@ -87,3 +88,89 @@ def test_bench_frames_runs_and_our_frames_read_back():
     rows = {tuple(line.split()[:2]): line.split()[2:] for line in out.splitlines()[2:]}
     assert set(rows) == {(mesh, writer) for mesh in ("seal", "caterpillar") for writer in ("ours", "meshio")}
     assert all(0.0 < float(ms) and 0.0 < float(mb) for ms, mb in rows.values())
+
+
+def run_script(code, *args):
+    """``code`` run with the benchmarks importable and ``args`` as its ``sys.argv[1:]``: the finished process."""
+    prelude = f"import sys; sys.path.insert(0, {BENCHMARKS!r}); sys.argv[1:] = {list(args)!r}\n"
+    argv = [sys.executable, "-c", prelude + code]
+    return subprocess.run(argv, capture_output=True, text=True, timeout=600)
+
+
+# a mistyped name or a count too small for the statistics: refused by the parser, naming the option and what works
+REFUSALS = [
+    ("bench_step.py", ["--only", "flaot"], "argument --only: invalid choice: 'flaot' (choose from 'float', 'crawl'"),
+    ("bench_step.py", ["--repeat", "0"], "argument --repeat: must be at least 1, got 0"),
+    ("profile_step.py", ["--only", "sael"], "argument --only: invalid choice: 'sael'"),
+    ("profile_step.py", ["--backend", "numpyy"], "argument --backend: invalid choice: 'numpyy'"),
+    ("bench_recorded_states.py", ["sealdrop"], "argument SCENE: invalid choice: 'sealdrop' (choose from 'float'"),
+    ("bench_contact.py", ["--only", "sael"], "argument --only: invalid choice: 'sael' (choose from 'caterpillar'"),
+    ("bench_contact.py", ["--steps", "1", "--settle", "10"], "argument --steps: must be at least 2"),
+    ("bench_contact.py", ["--repeat", "0"], "argument --repeat: must be at least 1, got 0"),
+    ("bench_backends.py", ["--steps", "20"], "argument --steps: must be at least 21 (the first 20 steps"),
+    ("bench_backends.py", ["--sizes", "4-10"], "argument --sizes: expected WEIGHTSxCLUSTERS, two positive integers"),
+    ("bench_effects.py", ["--steps", "10"], "argument --steps: must be at least 21"),
+    ("bench_modal.py", ["--repeat", "0"], "argument --repeat: must be at least 1, got 0"),
+    ("bench_frames.py", ["--frames", "0"], "argument --frames: must be at least 1, got 0"),
+    ("bench_blas_threads.py", ["--cases", "smal"], "argument --cases: invalid choice: 'smal'"),
+    ("bench_scaling.py", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("bench_iterations.py", ["--steps", "1"], "argument --steps: must be at least 2"),
+    ("bench_render.py", ["--sizes", "320-240"], "argument --sizes: expected WIDTHxHEIGHT"),
+]
+
+
+@pytest.mark.parametrize("script, args, message", REFUSALS, ids=[f"{s} {' '.join(a)}" for s, a, _ in REFUSALS])
+def test_a_benchmark_refuses_what_cannot_work_before_any_work(script, args, message):
+    argv = [sys.executable, os.path.join(BENCHMARKS, script), *args]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and message in done.stderr, done.stderr
+    assert done.stdout == ""  # not even the machine line: nothing ran
+
+
+def test_bench_scaling_has_a_help():
+    out = bench("bench_scaling.py", "--help")
+    assert "--steps" in out and "--only" in out
+
+
+WRONG_STEP = """
+import bench_step
+build = bench_step.build
+def wrong(scene, backend):
+    sim = build(scene, backend)
+    step = sim.step
+    sim.step = lambda *a, **k: step(*a, **k) * 1.01  # a wrong answer, however fast
+    return sim
+bench_step.build = wrong
+bench_step.main()
+"""
+
+
+@pytest.mark.skipif(not os.path.isfile(TUTORIAL), reason=f"the reference's tutorial is not at {TUTORIAL}")
+def test_bench_step_prints_its_table_then_fails_when_the_trajectory_is_not_the_references():
+    pytest.importorskip("simkit")
+    done = run_script(WRONG_STEP, "--only", "float", "--repeat", "1")
+    assert done.returncode == 1, done.stderr
+    rows = [line.split() for line in done.stdout.splitlines()[2:]]
+    assert [row[:2] for row in rows][:2] == [["float", "reference"], ["float", "numpy"]]
+    assert "differs from the reference's by more than 1e-08" in done.stderr and "float numpy: " in done.stderr
+
+
+WRONG_MODES = """
+import bench_modal
+from skfem_modal import caterpillar
+bench_modal.cases = lambda: [("small caterpillar", caterpillar(nx=16, ny=8), 7, 3)]
+right = bench_modal.linear_modal_analysis
+def wrong(mesh, k):
+    values, modes = right(mesh, k)
+    return 1.01 * values, modes
+bench_modal.linear_modal_analysis = wrong
+bench_modal.main()
+"""
+
+
+def test_bench_modal_prints_its_table_then_fails_when_the_eigenvalues_are_not_simkits():
+    pytest.importorskip("simkit")
+    done = run_script(WRONG_MODES, "--repeat", "1")
+    assert done.returncode == 1, done.stderr
+    assert "(differs)" in done.stdout
+    assert "the elastic eigenvalues differ from SimKit's (rtol 1e-06): small caterpillar" in done.stderr
