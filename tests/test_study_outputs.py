@@ -86,9 +86,9 @@ def test_a_study_runs_only_settings_that_apply_to_its_scene(tmp_path, tiny, extr
     meta = json.loads((tmp_path / "study.json").read_text())["meta"]
     assert meta["left_out"] == left_out
     # the reference contact's rule goes round between sets of held points: its full-space reference never
-    # settles (every step of this one stopped at 5000 iterations, its nodes moving 1.2 % of the size at the last), and the
-    # report says so first; the others settle (the Coulomb contact's in 39 iterations a step). An audit: the
-    # study called it "iterated to 1e-10" and reported errors against it.
+    # settles (every step of this one stopped at 5000 iterations, its nodes moving 1.2 % of the size at the
+    # last), and the report says so first; the others settle (the Coulomb contact's in 39 iterations a step).
+    # An audit: the study called it "iterated to 1e-10" and reported errors against it.
     unsettled = meta["references"]["1.0"]["unsettled_steps"]
     said = "The full-space reference did not settle in"
     if "warm_start" in left_out:
