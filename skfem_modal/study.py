@@ -1347,7 +1347,8 @@ def _plot(out_dir, rows, front, meta) -> str:
                 [100 * r["trajectory_error"] for r in pts],
                 marker=marker,
                 s=60 if sweep == "base" else 30,
-                label=sweep,
+                # other meshes, each against its own reference: not on the front (it compares one mesh's settings)
+                label="resolution (own reference)" if sweep == "resolution" else sweep,
             )
     f = sorted(front, key=lambda i: rows[i]["step_ms"])
     ax.plot(
