@@ -159,6 +159,35 @@ def _ground_holds(contact, gravity_step):
     return np.array([d for d, _ in held]), np.array([m for _, m in held])
 
 
+def _body_spread_rows(B, parts, dim: int):
+    """Rows whose squares summed over each body's block are its vertices' mean squared distance from their mean.
+
+    Parameters
+    ----------
+    B : ndarray, shape (n * dim, r)
+    parts : ndarray of int, shape (n,)
+        Each vertex's body.
+    dim : int
+
+    Returns
+    -------
+    rows : ndarray, shape (k, r)
+        Each body's block: the triangular factor of its centred rows of ``B`` (over its vertex count's root).
+        A factor, not the Gram matrix z^T G z - |mean|^2: that cancels as the squared coordinates grow (a box
+        1e8 from the origin had a spread of 0 at rest, and the run stopped on a division by zero).
+    starts : ndarray of int, shape (bodies,)
+        Where each body's block starts (for :func:`numpy.add.reduceat`).
+    """
+    B3 = B.reshape(-1, dim, B.shape[1])
+    blocks = []
+    for body in range(int(parts.max()) + 1):
+        rows = B3[parts == body]
+        centred = (rows - rows.mean(axis=0)).reshape(-1, B.shape[1]) / np.sqrt(rows.shape[0])
+        blocks.append(np.linalg.qr(centred, mode="r"))
+    starts = np.cumsum([0] + [block.shape[0] for block in blocks[:-1]])
+    return np.vstack(blocks), starts
+
+
 def _body_com_rows(sim, parts, bodies: int) -> np.ndarray:
     """Each body's centre of mass as a linear map of the state, its rows stacked, shape (bodies * dim, r)."""
     if bodies == 1:
@@ -208,19 +237,14 @@ class MotionMonitor:
     def __init__(self, sim, gravity=None, weight_scale=None, gait_period=None):
         dim = self.dim = sim.dim
         self.weight_scale = weight_scale
-        self._spread_rows = None  # the full space's state is the positions themselves
-        if sim.B is not None:
-            B = np.asarray(sim.B)
-            n = B.shape[0] // dim
-            centred = B.reshape(n, dim, -1) - B.reshape(n, dim, -1).mean(axis=0)
-            # (r, r): |R z|^2 is the mean squared distance of the vertices from their mean. A factor, not the
-            # Gram matrix z^T G z - |mean|^2: that cancels as the squared coordinates grow (a box 1e8 from the
-            # origin had a spread of 0 at rest, and the run stopped on a division by zero)
-            self._spread_rows = np.linalg.qr(centred.reshape(n * dim, -1) / np.sqrt(n), mode="r")
         # each body of the mesh (connected part) watched as one alone: of the whole mesh, a copy 1/1000 the
-        # size of a body beside it was pushed 2.62 of its sizes in a step unreported (0.0013 of the whole mesh's)
+        # size of a body beside it was pushed 2.62 of its sizes in a step unreported (0.0013 of the whole mesh's),
+        # and two squares, one pinned and one falling, "grew to 9.02 times" their rest spread
         self._parts = connected_labels(sim.mesh)
         self.bodies = int(self._parts.max()) + 1
+        self._spread_rows = None  # the full space's state is the positions themselves
+        if sim.B is not None:
+            self._spread_rows, self._spread_starts = _body_spread_rows(np.asarray(sim.B), self._parts, dim)
         self._com_rows = _body_com_rows(sim, self._parts, self.bodies)  # (bodies * dim, r)
         self.h = float(sim.h)
         z_rest = sim.rest_state()[0]
@@ -240,13 +264,17 @@ class MotionMonitor:
         self.gait_period = gait_period
         self._ceilings = np.asarray(sim.ceilings, dtype=np.float64) if sim.n_muscles else None
         self.ceiling_fraction = 0.0  # the largest |activation| / ceiling commanded
-        # pins or drag may hold a body up in the air: then nothing is hovering
-        held = np.size(sim.pinned) > 0 or sim.damping_mass > 0
+        # pins (on its own vertices) or drag may hold a body up in the air: then it is not hovering (pins on one
+        # body had kept the other, free, from being seen hovering 0.05 above the ground)
+        held = np.zeros(self.bodies, bool)
+        held[self._parts[np.asarray(sim.pinned, dtype=np.int64)]] = True
+        held |= sim.damping_mass > 0
+        self._held = held
         fall = math.sqrt(float(self._gravity_step @ self._gravity_step))
-        self._up = None if held or fall == 0.0 else -self._gravity_step / fall
+        self._up = None if held.all() or fall == 0.0 else -self._gravity_step / fall
         self._fall = fall  # how far free fall moves a body in a step (its second difference)
         # what may hold the weight up (no push): pins or drag in every step, a ground in the steps on it
-        self._always_held = _weight_held(self._gravity_step) if held else None
+        self._always_held = _weight_held(self._gravity_step) if held.any() else None
         self._ground_held = _ground_holds(sim.model.contact, self._gravity_step)
         if self._aliases(gait_period):
             self.first_problem_step["gait"] = 1
@@ -256,6 +284,10 @@ class MotionMonitor:
         self.deepest = 0.0  # how far any vertex went into the ground, of its body's size
         self._elements = sim.mesh.t
         self._rest_sign = np.sign(_signed_measures(sim.mesh.p, sim.mesh.t))
+        # each body's elements: more than INVERTED_LIMIT of a body's own is a fold (of the whole mesh's, a small
+        # square beside a large pinned one had 52 % of its triangles inside out unreported)
+        self._element_body = self._parts[sim.mesh.t[0]]
+        self._inverted_limit = INVERTED_LIMIT * np.bincount(self._element_body, minlength=self.bodies)
         self.inverted = 0  # the most elements inside out in a state checked (:meth:`check_elements`)
         self._inverted_step = 0  # the step of that state
         self._checked = (-1, 0)  # the step of the last state checked, and its count (a frame and a jolt's alike)
@@ -275,17 +307,22 @@ class MotionMonitor:
             self._contact_terms += (thin_part,)
             self._sink_limit = 2.0 * sim.allowance if sim.contact_model == "coulomb" else SINK_LIMIT
 
-    def _spread(self, z) -> float:
-        return float(self._spreads(z[None])[0])
+    def _spread(self, z) -> np.ndarray:
+        """Each body's spread in a state ``z`` (r,), shape (bodies,)."""
+        return self._spreads(z[None])[0]
 
     def _spreads(self, states) -> np.ndarray:
-        """The root-mean-square distance of the vertices from their mean, of each state (T, r): shape (T,)."""
+        """Each body's root-mean-square distance of its vertices from their mean, of each state (T, r): (T, bodies)."""
         if self._spread_rows is None:
             x = states.reshape(states.shape[0], -1, self.dim)
-            x = x - x.mean(axis=1, keepdims=True)
-            return np.sqrt(np.einsum("tnd,tnd->t", x, x) / x.shape[1])
+            spreads = []
+            for body in range(self.bodies):
+                xb = x[:, self._parts == body]
+                xb = xb - xb.mean(axis=1, keepdims=True)
+                spreads.append(np.einsum("tnd,tnd->t", xb, xb) / xb.shape[1])
+            return np.sqrt(np.stack(spreads, axis=1))
         rows = states @ self._spread_rows.T
-        return np.sqrt(np.einsum("ij,ij->i", rows, rows))
+        return np.sqrt(np.add.reduceat(rows * rows, self._spread_starts, axis=1))
 
     def update(self, step: int, z, a=None, clearance=None, depth=None, sunk=None) -> bool:
         """Take the state after ``step`` steps; True if its elements are to be checked (:meth:`check_elements`).
@@ -326,11 +363,12 @@ class MotionMonitor:
             self._measure_pushes()
         self._previous, self._velocity_step = com, change
         ratio = self._spread(z) / self.rest_spread
-        if ratio < self.spread_ratio[0]:
-            self.spread_ratio[0] = ratio
-        elif ratio > self.spread_ratio[1]:
-            self.spread_ratio[1] = ratio
-        if _spread_beyond(ratio):
+        low, high = float(ratio.min()), float(ratio.max())
+        if low < self.spread_ratio[0]:
+            self.spread_ratio[0] = low
+        if high > self.spread_ratio[1]:
+            self.spread_ratio[1] = high
+        if _spread_beyond(ratio).any():
             self.first_problem_step.setdefault("spread", step)
         if clearance is not None and self._up is not None:
             self._watch_hovering(step, clearance / self.sizes, excess @ self._up, change)
@@ -358,12 +396,13 @@ class MotionMonitor:
         """
         if step == self._checked[0]:  # (a frame written after a jolt)
             return self._checked[1]
-        inverted = self._inverted(positions)
+        per_body = self._inverted(positions)
+        inverted = int(per_body.sum())
         self._checked = (step, inverted)
         if inverted > self.inverted:
             self.inverted = inverted
             self._inverted_step = step
-        if inverted > INVERTED_LIMIT * self._elements.shape[1]:
+        if (per_body > self._inverted_limit).any():
             self.first_problem_step.setdefault("inverted", step)
         if self._plane is not None:
             # an inner vertex is below the boundary's lowest only through elements inside out (a soft box
@@ -386,10 +425,10 @@ class MotionMonitor:
         """Each body's centre of mass in a state ``z`` (r,), shape (bodies, dim)."""
         return (self._com_rows @ z).reshape(self.bodies, self.dim)
 
-    def _inverted(self, positions) -> int:
-        """Elements inside out in positions (n, dim)."""
+    def _inverted(self, positions) -> np.ndarray:
+        """Each body's elements inside out in positions (n, dim), shape (bodies,)."""
         measures = _signed_measures(np.asarray(positions).T, self._elements)
-        return int(np.count_nonzero(measures * self._rest_sign <= 0.0))
+        return np.bincount(self._element_body[measures * self._rest_sign <= 0.0], minlength=self.bodies)
 
     def run_problems(self, states, gait_period=None, positions=None) -> dict:
         """The first steps of a run from rest whose push or spread is not physical, all at once.
@@ -427,14 +466,15 @@ class MotionMonitor:
             touching = (lowest.T - self._plane.ground) < HOVER_CLEARANCE * self.sizes
         push = self._pushes(excess, touching)
         ratio = self._spreads(states[1:]) / self.rest_spread
-        found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(_spread_beyond(ratio))}
+        found = {"push": np.flatnonzero(push > PUSH_LIMIT), "spread": np.flatnonzero(_spread_beyond(ratio).any(axis=1))}
         found = {name: int(steps[0]) + 1 for name, steps in found.items() if steps.size}
         if positions is not None:
             jolts = np.flatnonzero(np.any(self._jolted(excess), axis=1))
             watched = {min(int(j) + 1 + k, len(excess)) for j in jolts for k in range(JOLT_STEPS + 1)}
-            limit = INVERTED_LIMIT * self._elements.shape[1]
             inverted = [
-                step for step in sorted(watched | {len(excess)}) if self._inverted(positions(states[step])) > limit
+                step
+                for step in sorted(watched | {len(excess)})
+                if (self._inverted(positions(states[step])) > self._inverted_limit).any()
             ]
             if inverted:
                 found["inverted"] = inverted[0]
@@ -444,14 +484,15 @@ class MotionMonitor:
 
     def _aliases(self, gait_period) -> bool:
         """Whether the time step is too long for a gait of this shortest period (None: no gait)."""
-        return gait_period is not None and self.h > GAIT_STEPS * gait_period
+        # (at exactly two steps a period too: a sine read at the same two phases, its zeros for a plain one)
+        return gait_period is not None and self.h >= GAIT_STEPS * gait_period
 
     def _pushes(self, excess, touching) -> np.ndarray:
         """How far forces other than gravity moved a centre of mass, of its body's size, at most, for steps'
         ``excess`` (T, bodies, dim) over free fall, shape (T,); for the bodies ending a step on the ground
         (``touching``, (T, bodies) bool), what it may hold of the weight (:func:`_ground_holds`) left out,
         and in every step what pins or drag may."""
-        for holds, where in ((self._always_held, True), (self._ground_held, touching)):
+        for holds, where in ((self._always_held, self._held), (self._ground_held, touching)):
             if holds is not None:
                 directions, most = holds
                 held = np.clip(excess @ directions.T, 0.0, most) * np.expand_dims(where, -1)
@@ -464,7 +505,7 @@ class MotionMonitor:
         ``clear`` (bodies,): of each body's size; ``lift`` (bodies,) and ``change`` (bodies, dim).
         """
         still = (change * change).sum(axis=1) < self._fall * self._fall
-        hovering = (clear > HOVER_CLEARANCE) & still & (lift > 0.5 * self._fall)
+        hovering = (clear > HOVER_CLEARANCE) & still & (lift > 0.5 * self._fall) & ~self._held
         self._hovering = (self._hovering + 1) * hovering
         if "hover" not in self.first_problem_step and self._hovering.max() == HOVER_STEPS:
             self.first_problem_step["hover"] = step - HOVER_STEPS + 1
@@ -535,7 +576,11 @@ class MotionMonitor:
                 "weight strains by 100 %): it collapses at any time step; a stiffer material (material.mu) or a "
                 "lighter one (material.rho) holds it"
             )
-        return f"the time step h = {self.h:g} is too large for this scene; try a smaller time.step"
+        return (
+            f"neither the muscles' ceilings nor the material's weight explain it: the time step h = {self.h:g} may "
+            "be too large for this scene (try a smaller time.step); if a smaller one does the same, the scene asks "
+            "more than the elements can take (several muscles at once, a violent landing)"
+        )
 
     def _problems(self, overdriven: bool) -> list[str]:
         """A sentence for each problem seen (:meth:`finish`), but the ceilings' and the blame."""
@@ -546,6 +591,7 @@ class MotionMonitor:
             size = f"grew to {high:.3g} times" if high > SPREAD_LIMIT else f"shrank to {low:.3g} times"
             texts.append(
                 f"from step {step} (t = {step * self.h:g}) the body {size} its rest size"
+                + (" (a body of the mesh, in its own spread)" if self.bodies > 1 else "")
                 + ("" if overdriven or self._too_soft else ": no force in this scene deforms it so far")
             )
         if "push" in self.first_problem_step:
@@ -558,8 +604,9 @@ class MotionMonitor:
             )
         if "inverted" in self.first_problem_step:
             step, n = self.first_problem_step["inverted"], self._elements.shape[1]
+            of = " of a body of the mesh" if self.bodies > 1 else ""
             texts.append(
-                f"from step {step} (t = {step * self.h:g}) more than {100 * INVERTED_LIMIT:g} % of the elements "
+                f"from step {step} (t = {step * self.h:g}) more than {100 * INVERTED_LIMIT:g} % of the elements{of} "
                 f"were inside out, up to {self.inverted} of the {n} ({100 * self.inverted / n:.3g} %, at "
                 f"t = {self._inverted_step * self.h:g}) in the states checked (the frames written, the last, and "
                 f"{JOLT_STEPS} after each jolt): "
@@ -588,7 +635,7 @@ class MotionMonitor:
         if "gait" in self.first_problem_step:
             period = self.gait_period
             texts.append(
-                f"the gait's shortest period ({period:g}) is less than two time steps (h = {self.h:g}): the muscles "
+                f"the gait's shortest period ({period:g}) is at most two time steps (h = {self.h:g}): the muscles "
                 f"are sampled at aliased phases, not as the gait asks; a time.step of at most {period / 20:.2g} "
                 "(twenty a period) resolves it"
             )
