@@ -446,6 +446,26 @@ def test_a_body_folded_between_the_frames_by_a_hard_landing_is_reported(tmp_path
     assert monitor._inverted(sim.positions(states[-1])) == 0
 
 
+def test_a_hard_landing_at_a_small_time_step_is_a_jolt_too():
+    """An audit: per step, the same landing at h = 0.001 was 0.0033 of JOLT's 0.01, and the square folded through
+    itself between the frames written unreported: summed over the time a wave crosses the body, it is a jolt."""
+    data = _hard_landing()
+    data["time"] = {"steps": 4700, "step": 0.001}  # it lands at t = 4.52
+    with pytest.warns(MotionWarning, match="of the elements were inside out"):
+        summary = run_scene(Scene.from_dict(data), None)
+    motion = summary["motion"]
+    assert not motion["physical"] and 4520 <= motion["first_problem_step"]["inverted"] <= 4560
+    # a rollout's check of its kept states finds it as well
+    sim = Scene.from_dict(data).build()
+    z, z_dot, _ = sim.rest_state()
+    states = [z]
+    for _ in range(4700):
+        z, z_dot = sim.step(z, z_dot, velocity=True)
+        states.append(z)
+    found = MotionMonitor(sim, [0.0, -9.8]).run_problems(np.array(states), None, sim.positions)
+    assert 4520 <= found["inverted"] <= 4560
+
+
 def test_the_examples_crawls_are_not_jolted():
     """The states after a jolt cost a check of every element: a crawl's steps are not jolts (0.002 of JOLT's 0.01)."""
     scene = Scene.from_dict(copy.deepcopy(DEFAULT_SCENE))
