@@ -798,6 +798,15 @@ def test_the_screenshot_shows_the_last_frames_own_status(display, tmp_path):
     assert status_rows.any(axis=2).mean() > 0.001  # the saved status line is not the stale one
 
 
+def seen_in_window(script: str, tmp_path, scene_text: str) -> dict:
+    """What ``script`` prints last (JSON) of a window on the scene ``scene_text``, run in a subprocess."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text(scene_text)
+    result = subprocess.run([sys.executable, "-c", script, str(scene)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
 CAMERA_OF_A_Y_UP_BODY = """
 import json, sys
 import numpy as np
@@ -815,16 +824,12 @@ def test_the_window_looks_at_a_y_up_body_from_the_front_as_render_does(display, 
     """An audit: the seal and the elephant (y up) were seen from behind, walking leftwards, in the window."""
     from skfem_modal.camera import Camera
 
-    scene = tmp_path / "scene.toml"
-    scene.write_text(
+    seen = seen_in_window(
+        CAMERA_OF_A_Y_UP_BODY,
+        tmp_path,
         '[mesh]\nshape = "creature"\nparams = { cell = 0.2 }\n[subspace]\nweights = 3\nclusters = 4\n'
-        "[muscles]\ncount = 1\n[gravity]\nacceleration = [0.0, -9.8, 0.0]\n[ground]\noffset = 0.0\n"
+        "[muscles]\ncount = 1\n[gravity]\nacceleration = [0.0, -9.8, 0.0]\n[ground]\noffset = 0.0\n",
     )
-    result = subprocess.run(
-        [sys.executable, "-c", CAMERA_OF_A_Y_UP_BODY, str(scene)], capture_output=True, text=True, timeout=300
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    seen = json.loads(result.stdout.strip().splitlines()[-1])
     pictures = Camera.looking_at(np.array([0.0, 1.0, 0.0]), 3)  # render's, for y up
     towards = np.array(seen["towards"]) / np.linalg.norm(seen["towards"])
     np.testing.assert_allclose(towards, pictures.towards, atol=1e-12)
@@ -875,17 +880,13 @@ def test_the_window_of_a_flat_body_far_off_with_x_up(display, tmp_path):
 
     mesh = caterpillar()
     meshio.write(tmp_path / "far.vtu", meshio.Mesh(mesh.p.T + [300.0, 50.0], [("triangle", mesh.t.T)]))
-    scene = tmp_path / "scene.toml"
-    scene.write_text(
+    seen = seen_in_window(
+        WINDOW_OF_A_FAR_X_UP_2D_BODY,
+        tmp_path,
         '[mesh]\nfile = "far.vtu"\n[subspace]\nweights = 4\nclusters = 6\n[muscles]\ncount = 2\n'
         "[muscles.gait]\namplitude = [1.5, 0.4]\nperiod = [1.0, 0.8]\nphase = [0.25, 0.0]\n"
-        "[gravity]\nacceleration = [-9.8, 0.0]\n[ground]\noffset = 0.0\n"
+        "[gravity]\nacceleration = [-9.8, 0.0]\n[ground]\noffset = 0.0\n",
     )
-    result = subprocess.run(
-        [sys.executable, "-c", WINDOW_OF_A_FAR_X_UP_2D_BODY, str(scene)], capture_output=True, text=True, timeout=300
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    seen = json.loads(result.stdout.strip().splitlines()[-1])
     np.testing.assert_allclose(seen["up"], Camera.looking_at(np.array([1.0, 0.0]), 2).screen_up, atol=1e-12)
     assert seen["up"][0] == 1.0
     # the ground's grid under the body (snapped to its cells), along the ground: y here, x being up
