@@ -539,7 +539,8 @@ class _RunFiles:
         """
         self.frame_last()
         frames = self.frames
-        pinned = {"worst_drift_written_frames": self.monitor.pin_drift} if self.sim.pinned.size else None
+        drift = {"worst_drift": self.monitor.pin_drift, "worst_drift_written_frames": self.monitor.pin_drift_checked}
+        pinned = drift if self.sim.pinned.size else None
         times = [frames.times[0], frames.times[-1]] if frames.times else None
         summary.update(
             pinned=pinned, frames={"count": frames.count, "every": self.every, "pvd": "frames.pvd", "times": times}

@@ -187,6 +187,13 @@ def test_pinned_drift_is_the_largest_distance_over_the_written_frames(tmp_path):
     distance = np.linalg.norm(offsets, axis=2).max()
     assert summary["pinned"]["worst_drift_written_frames"] == pytest.approx(distance, rel=1e-12)
     assert distance > 1.01 * np.abs(offsets).max()  # a distance, not the largest coordinate offset
+    # after every step too, the same as a run writing every frame reads off its frames
+    run_scene(scene, tmp_path / "all", every=1)
+    offsets = np.array(
+        [meshio.read(f).point_data["displacement"][pinned, :2] for f in sorted((tmp_path / "all" / "frames").glob("*"))]
+    )
+    assert summary["pinned"]["worst_drift"] == pytest.approx(np.linalg.norm(offsets, axis=2).max(), rel=1e-9)
+    assert summary["pinned"]["worst_drift"] > distance
 
 
 def test_a_failed_run_names_what_the_monitor_saw_of_the_failing_step(tmp_path, capsys):
