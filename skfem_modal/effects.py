@@ -28,6 +28,7 @@ import numpy as np
 
 from .mesh import connected_labels
 from .modal import ceilings_of_gradients
+from .motions import held_parts
 from .muscles import cluster_sum_operator, muscle_target_constants, muscle_target_operator
 from .rotations import rotations2_flat, rotations3_flat
 from .values import checked_state
@@ -209,7 +210,8 @@ class Muscles(Effect):
         scale = 1.0 / np.einsum("ik,ik->k", MD, modes)
         self.amplitude_rows = np.asarray(space.force(MD)).T * scale[:, None]
         self.amplitude_rest = (MD.T @ space.rest) * scale
-        self._body_frames = (space, modes, mass, scale)  # made when first asked for (amplitudes)
+        self._frame_inputs = (space, modes, mass, scale)
+        self._frames = {}  # the parts' frames, by which parts are held, made when first asked for (amplitudes)
 
     @property
     def max_s(self) -> float:
@@ -239,28 +241,57 @@ class Muscles(Effect):
         c0, c1, Q = self._constants
         return E + c0 + float(c1 @ a) + float(a @ Q @ a), grad
 
-    def amplitudes(self, u, body_frame: bool = False) -> np.ndarray:
+    def amplitudes(self, u, pinned=None) -> np.ndarray:
         """Realised modal amplitudes of a state ``u`` (r,), shape (m,).
 
-        ``body_frame``: of the displacement from the rest shape moved by the body's best rigid motion
-        (:class:`_BodyFrame`), so that a body that turned or moved is not read as muscle action; else of
-        the displacement from the rest shape where it is (for a pinned body, whose frame the pins hold).
+        Each body of the mesh (connected part) by its own share of the projection: of the displacement
+        from its rest shape moved by its best rigid motion (:class:`_BodyFrame`), so that a body that
+        turned or moved is not read as muscle action; or, for a body its pins hold in place (no rigid
+        motion left, :func:`~skfem_modal.motions.held_parts`), of the displacement from its rest shape.
+
+        Parameters
+        ----------
+        u : ndarray, shape (r,)
+        pinned : ndarray of int, shape (k,), optional
+            The pinned vertices.
+
+        Returns
+        -------
+        amplitudes : ndarray, shape (m,)
         """
         u = checked_state(u, self.amplitude_rows.shape[1], "u")
-        if body_frame:
-            if isinstance(self._body_frames, tuple):
-                self._body_frames = _part_frames(*self._body_frames)
-            # each body of the mesh in its own frame (one for all: a part that turned read as muscle action)
-            return sum(frame.amplitudes(u) for frame in self._body_frames)
-        return self.amplitude_rows @ u - self.amplitude_rest
+        pinned = np.zeros(0, np.int64) if pinned is None else np.asarray(pinned, np.int64)
+        frames = self._frames.get(pinned.tobytes())
+        if frames is None:
+            # each body in its own frame (one for all: a part that turned read as muscle action; a pin on one
+            # body had put every body in the rest frame, and a body turning about one pin read as a muscle)
+            held = held_parts(self._frame_inputs[0].mesh, pinned) if pinned.size else None
+            frames = self._frames[pinned.tobytes()] = _part_frames(*self._frame_inputs, held)
+        return sum(frame.amplitudes(u) for frame in frames)
 
 
-def _part_frames(space, modes, mass, scale) -> list:
-    """A :class:`_BodyFrame` per connected part of the mesh, each of its part's masses (the others' zero)."""
+def _part_frames(space, modes, mass, scale, held=None) -> list:
+    """A frame per connected part of the mesh, each of its part's masses (the others' zero): a :class:`_RestFrame`
+    for the parts ``held`` (bool, (parts,)) marks, a :class:`_BodyFrame` for the others."""
     parts = np.repeat(connected_labels(space.mesh), space.dim)  # (N,): each DOF's part
-    if parts.max() == 0:
-        return [_BodyFrame(space, modes, mass, scale)]
-    return [_BodyFrame(space, modes, np.where(parts == q, mass, 0.0), scale) for q in range(parts.max() + 1)]
+    frames = []
+    for q in range(parts.max() + 1):
+        part_mass = mass if parts.max() == 0 else np.where(parts == q, mass, 0.0)
+        frame = _RestFrame if held is not None and held[q] else _BodyFrame
+        frames.append(frame(space, modes, part_mass, scale))
+    return frames
+
+
+class _RestFrame:
+    """Modal amplitudes of a held body: the mass-weighted projection of ``x - X`` on each mode, its masses'."""
+
+    def __init__(self, space, modes, mass, scale):
+        MD = modes * mass[:, None]
+        self.rows = np.asarray(space.force(MD)).T * scale[:, None]
+        self.rest = (MD.T @ space.rest) * scale
+
+    def amplitudes(self, u) -> np.ndarray:
+        return self.rows @ u - self.rest
 
 
 class _BodyFrame:

@@ -22,7 +22,7 @@ from .eigen import generic_weight, weighted_basis
 from .fem import node_positions, scalar_basis, vector_dofs
 from .mesh import check_mesh, connected_parts
 
-__all__ = ["fixed_nodes", "rigid_motions", "rigid_mode_count", "hinge_count", "facet_pieces"]
+__all__ = ["fixed_nodes", "rigid_motions", "rigid_mode_count", "held_parts", "hinge_count", "facet_pieces"]
 
 # Singular values below this fraction of the largest (of a dimensionless constraint matrix) are zero.
 _RANK_RTOL = 1e-10
@@ -285,6 +285,39 @@ def rigid_mode_count(mesh, fixed=None) -> int:
     mask = np.zeros(mesh.p.shape[1], dtype=bool)
     mask[pinned] = True
     return free + sum(_part_motions(x[parts == part], mask[parts == part]).shape[1] for part in touched)
+
+
+def held_parts(mesh, fixed) -> np.ndarray:
+    """Which connected parts their fixed vertices leave no rigid motion (held in place: a frame of their own).
+
+    One pinned vertex in 2D (two in 3D) leaves a part free to turn about it: not held.
+
+    Parameters
+    ----------
+    mesh : skfem.MeshTri or skfem.MeshTet
+    fixed : array_like of int, shape (k,), or of bool, shape (n,)
+        Pinned vertices.
+
+    Returns
+    -------
+    held : ndarray of bool, shape (parts,)
+        By part label (:func:`~skfem_modal.mesh.connected_parts`).
+
+    Examples
+    --------
+    >>> from skfem_modal.mesh import beam2d
+    >>> held_parts(beam2d(2.0, 0.5, 4, 2), [0]).tolist(), held_parts(beam2d(2.0, 0.5, 4, 2), [0, 5]).tolist()
+    ([False], [True])
+    """
+    check_mesh(mesh)
+    parts = connected_parts(mesh)
+    pinned = np.zeros(mesh.p.shape[1], dtype=bool)
+    pinned[fixed_nodes(mesh, fixed)] = True
+    x = mesh.p.T
+    return np.array(
+        [pinned[parts == part].any() and not _part_motions(x[parts == part], pinned[parts == part]).shape[1]
+         for part in range(int(parts.max()) + 1)]
+    )  # fmt: skip
 
 
 def hinge_count(mesh, fixed=None) -> int:

@@ -1217,8 +1217,9 @@ class ModalMuscle(_GroundSettings):
 
         For a free body the displacement from its rest shape moved by its best rigid
         motion (mass-weighted, Kabsch), so that turning or travelling is not read as
-        muscle action; for a pinned one the displacement from the rest shape (the pins
-        hold the frame).
+        muscle action; for one its pins hold in place (no rigid motion left: two pins
+        in 2D, three not in a line in 3D) the displacement from the rest shape. Each
+        body of a mesh of several by its own rule.
 
         Parameters
         ----------
@@ -1231,7 +1232,7 @@ class ModalMuscle(_GroundSettings):
         muscles = self._model.muscles
         if muscles is None:
             return np.zeros(0)
-        return muscles.amplitudes(self._state(z), body_frame="pinned" not in self._model.named)
+        return muscles.amplitudes(self._state(z), self.pinned)
 
     def contact_positions(self, z) -> np.ndarray:
         """Positions of the contact vertices in a state ``z`` (r,), shape (p, dim) (empty without a ground)."""
