@@ -364,3 +364,26 @@ def test_p2_frequencies_converge_at_fourth_order_with_their_default_mass():
     assert np.log2(consistent[:-1] / consistent[1:]).min() > 3.5 and consistent[-1] < 2e-6
     # the lumped mass: second order, and ten times as far off on the finest of them
     assert np.log2(lumped[-2] / lumped[-1]) < 2.5 and lumped[-1] > 10 * consistent[-1]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_p2_ceilings_hold_the_largest_gradient_anywhere_in_an_element(dim):
+    """An audit: P2 ceilings were read at the quadrature points, where a P2 gradient (linear over an element)
+    is not largest: a mode scaled by its ceiling reached |dF| = 2.48 at element vertices with max_s = 2 (24 %)."""
+    from skfem import ElementTriP2, ElementVector
+
+    mesh = sm.beam2d(4.0, 1.0, 8, 2) if dim == 2 else sm.box3d(3, 3, 3)
+    _, modes = linear_modal_analysis(mesh, 10, element="P2")
+    modes = modes[:, 3 * (dim - 1) :]  # the elastic ones
+    ceilings = sm.actuation_limits(mesh, modes, max_s=2.0, element="P2")
+    # barycentric points all over the reference element: its vertices, edge midpoints and random inner ones
+    rng = np.random.default_rng(0)
+    weights = np.vstack([np.eye(dim + 1), rng.dirichlet(np.ones(dim + 1), 200)])
+    corners = np.hstack([np.zeros((dim, 1)), np.eye(dim)])
+    points = corners @ weights.T
+    element = ElementVector(ElementTriP2() if dim == 2 else ElementTetP2())
+    basis = Basis(mesh, element, quadrature=(points, np.full(points.shape[1], 1.0)))
+    for k, ceiling in enumerate(ceilings):
+        grad = basis.interpolate(ceiling * modes[:, k]).grad  # (dim, dim, elements, points)
+        largest = np.sqrt((grad**2).sum(axis=(0, 1))).max()
+        assert largest == pytest.approx(2.0, rel=1e-9)  # reached, at a vertex, and nowhere exceeded
