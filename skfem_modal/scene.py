@@ -270,7 +270,8 @@ SCHEMA: dict[str, Any] = {
             "int",
             None,
             "Cluster on the first this many skinning weights (default: weights), so clusters stay the same "
-            "while the subspace size changes.",
+            "while the subspace size changes (with cluster_by = `rotations`, the muscles' clusters only: "
+            "warned where that changes nothing).",
             check=_at_least_one,
         ),
         "active_clusters": Key("int", 1, "Rotation clusters for the muscle energy.", check=_at_least_one),
@@ -455,7 +456,8 @@ SCHEMA: dict[str, Any] = {
             'Model "coulomb" only (default true): each step\'s sliding vertices end with exact Coulomb friction, '
             "straight against their slides. false keeps the friction the active set fixed as each vertex started "
             "to slide (degrees off the slide, at most 90), for a cheaper step with friction (docs/contact.md, what "
-            "it costs).",
+            "it costs). 3D only: in 2D a slide has one direction, and its friction is exact either way (false is "
+            "warned of).",
         ),
         "contacts": Key(
             "int|all",
@@ -970,7 +972,9 @@ class Scene:
         )
 
     def idle_warnings(self) -> list[str]:
-        """Why each of ``time.warm_start`` and ``time.acceleration`` that is on does nothing under the scene's ground.
+        """Why each of ``time.warm_start`` and ``time.acceleration`` that is on does nothing under the scene's ground;
+        and settings given that change nothing in this scene (``ground.exact_friction = false`` in 2D,
+        ``subspace.cluster_weights`` with passive clusters by rotations).
 
         The simulator says the same as it is built (:func:`~skfem_modal.sim.idle_settings`); the scene says it
         to a command that builds none (``skfem-modal info``).
@@ -979,7 +983,22 @@ class Scene:
 
         c = self.config
         model = None if c["ground"] is None else c["ground"]["model"]
-        return idle_settings(c["time"]["acceleration"], c["time"]["warm_start"], model)
+        said = idle_settings(c["time"]["acceleration"], c["time"]["warm_start"], model)
+        # settings that change nothing in this scene (an audit: both were silently ignored)
+        if self.dim == 2 and c["ground"] is not None and c["ground"]["exact_friction"] is False:
+            said.append(
+                "ground.exact_friction = false changes nothing in 2D: a slide has one direction along the ground, "
+                "and its friction is exact either way"
+            )
+        sub = c["subspace"]
+        if sub["cluster_by"] == "rotations" and sub["cluster_weights"] is not None:
+            muscle_clusters = c["muscles"]["count"] and sub["active_clusters"] > 1
+            said.append(
+                f'subspace.cluster_weights = {sub["cluster_weights"]}: with cluster_by = "rotations" the passive '
+                "clusters come from the modes' rotations, so it shapes "
+                + ("the muscles' clusters only" if muscle_clusters else "nothing here (one muscle cluster, or none)")
+            )
+        return said
 
     def unused_warning(self) -> str | None:
         """Which muscle settings a scene without muscles (``muscles.count = 0``) gives for nothing, or None."""

@@ -383,3 +383,21 @@ def test_a_table_that_starts_after_0_is_warned_of(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         Scene.from_toml(tmp_path / "scene.toml")
+
+
+def test_settings_that_change_nothing_in_the_scene_are_warned_of():
+    """An audit: ground.exact_friction = false in 2D (a slide there has one direction) and subspace.cluster_weights
+    with passive clusters by rotations (one muscle cluster) changed positions by exactly 0.0, unsaid."""
+    ground = {"offset": 0.15, "model": "coulomb", "exact_friction": False}
+    with pytest.warns(UserWarning, match="ground.exact_friction = false changes nothing in 2D"):
+        Scene.from_dict(scene_with(ground=ground))
+    rotations = scene_with(subspace__cluster_by="rotations", subspace__cluster_weights=4)
+    with pytest.warns(UserWarning, match="cluster_weights = 4: .* so it shapes nothing here"):
+        Scene.from_dict(rotations)
+    rotations["subspace"]["active_clusters"] = 3
+    with pytest.warns(UserWarning, match="so it shapes the muscles' clusters only"):
+        Scene.from_dict(rotations)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # where they do something, nothing is said
+        Scene.from_dict(scene_with(ground={**ground, "exact_friction": True}))
+        Scene.from_dict(scene_with(subspace__cluster_weights=4))
