@@ -974,7 +974,7 @@ class Scene:
     def idle_warnings(self) -> list[str]:
         """Why each of ``time.warm_start`` and ``time.acceleration`` that is on does nothing under the scene's ground;
         and settings given that change nothing in this scene (``ground.exact_friction = false`` in 2D,
-        ``subspace.cluster_weights`` with passive clusters by rotations).
+        ``subspace.cluster_weights`` with passive clusters by rotations, a zero ``gravity.acceleration``).
 
         The simulator says the same as it is built (:func:`~skfem_modal.sim.idle_settings`); the scene says it
         to a command that builds none (``skfem-modal info``).
@@ -990,6 +990,8 @@ class Scene:
                 "ground.exact_friction = false changes nothing in 2D: a slide has one direction along the ground, "
                 "and its friction is exact either way"
             )
+        if c["gravity"] is not None and not np.any(c["gravity"]["acceleration"]):
+            said.append("gravity.acceleration is zero: the gravity effect does nothing (leave [gravity] out)")
         sub = c["subspace"]
         if sub["cluster_by"] == "rotations" and sub["cluster_weights"] is not None:
             muscle_clusters = c["muscles"]["count"] and sub["active_clusters"] > 1

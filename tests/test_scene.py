@@ -397,6 +397,8 @@ def test_settings_that_change_nothing_in_the_scene_are_warned_of():
     rotations["subspace"]["active_clusters"] = 3
     with pytest.warns(UserWarning, match="so it shapes the muscles' clusters only"):
         Scene.from_dict(rotations)
+    with pytest.warns(UserWarning, match=r"gravity.acceleration is zero: the gravity effect does nothing"):
+        Scene.from_dict(scene_with(gravity__acceleration=[0.0, 0.0], ground=None))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # where they do something, nothing is said
         Scene.from_dict(scene_with(ground={**ground, "exact_friction": True}))
