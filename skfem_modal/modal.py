@@ -28,7 +28,7 @@ import warnings
 
 import numpy as np
 
-from .eigen import _group_end, canonical_eigenpairs, canonical_repeated, generic_weight, sign_convention
+from .eigen import eigenpairs_by_part, generic_weight, sign_convention
 from .fem import (
     ELEMENTS,
     _lame,
@@ -235,7 +235,7 @@ def linear_modal_analysis(
     if k > n_known:
         weight = generic_weight(node_positions(mesh, element)).reshape(-1)[free]
         part_of_row = np.repeat(_node_parts(mesh, element), dim)[free]
-        ev, evec = _elastic_pairs(Kf, Mf, known, k - n_known, weight, dim, part_of_row)
+        ev, evec = eigenpairs_by_part(Kf, Mf, known, k - n_known, weight, dim, part_of_row)
         values[n_known:], vectors[:, n_known:] = ev, evec
         _check_elastic(ev, stiffness_scale(mesh, mu, lam, rho), n_known)
     if stop > n_rigid:
@@ -254,39 +254,6 @@ def linear_modal_analysis(
     modes = np.zeros((n_dofs, k))
     modes[free] = vectors
     return values[:k], modes
-
-
-def _elastic_pairs(K, M, known, count: int, weight, dim: int, part_of_row):
-    """The ``count`` lowest eigenpairs beside the ``known`` motions (n, q), part by part.
-
-    ``K`` and ``M`` (n, n) are block-diagonal by part (``part_of_row``, shape (n,)): each part is solved
-    alone for its own lowest pairs, then the lowest of all are kept, a repeated group whole before its
-    basis is fixed (:func:`~skfem_modal.eigen.canonical_repeated`). Identical parts repeat every
-    eigenvalue: solved together, 20 squares made shift-invert Lanczos give up with 1 of 7 modes.
-    Returns values (count,) and vectors (n, count) as :func:`~skfem_modal.eigen.canonical_eigenpairs`.
-    """
-    parts = np.unique(part_of_row)
-    if parts.size == 1:
-        return canonical_eigenpairs(K, M, count, weight, dim, null=known)  # known: the whole null space
-    K, M = K.tocsr(), M.tocsr()
-    found = []  # (value, rows, vector on them)
-    for part in parts:
-        rows = np.flatnonzero(part_of_row == part)
-        null = known[rows][:, np.abs(known[rows]).max(axis=0, initial=0.0) > 0]
-        wanted = min(count, rows.size - null.shape[1])
-        if wanted:
-            part_values, part_vectors = canonical_eigenpairs(
-                K[rows][:, rows], M[rows][:, rows], wanted, weight[rows], dim, null
-            )
-            found += [(value, rows, part_vectors[:, i]) for i, value in enumerate(part_values)]
-    values = np.array([value for value, _, _ in found])
-    order = np.argsort(values, kind="stable")  # ties in part order
-    end = _group_end(values[order], count - 1, max(float(np.abs(values).max()), 1e-300))
-    vectors = np.zeros((K.shape[0], end))
-    for column, i in enumerate(order[:end]):
-        vectors[found[i][1], column] = found[i][2]
-    values, vectors = canonical_repeated(values[order[:end]], vectors, M, weight)
-    return values[:count], sign_convention(vectors[:, :count])
 
 
 def stiffness_scale(mesh, mu=1.0, lam=1.0, rho=1.0) -> float:

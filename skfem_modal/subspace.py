@@ -18,7 +18,7 @@ import scipy.sparse as sps
 from skfem import asm
 from skfem.models.poisson import laplace
 
-from .eigen import canonical_eigenpairs, generic_weight
+from .eigen import eigenpairs_by_part, generic_weight
 from .fem import _mass, scalar_basis
 from .mesh import check_mesh, connected_parts
 from .values import is_whole
@@ -190,7 +190,8 @@ def skinning_eigenmodes(mesh, k: int, rho=1.0):
     values = np.einsum("ij,ij->j", indicators, L @ indicators)
     W = indicators
     if k > n_parts:
-        found, vectors = canonical_eigenpairs(L, M, k - n_parts, generic_weight(mesh.p.T, 1), null=indicators)
+        # part by part (identical parts repeat every eigenvalue, more than Lanczos resolves at once)
+        found, vectors = eigenpairs_by_part(L, M, indicators, k - n_parts, generic_weight(mesh.p.T, 1), 1, parts)
         values, W = np.concatenate([values, found]), np.hstack([indicators, vectors])
     # the homogeneous coordinate beside positions of the body's own size (the same span): far
     # from the origin, X and 1 would be nearly dependent columns, and Gram-Schmidt would
