@@ -1420,7 +1420,8 @@ def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndar
 
     Starts at ``start`` (default: the point with the smallest first coordinate,
     the first such on ties) and repeatedly adds the point farthest from the
-    chosen set (the first such on ties).
+    chosen set (the first such on ties), never one already picked: coincident
+    points are distinct rows.
 
     Parameters
     ----------
@@ -1446,18 +1447,20 @@ def farthest_point_sampling(points, k: int, start: int | None = None) -> np.ndar
     if not np.isfinite(pts).all():  # a NaN is no distance: the same point was picked k times
         raise ValueError("farthest_point_sampling: points must be finite")
     n = pts.shape[0]
-    if not 1 <= k <= n:
-        raise ValueError(f"farthest_point_sampling: k must be in 1..{n}, got {k}")
+    if not (is_whole(k) and 1 <= k <= n):
+        raise ValueError(f"farthest_point_sampling: k must be an integer in 1..{n}, got {k!r}")
+    if start is not None and not (is_whole(start) and 0 <= start < n):
+        raise ValueError(f"farthest_point_sampling: start must be an integer in 0..{n - 1}, got {start!r}")
     first = int(np.argmin(pts[:, 0])) if start is None else int(start)
-    if not 0 <= first < n:
-        raise ValueError(f"farthest_point_sampling: start must be in 0..{n - 1}, got {start}")
     chosen = np.empty(k, dtype=np.int64)
     chosen[0] = first
     distance = np.sqrt(((pts - pts[first]) ** 2).sum(axis=1))
+    distance[first] = -1.0  # picked: never again (a copy of a picked point is at 0, and is next in line)
     for i in range(1, k):
         nxt = int(np.argmax(distance))
         chosen[i] = nxt
         distance = np.minimum(distance, np.sqrt(((pts - pts[nxt]) ** 2).sum(axis=1)))
+        distance[nxt] = -1.0
     return chosen
 
 

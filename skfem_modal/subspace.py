@@ -206,8 +206,10 @@ def mass_orthonormalize(B, M, overwrite: bool = False) -> np.ndarray:
     Gram-Schmidt in column order (a QR factorisation of ``M^(1/2) B`` for a
     diagonal ``M``, a Cholesky factor of ``B^T M B`` otherwise), so
     ``B'^T M B' = I`` and every leading set of columns spans what it spanned
-    before. Columns that depend linearly on earlier ones are dropped, with a
-    warning.
+    before. Columns that depend linearly on others are dropped, with a
+    warning; then which go is a rank-revealing factorisation's choice (a
+    pivoted QR, or the eigenvectors of ``B^T M B``), the kept ones span all
+    of ``B``'s columns, and the leading ones no longer keep their own span.
 
     Parameters
     ----------
@@ -283,6 +285,10 @@ def _cholesky_qr2(A: np.ndarray, block: int = 1 << 15):
     ones. Returns None, with ``A`` untouched, when the columns are (nearly)
     dependent.
     """
+    if A.shape[1] > A.shape[0]:
+        # more columns than rows: certainly dependent (and a Gram matrix of 25344 columns, its product
+        # threaded, crashed the process in OpenBLAS 0.3.31)
+        return None
     norms = np.sqrt(np.einsum("ij,ij->j", A, A))
     exponents = np.round(np.log2(np.where(norms > 0, norms, 1.0))).astype(int)
     A *= np.ldexp(1.0, -exponents)

@@ -84,7 +84,7 @@ def test_k_larger_than_possible():
         skinning_eigenmodes(GOOD, 15)
     with pytest.raises(ValueError, match=r"number of clusters\) must be in 1..16"):
         spectral_clusters(GOOD, np.ones((15, 2)), 17)
-    with pytest.raises(ValueError, match=r"k must be in 1..15"):
+    with pytest.raises(ValueError, match=r"k must be an integer in 1..15"):
         sm.farthest_point_sampling(GOOD.p.T, 16)
 
 

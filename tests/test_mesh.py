@@ -116,8 +116,14 @@ def test_farthest_point_sampling_is_deterministic_and_spread():
     assert farthest_point_sampling(line[[1, 0, 2, 3]], 2).tolist() == [2, 3]
     assert farthest_point_sampling(np.array([[0.0], [1.0], [-1.0]]), 2, start=0).tolist() == [0, 1]  # 1 and -1 tie
     assert farthest_point_sampling(np.array([[0.0], [0.0], [1.0]]), 2).tolist() == [0, 2]  # two smallest x
-    with pytest.raises(ValueError, match="k must be in 1..4"):
+    with pytest.raises(ValueError, match="k must be an integer in 1..4"):
         farthest_point_sampling(line, 5)
+    # coincident points are distinct rows, each picked once (an audit: [0, 2, 0], and [0, 0, 0, 0] of 4 copies)
+    assert farthest_point_sampling(np.array([[0.0], [0.0], [1.0]]), 3).tolist() == [0, 2, 1]
+    assert farthest_point_sampling(np.zeros((4, 2)), 4).tolist() == [0, 1, 2, 3]
+    for k, start in ((2.0, None), (True, None), (2, 1.7)):  # numpy's own message, or a silent truncation
+        with pytest.raises(ValueError, match=r"farthest_point_sampling: (k|start) must be an integer"):
+            farthest_point_sampling(line, k, start=start)
 
 
 def test_vertices_where():
