@@ -250,8 +250,6 @@ class Player:
             if share < 1.0:
                 return start + share * (a - start)
             self._takeover = None
-        # a gait past a muscle's ceiling widens its slider, which shows the activation in effect
-        np.maximum(self.ranges, np.abs(a), out=self.ranges)
         return a
 
     # --------------------------------------------------------------- stats
@@ -335,7 +333,10 @@ class Player:
 
     def step(self) -> None:
         """One step of ``sim.h`` with the activations in effect, whatever the clock says."""
-        z_next = self.sim.step(self.z, self.z_dot, self.activation())
+        a = self.activation()
+        if self.gait_on:  # a gait past a muscle's ceiling widens its slider, which shows the activation in effect
+            np.maximum(self.ranges, np.abs(a), out=self.ranges)
+        z_next = self.sim.step(self.z, self.z_dot, a)
         self.z_dot = (z_next - self.z) / self.sim.h
         self.z = z_next
         self.n_steps += 1

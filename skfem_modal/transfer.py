@@ -252,7 +252,10 @@ def transfer_search(out_dir, *, full_space_limit: int = 10_000, progress=None) -
         writer = csv.DictWriter(f, COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    tip_limit_degrees = float(np.degrees(settings["tip_limit"]))
-    return {"rows": rows, "csv": path, "not_replayed": skipped, "unfinished": unfinished} | {
-        "tip_limit_degrees": tip_limit_degrees
+    return {
+        "rows": rows,
+        "csv": path,
+        "not_replayed": skipped,
+        "unfinished": unfinished,
+        "tip_limit_degrees": float(np.degrees(settings["tip_limit"])),
     }

@@ -332,7 +332,7 @@ def test_a_reference_that_does_not_settle_says_its_last_change_in_lengths(tmp_pa
     data = {**FLOATING, **GROUND, "ground": {**GROUND["ground"], "model": "reference"}}
     ref = study.run_reference(data, None, 3)
     assert ref["unsettled_steps"] == 3
-    scene = Scene.from_dict(study._steps_scene(data, 3))
+    scene = Scene.from_dict({**data, "time": {**data["time"], "steps": 3}})
     sim = scene.build_reference()
     records = list(simulate(sim, 3, lambda t: scene.activation(t, sim.ceilings)))
     changes = []
